@@ -1,0 +1,64 @@
+// `ablenerf info`: validates and summarises a dataset (loading it exactly as training does)
+// and/or a config (resolved keys and parameter count).
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "cli/command.h"
+#include "cli/common.h"
+#include "data/dataset.h"
+
+namespace ablenerf::cli {
+namespace {
+
+nlohmann::json dataset_summary(const Dataset& ds) {
+  nlohmann::json j;
+  j["root"] = ds.root;
+  j["format"] = ds.format;
+  j["width"] = ds.intrinsics.width;
+  j["height"] = ds.intrinsics.height;
+  j["focal"] = {ds.intrinsics.fx, ds.intrinsics.fy};
+  j["principal_point"] = {ds.intrinsics.cx, ds.intrinsics.cy};
+  j["near"] = ds.near;
+  j["far"] = ds.far;
+  nlohmann::json splits = nlohmann::json::object();
+  for (const auto& [name, s] : ds.splits) {
+    nlohmann::json sj;
+    sj["count"] = s.size();
+    auto centres = s.c2w.select(2, 3);  // (N,3)
+    auto mn = std::get<0>(centres.min(0)), mx = std::get<0>(centres.max(0));
+    sj["camera_centre_min"] = {mn[0].item<double>(), mn[1].item<double>(), mn[2].item<double>()};
+    sj["camera_centre_max"] = {mx[0].item<double>(), mx[1].item<double>(), mx[2].item<double>()};
+    auto radius = centres.norm(2, 1);
+    sj["camera_distance_min"] = radius.min().item<double>();
+    sj["camera_distance_max"] = radius.max().item<double>();
+    sj["mean_alpha"] = s.alpha.mean().item<double>();
+    sj["has_depth"] = s.depth.defined();
+    splits[name] = sj;
+  }
+  j["splits"] = splits;
+  return j;
+}
+
+void setup(CLI::App& app) {
+  auto data = std::make_shared<std::string>();
+  auto cfg = std::make_shared<ConfigOptions>();
+  app.add_option("--data", *data, "Dataset folder to validate and summarise");
+  cfg->add_to(app, false);
+  app.callback([data, cfg] {
+    nlohmann::json out;
+    if (!cfg->config_path.empty() || !cfg->sets.empty()) {
+      const Config c = resolve_config(*cfg);
+      out["config"] = config_summary(c);
+    }
+    if (!data->empty()) {
+      Config c = resolve_config(*cfg);
+      out["dataset"] = dataset_summary(Dataset::load(*data, load_options(c)));
+    }
+    if (out.is_null()) throw InputError("info", "--data", "give --data DIR and/or --config FILE");
+    std::cout << out.dump(2) << std::endl;
+  });
+}
+
+}  // namespace
+ABLENERF_COMMAND("info", 70, "Validate and summarise a dataset (--data) and/or a config (--config)", setup);
+}  // namespace ablenerf::cli

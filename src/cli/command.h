@@ -1,0 +1,39 @@
+#pragma once
+// Subcommand registry: each src/cli/cmd_*.cpp registers its subcommand with a static
+// ABLENERF_COMMAND(...) so that commands live in their own files and main.cpp stays generic.
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace ablenerf::cli {
+
+struct CommandSpec {
+  std::string name;
+  std::string help;
+  int order;  // position in --help
+  std::function<void(CLI::App&)> setup;  // adds options and a callback
+};
+
+std::vector<CommandSpec>& command_registry();
+
+struct CommandRegistrar {
+  explicit CommandRegistrar(CommandSpec spec) { command_registry().push_back(std::move(spec)); }
+};
+
+// Adds the repeated `--set section.key=value` and `--config FILE` handling shared by commands.
+struct ConfigOptions {
+  std::string config_path;
+  std::vector<std::string> sets;
+  void add_to(CLI::App& app, bool config_required);
+};
+
+}  // namespace ablenerf::cli
+
+#define ABLENERF_CAT2(a, b) a##b
+#define ABLENERF_CAT(a, b) ABLENERF_CAT2(a, b)
+#define ABLENERF_COMMAND(name, order, help, setup_fn)                                     \
+  static const ::ablenerf::cli::CommandRegistrar ABLENERF_CAT(ablenerf_cmd_, __LINE__) { \
+    ::ablenerf::cli::CommandSpec { name, help, order, setup_fn }                         \
+  }

@@ -1,0 +1,21 @@
+#pragma once
+// Helpers shared by the CLI commands.
+#include <nlohmann/json.hpp>
+
+#include "cli/command.h"
+#include "data/dataset.h"
+#include "util/config.h"
+#include "util/errors.h"
+
+namespace ablenerf::cli {
+
+// Defaults <- --config file <- --set overrides, validated.
+Config resolve_config(const ConfigOptions& opts);
+
+// Dataset load options from a config.
+LoadOptions load_options(const Config& c);
+
+// Resolved keys plus derived facts (parameter count) as JSON.
+nlohmann::json config_summary(const Config& c);
+
+}  // namespace ablenerf::cli

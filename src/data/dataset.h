@@ -1,0 +1,64 @@
+#pragma once
+// Datasets: the Blender format (transforms_{train,val,test}.json + PNGs) and the
+// instant-ngp / nerfstudio single transforms.json. Images are decoded, box-downscaled in
+// straight (non-premultiplied) RGBA, then composited on the background, and kept as one float
+// tensor per split. Rays are generated on the fly from poses (see rays.h), never tabulated.
+#include <torch/torch.h>
+
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "data/rays.h"
+
+namespace ablenerf {
+
+struct LoadOptions {
+  int downscale = 1;
+  bool white_background = true;
+  double near = 2.0, far = 6.0;
+  // Splits to decode; empty = all present. Others are still validated for pose/shape errors
+  // only when listed.
+  std::vector<std::string> splits;
+  // Refuse to start when the decoded images would need more than this many bytes
+  // (0 = use the machine's available memory).
+  int64_t memory_limit_bytes = 0;
+};
+
+struct Split {
+  std::string name;
+  torch::Tensor images;  // (N,H,W,3) float32 in [0,1], composited on the background
+  torch::Tensor alpha;   // (N,H,W) float32 alpha after downscale
+  torch::Tensor c2w;     // (N,3,4) float32 camera-to-world, OpenGL axes
+  std::vector<std::string> files;  // image paths
+  torch::Tensor depth;   // (N,H,W) float32 depth along the optical axis, if the dataset has it (else undefined)
+  int64_t size() const { return c2w.defined() ? c2w.size(0) : 0; }
+};
+
+struct Dataset {
+  std::string root;
+  std::string format;  // "blender" | "transforms"
+  Intrinsics intrinsics;
+  double near = 2.0, far = 6.0;
+  std::map<std::string, Split> splits;
+
+  bool has(const std::string& split) const { return splits.count(split) > 0; }
+  const Split& split(const std::string& name) const;
+
+  // Loads a dataset folder. Throws InputError naming the file and field on any bad input.
+  static Dataset load(const std::string& root, const LoadOptions& opts = {});
+};
+
+// Lists the splits a folder has (without decoding images).
+std::vector<std::string> available_splits(const std::string& root);
+
+// Reads a camera list (Blender/transforms json) for rendering: poses (N,3,4) and intrinsics,
+// without loading images. `width`/`height` > 0 rescale the intrinsics to that size.
+struct CameraList {
+  torch::Tensor c2w;
+  Intrinsics intrinsics;
+};
+CameraList load_cameras(const std::string& json_path, int width = 0, int height = 0);
+
+}  // namespace ablenerf

@@ -1,0 +1,1 @@
+// Placeholder translation unit; the demo-scene renderer lands here.

@@ -1,0 +1,79 @@
+#pragma once
+// Run configuration: one schema, enforced. Every key lives in exactly one place (the
+// visitor in config.cpp), is read from TOML, can be overridden as `--set section.key=value`,
+// and is written back as the run's resolved config. Unknown keys are errors.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace ablenerf {
+
+struct ModelConfig {
+  int width = 192;           // token width d
+  int heads = 3;             // attention heads (head dim = width / heads)
+  int ff_ratio = 3;          // feed-forward width = width * ff_ratio
+  int coarse_layers = 2;     // AB transformer blocks, coarse pass
+  int fine_layers = 6;       // AB transformer blocks, fine pass
+  int samples = 96;          // intervals per ray (coarse and fine)
+  int ipe_degrees = 16;      // IPE frequencies 2^0 .. 2^(ipe_degrees-1)
+  int le_count = 32;         // learnable embeddings; 0 = the paper's "no LE" ablation
+  int le_layers = 2;         // LE self-attention blocks
+  bool mask = true;          // causal volume mask of spec 4.3 (false = bidirectional ablation)
+  bool randomized = false;   // stratified jitter of coarse samples and resampling (released: off)
+  std::string view_encoding = "release";  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
+  double resample_padding = 0.01;         // added to every blurred weight before inverse-CDF sampling
+};
+
+struct DataConfig {
+  int downscale = 1;                  // integer box-downscale factor
+  std::string background = "white";   // "white" | "black"
+  double near = 2.0;
+  double far = 6.0;
+};
+
+struct TrainConfig {
+  int64_t steps = 234375;        // optimiser steps
+  int64_t rays_per_step = 8192;  // global batch
+  int64_t micro_batch = 1024;    // rays per forward/backward (gradient accumulation)
+  double lr_init = 5e-4;
+  double lr_final = 1e-4;
+  int64_t lr_warmup_steps = 1250;
+  double lr_warmup_mult = 0.01;
+  int64_t lr_decay_steps = 250000;  // log-linear decay length; 0 = the step budget
+  double coarse_weight = 1.0;
+  double fine_weight = 1.0;
+  int64_t seed = 4;
+  int64_t log_every = 100;       // steps between log.jsonl lines
+  int64_t eval_every = 5000;     // steps between held-out PSNR checks (0 = never)
+  int64_t eval_views = 4;        // held-out views used for that check
+  int64_t ckpt_every = 5000;     // steps between checkpoints (0 = only at the end)
+  int64_t max_bad_steps = 5;     // consecutive non-finite losses before the run stops
+};
+
+struct EvalConfig {
+  int64_t chunk = 4096;          // rays per forward when rendering
+  std::string ssim = "standard"; // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
+};
+
+struct Config {
+  ModelConfig model;
+  DataConfig data;
+  TrainConfig train;
+  EvalConfig eval;
+  std::string source = "<defaults>";  // where it came from, for error messages
+
+  // Loads a TOML file over the defaults. Throws InputError(file, key, ...) on any problem.
+  static Config load(const std::string& toml_path);
+  // Parses TOML text (`origin` names it in errors).
+  static Config parse(const std::string& toml_text, const std::string& origin);
+  // Applies "section.key=value"; throws InputError("--set", key, ...).
+  void set(const std::string& assignment);
+  // Checks ranges and consistency; throws InputError(source, key, ...).
+  void validate() const;
+  // The full resolved config as TOML text (every key).
+  std::string to_toml() const;
+  // All keys with their current values as strings, in schema order.
+  std::vector<std::pair<std::string, std::string>> items() const;
+};
+
+}  // namespace ablenerf

@@ -1,0 +1,73 @@
+#include "test_util.h"
+
+#include <sys/wait.h>
+
+#include <array>
+#include <atomic>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <stdexcept>
+
+namespace fs = std::filesystem;
+
+namespace ablenerf::test {
+
+TempDir::TempDir(const std::string& tag) {
+  std::random_device rd;
+  for (int attempt = 0; attempt < 100; ++attempt) {
+    const fs::path p = fs::temp_directory_path() / (tag + "_" + std::to_string(rd()));
+    std::error_code ec;
+    if (fs::create_directory(p, ec)) {
+      path_ = p.string();
+      return;
+    }
+  }
+  throw std::runtime_error("cannot create a temporary folder");
+}
+
+TempDir::~TempDir() {
+  std::error_code ec;
+  fs::remove_all(path_, ec);
+}
+
+std::string source_dir() {
+  if (const char* s = std::getenv("ABLENERF_SOURCE_DIR")) return s;
+  return ABLENERF_SOURCE_DIR;
+}
+
+std::string lego_dir() {
+  const fs::path p = fs::path(source_dir()) / ".." / "shared" / "data" / "nerf_synthetic" / "lego";
+  return fs::exists(p / "transforms_train.json") ? p.string() : std::string();
+}
+
+std::string shared_weights_dir() {
+  const fs::path p = fs::path(source_dir()) / ".." / "shared" / "weights";
+  return fs::exists(p) ? p.string() : std::string();
+}
+
+CommandResult run_cli(const std::string& args) {
+  const char* bin = std::getenv("ABLENERF_BIN");
+  if (!bin) throw std::runtime_error("ABLENERF_BIN is not set (run the tests through ctest)");
+  const std::string cmd = std::string(bin) + " " + args + " 2>&1";
+  CommandResult r;
+  FILE* pipe = ::popen(cmd.c_str(), "r");
+  if (!pipe) throw std::runtime_error("popen failed");
+  std::array<char, 4096> buf{};
+  size_t n;
+  while ((n = std::fread(buf.data(), 1, buf.size(), pipe)) > 0) r.output.append(buf.data(), n);
+  const int status = ::pclose(pipe);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
+}
+
+void write_file(const std::string& path, const std::string& text) {
+  fs::create_directories(fs::path(path).parent_path());
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+  if (!out) throw std::runtime_error("cannot write " + path);
+}
+
+}  // namespace ablenerf::test
