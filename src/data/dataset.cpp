@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <cctype>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -18,12 +20,69 @@ namespace ablenerf {
 
 namespace {
 
+// JSON has no non-finite numbers, but Python's json module writes NaN / Infinity / -Infinity and
+// a literal like 1e999 overflows a double. Both are rewritten to the string "non-finite" so that
+// the field that holds them can be named in the error (see is_nonfinite_marker).
+const char* const kNonFinite = "\"non-finite\"";
+
+std::string mark_nonfinite(const std::string& text) {
+  std::string out;
+  out.reserve(text.size());
+  bool in_string = false;
+  for (size_t i = 0; i < text.size();) {
+    const char c = text[i];
+    if (in_string) {
+      out += c;
+      if (c == '\\' && i + 1 < text.size()) out += text[++i];
+      else if (c == '"') in_string = false;
+      ++i;
+      continue;
+    }
+    if (c == '"') {
+      in_string = true;
+      out += c;
+      ++i;
+      continue;
+    }
+    bool matched = false;
+    for (const char* tok : {"-Infinity", "Infinity", "NaN"}) {
+      const size_t n = std::char_traits<char>::length(tok);
+      if (text.compare(i, n, tok) == 0) {
+        out += kNonFinite;
+        i += n;
+        matched = true;
+        break;
+      }
+    }
+    if (matched) continue;
+    if (c == '-' || (c >= '0' && c <= '9')) {
+      size_t j = i + 1;
+      while (j < text.size() && (std::isdigit(static_cast<unsigned char>(text[j])) || text[j] == '.' ||
+                                 text[j] == 'e' || text[j] == 'E' || text[j] == '+' || text[j] == '-'))
+        ++j;
+      const std::string num = text.substr(i, j - i);
+      const double v = std::strtod(num.c_str(), nullptr);
+      out += std::isfinite(v) ? num : std::string(kNonFinite);
+      i = j;
+      continue;
+    }
+    out += c;
+    ++i;
+  }
+  return out;
+}
+
+bool is_nonfinite_marker(const json& v) { return v.is_string() && v.get<std::string>() == "non-finite"; }
+
 json parse_json_file(const std::string& path) {
-  const std::string text = read_text_file(path);
+  const std::string text = mark_nonfinite(read_text_file(path));
   try {
     return json::parse(text);
   } catch (const json::parse_error& e) {
     throw InputError(path, "byte " + std::to_string(e.byte), "invalid JSON");
+  } catch (const json::exception& e) {
+    // e.g. a number too large for a double (1e999): nlohmann reports it as out_of_range.
+    throw InputError(path, "", std::string("invalid JSON (") + e.what() + ")");
   }
 }
 
@@ -32,6 +91,7 @@ double number_field(const json& j, const std::string& key, const std::string& fi
   const std::string field = where.empty() ? key : where + "." + key;
   if (!j.is_object() || !j.contains(key)) throw InputError(file, field, "missing");
   const json& v = j.at(key);
+  if (is_nonfinite_marker(v)) throw InputError(file, field, "must be finite");
   if (!v.is_number()) throw InputError(file, field, "expected a number");
   const double d = v.get<double>();
   if (!std::isfinite(d)) throw InputError(file, field, "must be finite");
@@ -46,6 +106,7 @@ torch::Tensor parse_pose(const json& m, const std::string& file, const std::stri
   for (size_t r = 0; r < m.size(); ++r) {
     if (!m[r].is_array() || m[r].size() != 4) throw InputError(file, field, "expected rows of 4 numbers");
     for (size_t c = 0; c < 4; ++c) {
+      if (is_nonfinite_marker(m[r][c])) throw InputError(file, field, "non-finite value");
       if (!m[r][c].is_number()) throw InputError(file, field, "expected numbers");
       a[r][c] = m[r][c].get<double>();
       if (!std::isfinite(a[r][c])) throw InputError(file, field, "non-finite value");
