@@ -1,15 +1,80 @@
-// `ablenerf metrics`: placeholder until its issue lands.
+// `ablenerf metrics`: PSNR, SSIM and LPIPS of one image pair, printed as one JSON object.
+//
+// Images are read with read_rgb_for_metrics: RGBA is composited on white (the Blender dataset
+// convention), greyscale is replicated to RGB. JSON has no infinity, so identical images print
+// "psnr": null with a "psnr_note"; "mse" is always printed. Without LPIPS weights (no
+// --lpips-weights, no $ABLENERF_LPIPS_WEIGHTS, no shared weights beside the repository) or for
+// images smaller than AlexNet accepts, "lpips" is null and "lpips_note" says why.
+#include <cmath>
 #include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
 
 #include "cli/command.h"
+#include "eval/lpips.h"
+#include "eval/metrics.h"
 #include "util/errors.h"
 
 namespace ablenerf::cli {
 namespace {
-void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("metrics", "", "not yet implemented"); });
+
+struct MetricsArgs {
+  std::string ref, img, lpips_weights, ssim = "standard";
+};
+
+std::string size_str(const torch::Tensor& im) {
+  return std::to_string(im.size(1)) + "x" + std::to_string(im.size(0));
 }
+
+void run(const MetricsArgs& a) {
+  const SsimVariant variant = parse_ssim_variant(a.ssim, "metrics", "--ssim");
+  const torch::Tensor ref = read_rgb_for_metrics(a.ref);
+  const torch::Tensor img = read_rgb_for_metrics(a.img);
+  if (ref.sizes() != img.sizes())
+    throw InputError(a.img, "", "is " + size_str(img) + " but " + a.ref + " is " + size_str(ref) +
+                                    "; the images must have the same size");
+  if (variant == SsimVariant::Standard && (ref.size(0) < kSsimWindow || ref.size(1) < kSsimWindow))
+    throw InputError(a.ref, "", "standard SSIM needs images of at least " + std::to_string(kSsimWindow) +
+                                    "x" + std::to_string(kSsimWindow) + " (use --ssim release)");
+
+  nlohmann::json out;
+  const double p = psnr(img, ref);
+  out["mse"] = mse(img, ref);
+  if (std::isinf(p)) {
+    out["psnr"] = nullptr;
+    out["psnr_note"] = "identical images (MSE 0): PSNR is +infinity";
+  } else {
+    out["psnr"] = p;
+  }
+  out["ssim"] = ssim(img, ref, variant);
+  out["ssim_variant"] = ssim_variant_name(variant);
+
+  const std::string weights = a.lpips_weights.empty() ? default_lpips_weights_path() : a.lpips_weights;
+  if (weights.empty()) {
+    out["lpips"] = nullptr;
+    out["lpips_note"] = "no LPIPS weights: pass --lpips-weights FILE or set ABLENERF_LPIPS_WEIGHTS";
+  } else if (ref.size(0) < Lpips::kMinSide || ref.size(1) < Lpips::kMinSide) {
+    out["lpips"] = nullptr;
+    out["lpips_note"] = "images smaller than " + std::to_string(Lpips::kMinSide) + "x" +
+                        std::to_string(Lpips::kMinSide) + " are too small for LPIPS (AlexNet)";
+  } else {
+    out["lpips"] = Lpips(weights).distance(img, ref);
+    out["lpips_net"] = "alex-v0.1";
+  }
+  std::cout << out.dump(2) << std::endl;
+}
+
+void setup(CLI::App& app) {
+  auto a = std::make_shared<MetricsArgs>();
+  app.add_option("--ref", a->ref, "Reference (ground-truth) PNG")->required();
+  app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)")->required();
+  app.add_option("--lpips-weights", a->lpips_weights,
+                 "LPIPS AlexNet v0.1 weights (default: $ABLENERF_LPIPS_WEIGHTS or ../shared/weights)");
+  app.add_option("--ssim", a->ssim, "SSIM variant: standard (mip-NeRF, valid) or release (authors', zero-padded)")
+      ->capture_default_str();
+  app.callback([a] { run(*a); });
+}
+
 }  // namespace
 ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair", setup);
 }  // namespace ablenerf::cli

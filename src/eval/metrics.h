@@ -1,0 +1,49 @@
+#pragma once
+// Image quality metrics on (H,W,3) float images in [0,1] (spec §9): PSNR and two SSIM variants.
+// Inputs may live on any device and have any floating dtype; the arithmetic runs in float64 so
+// that scores do not depend on the input precision. LPIPS lives in eval/lpips.h.
+#include <torch/torch.h>
+
+#include <string>
+
+namespace ablenerf {
+
+// PSNR in dB for data range 1: -10 log10(MSE) over every pixel and channel.
+// Identical images (MSE == 0) give +infinity (std::numeric_limits<double>::infinity()),
+// always; callers that serialise to JSON must handle it (JSON has no infinity).
+double psnr(const torch::Tensor& img, const torch::Tensor& ref);
+
+// Mean squared error over every pixel and channel (float64).
+double mse(const torch::Tensor& img, const torch::Tensor& ref);
+
+enum class SsimVariant {
+  // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
+  // the valid map and channels; variances clamped at 0 and the covariance bounded by
+  // sqrt(var_x var_y) as in multinerf. Needs images of at least 11x11.
+  Standard,
+  // The ABLE-NeRF authors' release: same window, zero padding of 5 ("same"-size map), mean over
+  // the full map including the zero-padded borders, no clamping (biased low near borders).
+  Release,
+};
+
+// Parses "standard" / "release"; throws InputError(source, field, ...) for anything else.
+SsimVariant parse_ssim_variant(const std::string& name, const std::string& source = "",
+                               const std::string& field = "ssim");
+const char* ssim_variant_name(SsimVariant v);
+
+// SSIM window parameters shared by both variants (data range 1).
+constexpr int kSsimWindow = 11;
+constexpr double kSsimSigma = 1.5;
+constexpr double kSsimK1 = 0.01;
+constexpr double kSsimK2 = 0.03;
+
+// Mean SSIM of two (H,W,C) images of the same shape.
+double ssim(const torch::Tensor& img, const torch::Tensor& ref,
+            SsimVariant variant = SsimVariant::Standard);
+
+// Reads a PNG as float (H,W,3) in [0,1] for scoring. RGBA is composited on a white background
+// (rgb * a + (1 - a)), the Blender dataset convention used for training and evaluation;
+// greyscale is replicated to three channels. Throws InputError naming the file.
+torch::Tensor read_rgb_for_metrics(const std::string& path);
+
+}  // namespace ablenerf
