@@ -1,0 +1,81 @@
+#include "synth/camera.h"
+
+#include <cmath>
+#include <random>
+
+namespace ablenerf::synth {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = kPi / 180.0;
+// The golden angle as a fraction of a turn: (3 - sqrt 5) / 2 gives the most even spiral.
+const double kGoldenTurn = 0.5 * (3.0 - std::sqrt(5.0));
+// Test orbit starts facing the -y side of the scene (azimuth -90 degrees).
+constexpr double kTestStartAzimuthDeg = -90.0;
+
+// A uniform double in [0,1) from the top 53 bits: identical on every standard library, unlike
+// std::uniform_real_distribution.
+double unit_uniform(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
+
+Vec3 spherical(double elevation, double azimuth) {
+  return Vec3{std::cos(elevation) * std::cos(azimuth), std::cos(elevation) * std::sin(azimuth),
+              std::sin(elevation)} *
+         kCameraDistance;
+}
+
+}  // namespace
+
+double focal_from_angle(int width, double angle_x) { return 0.5 * width / std::tan(0.5 * angle_x); }
+
+Camera look_at_origin(const Vec3& centre, int res) {
+  const Vec3 back = normalize(centre);  // camera z: from the origin towards the camera
+  const Vec3 right = normalize(cross(Vec3{0, 0, 1}, back));
+  const Vec3 up = cross(back, right);
+  Camera cam;
+  const Vec3 cols[4] = {right, up, back, centre};
+  for (int c = 0; c < 4; ++c) {
+    cam.c2w[0][c] = cols[c].x;
+    cam.c2w[1][c] = cols[c].y;
+    cam.c2w[2][c] = cols[c].z;
+  }
+  cam.width = cam.height = res;
+  cam.focal = focal_from_angle(res, kCameraAngleX);
+  return cam;
+}
+
+Ray camera_ray(const Camera& cam, double px, double py) {
+  const double x = (px - 0.5 * cam.width) / cam.focal;
+  const double y = -(py - 0.5 * cam.height) / cam.focal;
+  const Vec3 d = cam.axis(0) * x + cam.axis(1) * y - cam.axis(2);
+  return {cam.centre(), d};
+}
+
+std::vector<Camera> train_cameras(int count, int res, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const double stratum_offset = unit_uniform(rng);
+  const double rotation = unit_uniform(rng);
+  // Uniform by area on the band: sin(elevation) uniform between the band's limits.
+  const double z_lo = std::sin(kMinElevationDeg * kDeg), z_hi = std::sin(kMaxElevationDeg * kDeg);
+  std::vector<Camera> cams;
+  cams.reserve(static_cast<size_t>(count));
+  for (int k = 0; k < count; ++k) {
+    const double z = z_lo + (z_hi - z_lo) * (k + stratum_offset) / count;
+    const double turn = k * kGoldenTurn + rotation;
+    const double azimuth = 2.0 * kPi * (turn - std::floor(turn));
+    cams.push_back(look_at_origin(spherical(std::asin(z), azimuth), res));
+  }
+  return cams;
+}
+
+std::vector<Camera> test_cameras(int count, int res) {
+  std::vector<Camera> cams;
+  cams.reserve(static_cast<size_t>(count));
+  for (int k = 0; k < count; ++k) {
+    const double azimuth = kTestStartAzimuthDeg * kDeg + 2.0 * kPi * k / count;
+    cams.push_back(look_at_origin(spherical(kTestElevationDeg * kDeg, azimuth), res));
+  }
+  return cams;
+}
+
+}  // namespace ablenerf::synth

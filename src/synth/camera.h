@@ -1,0 +1,45 @@
+#pragma once
+// Cameras of the demo dataset: Blender/OpenGL camera-to-world poses on the upper hemisphere,
+// looking at the origin, and primary rays generated exactly like src/data/rays.h does.
+#include <cstdint>
+#include <vector>
+
+#include "synth/vec3.h"
+#include "synth/world.h"
+
+namespace ablenerf::synth {
+
+constexpr double kCameraAngleX = 0.6911112;  // Blender lego's horizontal field of view
+constexpr double kCameraDistance = 4.0;
+constexpr double kMinElevationDeg = 10.0, kMaxElevationDeg = 80.0;  // train views
+constexpr double kTestElevationDeg = 30.0;                          // test orbit
+
+struct Camera {
+  // Camera-to-world (3 rows of 4): columns are camera right, up, backwards (it looks down -z),
+  // and the camera centre.
+  double c2w[3][4] = {{0}};
+  int width = 0, height = 0;
+  double focal = 1.0;  // pixels; fx = fy, principal point at the image centre
+  Vec3 centre() const { return {c2w[0][3], c2w[1][3], c2w[2][3]}; }
+  Vec3 axis(int col) const { return {c2w[0][col], c2w[1][col], c2w[2][col]}; }
+};
+
+// f = 0.5 W / tan(0.5 angle_x).
+double focal_from_angle(int width, double angle_x);
+
+// A square res x res camera at `centre` looking at the origin with +z as the up hint.
+Camera look_at_origin(const Vec3& centre, int res);
+
+// The ray through continuous pixel coordinates (px, py) (pixel (i, j)'s centre is
+// (i + 0.5, j + 0.5)): direction R ((px - W/2)/f, -(py - H/2)/f, -1), not normalised, so its
+// t equals depth along the optical axis.
+Ray camera_ray(const Camera& cam, double px, double py);
+
+// Train views: a golden-angle spiral covering the elevation band uniformly by area, with a
+// seed-dependent rotation and stratum offset (std::mt19937_64, portable conversion to [0,1)).
+std::vector<Camera> train_cameras(int count, int res, uint64_t seed);
+
+// Test views: an evenly spaced orbit at kTestElevationDeg (independent of the seed).
+std::vector<Camera> test_cameras(int count, int res);
+
+}  // namespace ablenerf::synth

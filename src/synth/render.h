@@ -1,0 +1,30 @@
+#pragma once
+// Supersampled rendering of one view of the demo scene: straight-alpha sRGB RGBA plus the
+// exact optical-axis depth of each pixel's centre ray.
+#include <vector>
+
+#include "synth/camera.h"
+
+namespace ablenerf::synth {
+
+// Sub-samples per pixel side on a fixed grid at offsets (k + 0.5) / n. With an odd n the middle
+// sub-sample is the pixel centre, so a pixel with depth > 0 always has alpha > 0.
+constexpr int kSubsamplesPerAxis = 3;
+
+struct ViewImage {
+  int width = 0, height = 0;
+  // Row-major (H, W, 4): sRGB-encoded colour in [0,1] averaged (in linear space) over the
+  // sub-samples that hit an object, then alpha = the fraction that hit. RGB = 0 where alpha = 0.
+  std::vector<float> rgba;
+  // Row-major (H, W): t of the pixel-centre ray's first hit (= camera-space -z), 0 on a miss.
+  std::vector<float> depth;
+};
+
+// Renders with `threads` workers over rows (<= 0: hardware concurrency). The result does not
+// depend on the thread count: every pixel is computed independently.
+ViewImage render_view(const Camera& cam, int threads = 1);
+
+// IEC 61966-2-1 sRGB transfer function for a linear value in [0,1].
+double linear_to_srgb(double linear);
+
+}  // namespace ablenerf::synth
