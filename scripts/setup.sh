@@ -12,6 +12,7 @@ packages=(
   g++ cmake make pkg-config
   libtorch-dev libopenblas0-pthread       # tensors, autograd; the fast BLAS it should use
   libcli11-dev nlohmann-json3-dev libtomlplusplus-dev libpng-dev
+  libgloo-dev                             # headers for c10d's Gloo backend (multi-process training)
   libgtest-dev libgmock-dev libbenchmark-dev
   ffmpeg                                  # MP4 output of `ablenerf render`
 )

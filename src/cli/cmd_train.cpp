@@ -1,15 +1,71 @@
-// `ablenerf train`: placeholder until its issue lands.
+// `ablenerf train`: trains a model on a dataset into a run folder (see train/trainer.h).
+#include <cstdlib>
 #include <iostream>
 
 #include "cli/command.h"
-#include "util/errors.h"
+#include "cli/common.h"
+#include "eval/run_folder.h"
+#include "train/distributed.h"
+#include "train/trainer.h"
 
 namespace ablenerf::cli {
 namespace {
+
+struct TrainArgs {
+  std::string data, out, device = "auto", backend = "gloo";
+  bool resume = false;
+  int64_t max_steps = -1;
+  double dist_timeout = 120;
+  ConfigOptions cfg;
+};
+
 void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("train", "", "not yet implemented"); });
+  auto a = std::make_shared<TrainArgs>();
+  app.add_option("--data", a->data, "Dataset folder (Blender or transforms.json format)");
+  app.add_option("--out", a->out, "Run folder to create (or continue with --resume)")->required();
+  app.add_flag("--resume", a->resume, "Continue the run in --out from its last checkpoint (starts fresh if none)");
+  app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)");
+  app.add_option("--stop-after", a->max_steps, "Checkpoint and stop after this many steps of this invocation");
+  app.add_option("--dist-backend", a->backend, "c10d backend when WORLD_SIZE > 1: gloo (CPU) or nccl (CUDA)");
+  app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
+  a->cfg.add_to(app, false);
+  app.footer(
+      "Multi-process: set torchrun's RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, MASTER_PORT (see README).\n"
+      "With --resume and no --config, the run's own config.toml is used.");
+  app.callback([a] {
+    Config config;
+    if (a->resume && a->cfg.config_path.empty() && std::filesystem::exists(a->out + "/config.toml")) {
+      config = RunFolder::open(a->out).config;
+      for (const auto& s : a->cfg.sets) config.set(s);
+      config.validate();
+    } else {
+      config = resolve_config(a->cfg);
+    }
+    TrainOptions o;
+    o.data_dir = a->data;
+    o.out_dir = a->out;
+    o.resume = a->resume;
+    o.max_steps_this_run = a->max_steps;
+    o.device = parse_device(a->device);
+    const DistEnv env = DistEnv::from_environment();
+    if (env.local_rank > 0 && o.device.is_cuda()) o.device = torch::Device(torch::kCUDA, env.local_rank);
+    std::unique_ptr<Distributed> dist;
+    if (env.world_size > 1) {
+      dist = Distributed::join(env, a->backend, a->dist_timeout);
+      o.dist = dist.get();
+    }
+    install_interrupt_handlers();
+    try {
+      const TrainResult r = train(config, o);
+      if (r == TrainResult::Interrupted) std::exit(kExitInterrupted);
+    } catch (const TrainingDiverged& e) {
+      std::cerr << "error: " << e.what() << std::endl;
+      std::exit(kExitDiverged);
+    }
+    if (env.rank == 0) std::cerr << "train: run written to " << a->out << std::endl;
+  });
 }
+
 }  // namespace
-ABLENERF_COMMAND("train", 20, "Train a model on a dataset", setup);
+ABLENERF_COMMAND("train", 20, "Train a model on a dataset (writes a run folder: config, checkpoints, log, weights)", setup);
 }  // namespace ablenerf::cli

@@ -11,6 +11,18 @@ Config resolve_config(const ConfigOptions& opts) {
   return c;
 }
 
+torch::Device parse_device(const std::string& name) {
+  if (name == "auto") return torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+  try {
+    torch::Device d(name);
+    if (d.is_cuda() && !torch::cuda::is_available())
+      throw InputError("--device", name, "CUDA is not available in this build or on this machine");
+    return d;
+  } catch (const c10::Error&) {
+    throw InputError("--device", name, "expected cpu, cuda, cuda:N or auto");
+  }
+}
+
 LoadOptions load_options(const Config& c) {
   LoadOptions o;
   o.downscale = c.data.downscale;

@@ -12,6 +12,9 @@ namespace ablenerf::cli {
 // Defaults <- --config file <- --set overrides, validated.
 Config resolve_config(const ConfigOptions& opts);
 
+// "cpu", "cuda", "cuda:N" or "auto" (CUDA when available); InputError otherwise.
+torch::Device parse_device(const std::string& name);
+
 // Dataset load options from a config.
 LoadOptions load_options(const Config& c);
 

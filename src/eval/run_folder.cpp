@@ -1,0 +1,58 @@
+#include "eval/run_folder.h"
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "util/errors.h"
+#include "util/fs.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+
+RunFolder RunFolder::open(const std::string& dir) {
+  if (!fs::is_directory(dir)) throw InputError(dir, "", "run folder not found");
+  RunFolder r;
+  r.dir = dir;
+  const std::string cfg = r.path("config.toml");
+  if (!fs::exists(cfg)) throw InputError(cfg, "", "missing (not a run folder written by `ablenerf train`)");
+  r.config = Config::load(cfg);
+  const std::string info = r.path("run.json");
+  if (fs::exists(info)) {
+    nlohmann::json j;
+    try {
+      j = nlohmann::json::parse(read_text_file(info));
+    } catch (const nlohmann::json::exception& e) {
+      throw InputError(info, "", "invalid JSON");
+    }
+    if (!j.is_object() || !j.contains("data") || !j["data"].is_string())
+      throw InputError(info, "data", "missing or not a string");
+    r.data_dir = j["data"].get<std::string>();
+  }
+  return r;
+}
+
+RunFolder RunFolder::create(const std::string& dir, const Config& config, const std::string& data_dir) {
+  ensure_dir(dir);
+  RunFolder r;
+  r.dir = dir;
+  r.config = config;
+  r.data_dir = data_dir.empty() ? std::string() : fs::absolute(data_dir).lexically_normal().string();
+  atomic_write_text(r.path("config.toml"), config.to_toml());
+  nlohmann::json j;
+  j["data"] = r.data_dir;
+  j["version"] = ABLENERF_VERSION;
+  atomic_write_text(r.path("run.json"), j.dump(2) + "\n");
+  return r;
+}
+
+AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
+  AbleNerf model(run.config.model);
+  if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "missing (the run has no weights yet)");
+  load_weights(model, run.weights_path());
+  model->to(device);
+  model->eval();
+  return model;
+}
+
+}  // namespace ablenerf

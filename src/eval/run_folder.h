@@ -1,0 +1,40 @@
+#pragma once
+// A run folder, the unit that `train` writes and `eval`, `render`, `export` read:
+//   RUN/config.toml     resolved config (every key)
+//   RUN/run.json        {"data": dataset folder, "version": ablenerf version}
+//   RUN/weights.pt      latest model weights (save_weights format, torch.load-able dict)
+//   RUN/checkpoint.pt   full training state (model, Adam, step, RNG), checksummed; see train/checkpoint.h
+//   RUN/log.jsonl       one JSON object per line: {"type":"train", step, loss, psnr, lr, rays_per_s,
+//                       elapsed_s} or {"type":"eval", step, psnr, views, split}
+//   RUN/eval/SPLIT/     eval outputs (images, error and depth maps, metrics.json)
+//   RUN/report.html     the self-contained report
+#include <torch/torch.h>
+
+#include <string>
+
+#include "model/able_nerf.h"
+#include "util/config.h"
+
+namespace ablenerf {
+
+struct RunFolder {
+  std::string dir;
+  Config config;
+  std::string data_dir;
+
+  // Reads RUN/config.toml and RUN/run.json; InputError naming the file when absent or bad.
+  static RunFolder open(const std::string& dir);
+  // Creates the folder and writes config.toml and run.json atomically.
+  static RunFolder create(const std::string& dir, const Config& config, const std::string& data_dir);
+
+  std::string path(const std::string& name) const { return dir + "/" + name; }
+  std::string weights_path() const { return path("weights.pt"); }
+  std::string checkpoint_path() const { return path("checkpoint.pt"); }
+  std::string log_path() const { return path("log.jsonl"); }
+  std::string report_path() const { return path("report.html"); }
+};
+
+// The run's model with its latest weights, in eval mode, on `device`.
+AbleNerf load_run_model(const RunFolder& run, const torch::Device& device);
+
+}  // namespace ablenerf

@@ -1,0 +1,21 @@
+#pragma once
+// Learning-rate schedule of the release (spec section 8): a sine warm-up from lr_warmup_mult of the
+// base rate over lr_warmup_steps, times a log-linear decay from lr_init to lr_final over
+// lr_decay_steps (constant lr_final afterwards). Step s counts optimiser steps from 0.
+#include <cstdint>
+
+#include "util/config.h"
+
+namespace ablenerf {
+
+class LrSchedule {
+ public:
+  explicit LrSchedule(const TrainConfig& c);
+  double operator()(int64_t step) const;
+
+ private:
+  double init_, final_, warmup_mult_;
+  int64_t warmup_steps_, decay_steps_;
+};
+
+}  // namespace ablenerf

@@ -1,0 +1,35 @@
+#include "train/ray_batch.h"
+
+namespace ablenerf {
+
+RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed)
+    : k_(k), gen_(at::detail::createCPUGenerator(seed)) {
+  images_ = split.images.reshape({-1, 3}).to(device);
+  c2w_ = split.c2w.to(device);
+  pixels_ = images_.size(0);
+}
+
+torch::Tensor RaySampler::draw(int64_t global_size) {
+  return torch::randint(pixels_, {global_size}, gen_, torch::TensorOptions().dtype(torch::kLong));
+}
+
+RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
+  auto idx = flat_indices.to(images_.device());
+  const int64_t per_image = static_cast<int64_t>(k_.width) * k_.height;
+  auto image = idx.div(per_image, "floor");
+  auto pix = idx - image * per_image;
+  auto row = pix.div(k_.width, "floor");
+  auto col = pix - row * k_.width;
+  return {rays_for_pixels(c2w_.index_select(0, image), col, row, k_), images_.index_select(0, idx)};
+}
+
+RayBatch RaySampler::next(int64_t global_size, int rank, int world) {
+  auto idx = draw(global_size);
+  const int64_t begin = global_size * rank / world, end = global_size * (rank + 1) / world;
+  return gather(idx.slice(0, begin, end));
+}
+
+torch::Tensor RaySampler::rng_state() const { return gen_.get_state(); }
+void RaySampler::set_rng_state(const torch::Tensor& state) { gen_.set_state(state); }
+
+}  // namespace ablenerf

@@ -1,0 +1,46 @@
+#pragma once
+// Training batches: rays drawn uniformly across every pixel of every training image, generated on
+// the fly from the poses (spec 1.3: no table of all rays). Every process of a data-parallel group
+// draws the same global batch from one identically seeded stream and keeps its own slice, so a
+// run does not depend on how many processes share it.
+#include <torch/torch.h>
+
+#include "data/dataset.h"
+#include "data/rays.h"
+
+namespace ablenerf {
+
+struct RayBatch {
+  Rays rays;
+  torch::Tensor target;  // (B,3)
+  int64_t size() const { return target.size(0); }
+  RayBatch slice(int64_t begin, int64_t end) const { return {rays.slice(begin, end), target.slice(0, begin, end)}; }
+};
+
+class RaySampler {
+ public:
+  // images (N,H,W,3) and c2w (N,3,4) are moved to `device` once.
+  RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed);
+
+  // The next global batch of `global_size` rays; returns this rank's slice
+  // [rank*global/world, (rank+1)*global/world).
+  RayBatch next(int64_t global_size, int rank = 0, int world = 1);
+
+  // The pixel indices of the next global batch (advances the stream); exposed for tests.
+  torch::Tensor draw(int64_t global_size);
+  RayBatch gather(const torch::Tensor& flat_indices) const;
+
+  // The random stream's state, for checkpoints.
+  torch::Tensor rng_state() const;
+  void set_rng_state(const torch::Tensor& state);
+
+  int64_t pixel_count() const { return pixels_; }
+
+ private:
+  torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
+  Intrinsics k_;
+  int64_t pixels_;
+  torch::Generator gen_;  // CPU stream: identical on every device and rank
+};
+
+}  // namespace ablenerf

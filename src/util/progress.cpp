@@ -1,0 +1,55 @@
+#include "util/progress.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+
+namespace ablenerf {
+
+Progress::Progress(std::string label, int64_t total, double min_interval_s)
+    : label_(std::move(label)),
+      total_(total),
+      min_interval_(min_interval_s),
+      tty_(::isatty(STDERR_FILENO) != 0),
+      start_(std::chrono::steady_clock::now()),
+      last_print_(start_) {}
+
+double Progress::elapsed_seconds() const {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+}
+
+std::string Progress::format_duration(double s) {
+  if (!std::isfinite(s) || s < 0) return "?";
+  const long t = std::lround(s);
+  char buf[32];
+  if (t >= 3600)
+    std::snprintf(buf, sizeof buf, "%ldh%02ldm", t / 3600, (t / 60) % 60);
+  else
+    std::snprintf(buf, sizeof buf, "%ldm%02lds", t / 60, t % 60);
+  return buf;
+}
+
+void Progress::update(int64_t done, const std::string& fields, bool force) {
+  if (start_done_ < 0) start_done_ = done;  // a resumed run starts counting from where it is
+  const auto now = std::chrono::steady_clock::now();
+  const double since = std::chrono::duration<double>(now - last_print_).count();
+  const double interval = tty_ ? 0.25 : min_interval_;
+  if (!force && since < interval && done < total_) return;
+  last_print_ = now;
+  const double el = elapsed_seconds();
+  const double rate = el > 0 ? static_cast<double>(done - start_done_) / el : 0.0;
+  const double eta = rate > 0 ? static_cast<double>(total_ - done) / rate : NAN;
+  const double pct = total_ > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total_) : 100.0;
+  std::fprintf(stderr, "%s%s %lld/%lld (%.1f%%) %s elapsed %s ETA %s%s", tty_ ? "\r\033[K" : "", label_.c_str(),
+               static_cast<long long>(done), static_cast<long long>(total_), pct, fields.c_str(),
+               format_duration(el).c_str(), format_duration(eta).c_str(), tty_ ? "" : "\n");
+  std::fflush(stderr);
+}
+
+void Progress::finish(const std::string& fields) {
+  update(total_, fields, true);
+  if (tty_) std::fprintf(stderr, "\n");
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,39 @@
+#pragma once
+// A tiny dataset and model config shared by the training tests (seconds on 2 cores).
+#include <string>
+
+#include "synth/scene.h"
+#include "test_util.h"
+#include "util/config.h"
+
+namespace ablenerf::test {
+
+inline Config tiny_config() {
+  Config c;
+  for (const char* kv : {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1",
+                         "model.fine_layers=1", "model.samples=8", "model.le_count=2", "model.le_layers=1",
+                         "train.steps=12", "train.rays_per_step=32", "train.micro_batch=16",
+                         "train.lr_warmup_steps=2", "train.lr_decay_steps=0", "train.log_every=2",
+                         "train.eval_every=0", "train.ckpt_every=5", "eval.chunk=64"})
+    c.set(kv);
+  c.validate();
+  return c;
+}
+
+// A 16x16 synthetic scene with 4 train and 2 test views, written once per process.
+inline const std::string& tiny_dataset() {
+  static TempDir dir("ablenerf_tiny_data");
+  static bool written = false;
+  if (!written) {
+    SynthOptions o;
+    o.res = 16;
+    o.train_views = 4;
+    o.test_views = 2;
+    o.threads = 1;
+    write_synthetic_dataset(dir.path(), o);
+    written = true;
+  }
+  return dir.path();
+}
+
+}  // namespace ablenerf::test

@@ -1,0 +1,139 @@
+// The training loop: it learns, a resumed run ends with exactly the weights of an uninterrupted one
+// (single-threaded), divergence stops the run with the last good checkpoint intact.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "eval/run_folder.h"
+#include "train/checkpoint.h"
+#include "train/trainer.h"
+#include "train_fixture.h"
+#include "util/errors.h"
+
+using namespace ablenerf;
+namespace fs = std::filesystem;
+
+namespace {
+
+c10::Dict<c10::IValue, c10::IValue> weights_of(const std::string& run) {
+  return read_weights_dict(run + "/weights.pt");
+}
+
+void expect_same_weights(const std::string& run_a, const std::string& run_b, double tol) {
+  auto a = weights_of(run_a), b = weights_of(run_b);
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& kv : a) {
+    auto ta = kv.value().toTensor(), tb = b.at(kv.key()).toTensor();
+    if (tol == 0) EXPECT_TRUE(torch::equal(ta, tb)) << kv.key().toStringRef();
+    else EXPECT_TRUE(torch::allclose(ta, tb, 0, tol)) << kv.key().toStringRef() << " max diff " << (ta - tb).abs().max().item<double>();
+  }
+}
+
+std::vector<nlohmann::json> read_log(const std::string& run) {
+  std::vector<nlohmann::json> out;
+  std::ifstream in(run + "/log.jsonl");
+  std::string line;
+  while (std::getline(in, line)) out.push_back(nlohmann::json::parse(line));
+  return out;
+}
+
+TrainOptions options(const std::string& out) {
+  TrainOptions o;
+  o.data_dir = test::tiny_dataset();
+  o.out_dir = out;
+  o.quiet = true;
+  return o;
+}
+
+struct SingleThread {
+  int before = torch::get_num_threads();
+  SingleThread() { torch::set_num_threads(1); }
+  ~SingleThread() { torch::set_num_threads(before); }
+};
+
+}  // namespace
+
+TEST(Trainer, LossFallsAndRunFolderIsComplete) {
+  test::TempDir t;
+  Config c = test::tiny_config();
+  c.set("train.steps=60");
+  c.set("train.lr_init=3e-3");
+  c.set("train.lr_final=1e-3");
+  c.set("train.log_every=1");
+  c.set("train.eval_every=30");
+  c.set("train.eval_views=1");
+  ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
+  for (const char* f : {"config.toml", "run.json", "weights.pt", "checkpoint.pt", "log.jsonl"})
+    EXPECT_TRUE(fs::exists(t / ("run/" + std::string(f)))) << f;
+  auto log = read_log(t / "run");
+  std::vector<double> losses;
+  int evals = 0;
+  for (const auto& j : log) {
+    if (j["type"] == "train") losses.push_back(j["loss"].get<double>());
+    if (j["type"] == "eval") {
+      ++evals;
+      EXPECT_TRUE(std::isfinite(j["psnr"].get<double>()));
+    }
+  }
+  ASSERT_EQ(losses.size(), 60u);
+  EXPECT_EQ(evals, 2);
+  // Learning the mean colour alone takes the loss clearly below its start (the first step's output
+  // is about 0.25 grey against a mostly white image).
+  double last = 0;
+  for (size_t i = 50; i < 60; ++i) last += losses[i] / 10;
+  EXPECT_LT(last, 0.7 * losses.front());
+  // The run folder reopens with the same config.
+  RunFolder r = RunFolder::open(t / "run");
+  EXPECT_EQ(r.config.to_toml(), c.to_toml());
+  EXPECT_EQ(r.data_dir, fs::absolute(test::tiny_dataset()).lexically_normal().string());
+}
+
+TEST(Trainer, ResumeEqualsUninterrupted) {
+  SingleThread st;
+  test::TempDir t;
+  const Config c = test::tiny_config();  // 12 steps, checkpoint every 5
+  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
+  TrainOptions o = options(t / "pieces");
+  o.max_steps_this_run = 7;  // stops between two periodic checkpoints
+  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
+  o.max_steps_this_run = -1;
+  o.resume = true;
+  o.data_dir.clear();  // taken from run.json
+  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  expect_same_weights(t / "straight", t / "pieces", 0.0);
+}
+
+TEST(Trainer, RefusesToOverwriteARun) {
+  test::TempDir t;
+  Config c = test::tiny_config();
+  c.set("train.steps=1");
+  train(c, options(t / "run"));
+  EXPECT_THROW(train(c, options(t / "run")), InputError);
+}
+
+TEST(Trainer, DivergenceStopsWithLastGoodCheckpoint) {
+  test::TempDir t;
+  Config c = test::tiny_config();
+  // An absurd learning rate: Adam moves every weight by ~1e30 per step, the forward overflows.
+  c.set("train.lr_init=1e30");
+  c.set("train.lr_final=1e30");
+  c.set("train.lr_warmup_steps=0");
+  c.set("train.ckpt_every=1");
+  c.set("train.steps=50");
+  c.set("train.max_bad_steps=3");
+  try {
+    train(c, options(t / "run"));
+    FAIL() << "expected TrainingDiverged";
+  } catch (const TrainingDiverged& e) {
+    EXPECT_NE(std::string(e.what()).find("non-finite"), std::string::npos);
+  }
+  // The checkpoint on disk loads and is from before the bad steps.
+  AbleNerf m(c.model);
+  torch::optim::Adam o(m->parameters(), torch::optim::AdamOptions(1.0));
+  TrainState s = load_checkpoint(t / "run/checkpoint.pt", c, m, o);
+  EXPECT_LT(s.step, 50);
+  for (const auto& p : m->parameters()) EXPECT_TRUE(p.isfinite().all().item<bool>());
+}
