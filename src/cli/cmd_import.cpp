@@ -1,15 +1,45 @@
-// `ablenerf import`: placeholder until its issue lands.
+// `ablenerf import`: converts a state dict of the authors' release (names of spec Appendix A,
+// e.g. saved from a Lightning checkpoint with torch.save(ckpt["state_dict"], "w.pt")) into a
+// run folder: RUN/config.toml (the resolved config) and RUN/weights.pt (save_weights format).
+#include <torch/torch.h>
+
 #include <iostream>
+#include <nlohmann/json.hpp>
 
 #include "cli/command.h"
-#include "util/errors.h"
+#include "cli/common.h"
+#include "model/able_nerf.h"
+#include "util/fs.h"
 
 namespace ablenerf::cli {
 namespace {
-void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("import", "", "not yet implemented"); });
+
+struct ImportArgs {
+  std::string weights, out;
+  ConfigOptions cfg;
+};
+
+void run_import(const ImportArgs& a) {
+  const Config c = resolve_config(a.cfg);
+  AbleNerf model(c.model);
+  import_release_weights(model, read_weights_dict(a.weights), a.weights);
+  ensure_dir(a.out);
+  atomic_write_text(a.out + "/config.toml", c.to_toml());
+  save_weights(model, a.out + "/weights.pt");
+  nlohmann::json j;
+  j["run"] = a.out;
+  j["parameters"] = model->parameter_count();
+  std::cout << j.dump() << std::endl;
 }
+
+void setup(CLI::App& app) {
+  auto a = std::make_shared<ImportArgs>();
+  app.add_option("--weights", a->weights, "Release state dict (.pt, name -> tensor)")->required();
+  a->cfg.add_to(app, true);
+  app.add_option("--out", a->out, "Run folder to create")->required();
+  app.callback([a] { run_import(*a); });
+}
+
 }  // namespace
 ABLENERF_COMMAND("import", 65, "Import weights of the authors' release into a run", setup);
 }  // namespace ablenerf::cli

@@ -1,14 +1,118 @@
 #include "model/able_nerf.h"
 
+#include <ATen/CPUGeneratorImpl.h>
+
+#include "model/frustum.h"
+#include "model/ipe.h"
+#include "model/resampler.h"
+#include "model/tonemap.h"
+#include "model/view_encoding.h"
+
 namespace ablenerf {
-// Placeholder: replaced by the model implementation.
-AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg) : cfg_(cfg) {}
-ModelOutput AbleNerfImpl::forward(const Rays&, double, double, const ForwardOptions&) {
-  TORCH_CHECK(false, "model not implemented yet");
+
+namespace {
+// Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
+constexpr uint64_t kLeNoiseSeed = 4;
+}  // namespace
+
+AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg) : cfg_(cfg) {
+  const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
+  // Plain randn (spec 8.1: the release's xavier call on these is a no-op).
+  ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
+  volume_embedding_ = register_module("volume_embedding", VolumeEmbedding(ipe_width(cfg.ipe_degrees), e));
+  coarse_ = register_module("coarse", ABTransformer(e, cfg.heads, ff, cfg.coarse_layers));
+  fine_ = register_module("fine", ABTransformer(e, cfg.heads, ff, cfg.fine_layers));
+  ray_head_coarse_ = register_module("ray_head_coarse", RayColourHead(e));
+  ray_head_fine_ = register_module("ray_head_fine", RayColourHead(e));
+  if (has_le()) {
+    const int64_t view_width = view_encoding_width(cfg.view_encoding);
+    le_ = register_parameter("le", torch::randn({1, cfg.le_count, e}));
+    view_token_ = register_module("view_token", torch::nn::Linear(view_width, e));
+    le_coarse_ = register_module("le_coarse", LETransformer(e, cfg.heads, ff, cfg.le_layers));
+    le_fine_ = register_module("le_fine", LETransformer(e, cfg.heads, ff, cfg.le_layers));
+    le_head_coarse_ = register_module("le_head_coarse", LEColourHead(e, view_width));
+    le_head_fine_ = register_module("le_head_fine", LEColourHead(e, view_width));
+  }
+  if (cfg.mask) mask_ = register_buffer("ray_mask", ray_attention_mask(cfg.samples));
 }
+
 int64_t AbleNerfImpl::parameter_count() const {
   int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
   return n;
 }
+
+torch::Tensor AbleNerfImpl::effective_le(const ForwardOptions& opts) const {
+  auto le = opts.le_zero ? torch::zeros_like(le_) : le_;
+  if (opts.le_noise > 0) {
+    torch::Tensor noise;
+    if (opts.generator) {
+      noise = torch::randn(le_.sizes(), *opts.generator, le_.options().device(opts.generator->device()));
+    } else {
+      auto gen = at::detail::createCPUGenerator(kLeNoiseSeed);
+      noise = torch::randn(le_.sizes(), gen, le_.options().device(torch::kCPU));
+    }
+    le = le + opts.le_noise * noise.to(le_.device());
+  }
+  return le;
+}
+
+AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in,
+                                          ABTransformer& ab, RayColourHead& ray_head, LETransformer* le_tf,
+                                          LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
+                                          const torch::Tensor& view_code) {
+  const int64_t b = t.size(0);
+  const auto g = cast_intervals(t, rays);
+  const auto volumes = volume_embedding_(integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees));
+  const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
+  RayQueryProbe probe;
+  const auto y = ab->forward(tokens, mask_, &probe);
+  Pass p;
+  p.ray_token = y.select(1, 0);
+  p.weights = ray_token_attention(probe);
+  p.ray_colour = ray_head(p.ray_token);
+  if (le_tf) p.le_colour = (*le_head)((*le_tf)(le, y.slice(1, 1), view), view_code);
+  p.rgb = tonemap(p.ray_colour, p.le_colour);
+  return p;
+}
+
+ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const ForwardOptions& opts) {
+  const auto options = ray_token_.options();
+  const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
+  const int64_t b = rays.size();
+  const bool jitter = cfg_.randomized && is_training();
+
+  torch::Tensor le, view, view_code;
+  if (has_le()) {
+    le = effective_le(opts);
+    view_code = encode_view(rays.directions, cfg_.view_encoding);
+    view = view_token_(view_code);
+  }
+  LETransformer* le_c = has_le() ? &le_coarse_ : nullptr;
+  LETransformer* le_f = has_le() ? &le_fine_ : nullptr;
+  LEColourHead* head_c = has_le() ? &le_head_coarse_ : nullptr;
+  LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
+
+  const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, jitter, opts.generator, options);
+  const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code);
+  const auto t_f = resample_fence_posts(t_c, c.weights, cfg_.resample_padding, jitter, opts.generator);
+  // The fine ray token is the coarse output token, not detached (spec 4.4).
+  const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
+                          view_code);
+
+  ModelOutput out;
+  out.rgb_coarse = c.rgb;
+  out.rgb_fine = f.rgb;
+  out.coarse_weights = c.weights;
+  out.fine_weights = f.weights;
+  out.fine_t = t_f;
+  if (opts.branches) {
+    out.ray_colour_coarse = c.ray_colour;
+    out.ray_colour_fine = f.ray_colour;
+    out.le_colour_coarse = has_le() ? c.le_colour : torch::zeros_like(c.ray_colour);
+    out.le_colour_fine = has_le() ? f.le_colour : torch::zeros_like(f.ray_colour);
+  }
+  return out;
+}
+
 }  // namespace ablenerf

@@ -1,10 +1,17 @@
 #pragma once
 // The whole ABLE-NeRF forward pass (spec section 7), assembled from one module per stage:
 // frustum.h -> ipe.h -> volume_embedding.h -> ab_transformer.h -> resampler.h ->
-// le_transformer.h -> tonemap.h.
+// le_transformer.h (+ view_encoding.h, colour_heads.h) -> tonemap.h.
+// Parameter names (for save_weights / import) are documented in docs/weights.md.
 #include <torch/torch.h>
 
+#include <string>
+
 #include "data/rays.h"
+#include "model/ab_transformer.h"
+#include "model/colour_heads.h"
+#include "model/le_transformer.h"
+#include "model/volume_embedding.h"
 #include "util/config.h"
 
 namespace ablenerf {
@@ -14,7 +21,10 @@ struct ForwardOptions {
   bool branches = false;   // also return the two branch colours before tone mapping
   double le_noise = 0.0;   // std of Gaussian noise added to the LE (0 = none)
   bool le_zero = false;    // zero the LE
-  torch::Generator* generator = nullptr;  // for the LE noise / stratified jitter (optional)
+  // Source of the LE noise and of the stratified jitter (optional). The LE noise is drawn once
+  // per forward call; without a generator it comes from a fixed seed, so every chunk of an
+  // image sees the same perturbed LE.
+  torch::Generator* generator = nullptr;
 };
 
 struct ModelOutput {
@@ -22,20 +32,59 @@ struct ModelOutput {
   torch::Tensor coarse_weights;        // (B,S) last coarse layer's ray-token attention over volumes
   torch::Tensor fine_weights;          // (B,S) last fine layer's ray-token attention over volumes
   torch::Tensor fine_t;                // (B,S+1) fine fence-posts (interval i = [t_i, t_i+1])
-  // With ForwardOptions::branches: linear colours before tone mapping.
+  // With ForwardOptions::branches: linear colours before tone mapping (LE colours are zeros
+  // when the model has no LE).
   torch::Tensor ray_colour_coarse, le_colour_coarse, ray_colour_fine, le_colour_fine;
 };
 
 class AbleNerfImpl : public torch::nn::Module {
  public:
   explicit AbleNerfImpl(const ModelConfig& cfg);
+  // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
+  // training mode.
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }
+  bool has_le() const { return cfg_.le_count > 0; }
 
  private:
+  struct Pass {
+    torch::Tensor ray_token, weights, ray_colour, le_colour, rgb;
+  };
+  Pass run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in, ABTransformer& ab,
+                RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
+                const torch::Tensor& view, const torch::Tensor& view_code);
+  torch::Tensor effective_le(const ForwardOptions& opts) const;
+
   ModelConfig cfg_;
+  torch::Tensor ray_token_;  // (1,1,E) initial ray token
+  torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  VolumeEmbedding volume_embedding_{nullptr};
+  ABTransformer coarse_{nullptr}, fine_{nullptr};
+  RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};
+  // LE branch (absent when le_count == 0).
+  torch::Tensor le_;  // (1,N,E)
+  torch::nn::Linear view_token_{nullptr};
+  LETransformer le_coarse_{nullptr}, le_fine_{nullptr};
+  LEColourHead le_head_coarse_{nullptr}, le_head_fine_{nullptr};
 };
 TORCH_MODULE(AbleNerf);
+
+// Every parameter as a name -> tensor dictionary written with torch::pickle_save (readable by
+// Python's torch.load). Throws InputError when the file cannot be written.
+void save_weights(AbleNerf& model, const std::string& path);
+// Reads save_weights' format; every parameter must be present with its exact shape and no
+// other name may appear, else InputError(path, name, ...).
+void load_weights(AbleNerf& model, const std::string& path);
+// Reads any torch.save / pickle_save file holding a name -> tensor dictionary.
+c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path);
+// Copies a state dict with the authors' release names (spec Appendix A; an optional "model."
+// prefix is stripped, dir_query.* is ignored) into the model. Throws InputError(origin, name,
+// "expected shape ... got ..." / "missing" / "unexpected parameter") on any mismatch, before
+// changing anything.
+void import_release_weights(AbleNerf& model, const c10::Dict<c10::IValue, c10::IValue>& dict,
+                            const std::string& origin = "weights");
+// (release name, our name) for every parameter of a model with this config.
+std::vector<std::pair<std::string, std::string>> release_name_map(const ModelConfig& cfg);
 
 }  // namespace ablenerf

@@ -32,7 +32,7 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   Config c = Config::load(demo_config());
   AbleNerf shape_model(c.model);
   const auto ours = shape_model->named_parameters();
-  c10::Dict<c10::IValue, c10::IValue> dict;
+  c10::impl::GenericDict dict(c10::StringType::get(), c10::TensorType::get());
   torch::manual_seed(3);
   for (const auto& [rel, name] : release_name_map(c.model)) dict.insert("model." + rel, torch::randn(ours[name].sizes()));
   const auto bytes = torch::pickle_save(c10::IValue(dict));

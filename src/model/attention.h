@@ -1,0 +1,61 @@
+#pragma once
+// Stage 4a (spec 4.2, 5.3): multi-head attention with a packed Q/K/V projection, and the
+// post-norm transformer block built on it:
+//   x = LN1(x + MHA(x));  x = LN2(x + W2 GELU(W1 x + b1) + b2)
+// Attention is written by hand (batch-first (B,L,E) tensors, one mask shared by every ray and
+// head) instead of torch::nn::MultiheadAttention, which is sequence-first and would need the
+// mask expanded to B x heads copies.
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+// What the resampler needs from one self-attention layer: the ray token's (row 0) query and
+// every key, detached, so its attention row can be recomputed as one extra query (spec 2.4)
+// without ever materialising per-layer attention matrices for the caller.
+struct RayQueryProbe {
+  torch::Tensor q0;  // (B,H,dh)
+  torch::Tensor k;   // (B,H,L,dh)
+};
+
+class MultiHeadAttentionImpl : public torch::nn::Module {
+ public:
+  MultiHeadAttentionImpl(int64_t width, int64_t heads);
+  // Self-attention. x: (B,L,E); mask: additive (L,L) (0 = may attend, -inf = blocked) or
+  // undefined for none. Fills `probe` when given.
+  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
+                             RayQueryProbe* probe = nullptr);
+  // Cross-attention without mask. q: (Bq,Lq,E) with Bq == B or 1 (broadcast); kv: (B,Lk,E).
+  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv);
+  void reset_parameters();
+  int64_t heads() const { return heads_; }
+
+  torch::Tensor in_proj_weight;  // (3E,E): rows [0,E) Q, [E,2E) K, [2E,3E) V
+  torch::Tensor in_proj_bias;    // (3E)
+  torch::nn::Linear out_proj{nullptr};
+
+ private:
+  // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E) after the output projection.
+  torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
+                       const torch::Tensor& mask);
+  int64_t width_, heads_;
+};
+TORCH_MODULE(MultiHeadAttention);
+
+class TransformerBlockImpl : public torch::nn::Module {
+ public:
+  TransformerBlockImpl(int64_t width, int64_t heads, int64_t ff_width);
+  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
+                             RayQueryProbe* probe = nullptr);
+  // q may have batch 1 (shared queries, e.g. the LE); the result has kv's batch.
+  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv);
+
+  MultiHeadAttention attn{nullptr};
+  torch::nn::Linear ff_in{nullptr}, ff_out{nullptr};
+  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr};
+
+ private:
+  torch::Tensor finish(const torch::Tensor& x, const torch::Tensor& attn_out);
+};
+TORCH_MODULE(TransformerBlock);
+
+}  // namespace ablenerf

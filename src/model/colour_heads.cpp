@@ -1,0 +1,30 @@
+#include "model/colour_heads.h"
+
+#include <cmath>
+
+namespace ablenerf {
+
+namespace {
+constexpr int64_t kRgb = 3;
+const double kRayColourBias = std::log(3.0);  // sigmoid(-ln 3) = 0.25
+constexpr double kLEColourScale = 0.5;        // LE colour lives in (0, 0.5)
+}  // namespace
+
+RayColourHeadImpl::RayColourHeadImpl(int64_t width) {
+  linear = register_module("linear", torch::nn::Linear(width, kRgb));
+}
+
+torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) {
+  return torch::sigmoid(linear(r) - kRayColourBias);
+}
+
+LEColourHeadImpl::LEColourHeadImpl(int64_t width, int64_t view_width) {
+  hidden = register_module("hidden", torch::nn::Linear(width + view_width, width));
+  out = register_module("out", torch::nn::Linear(width, kRgb));
+}
+
+torch::Tensor LEColourHeadImpl::forward(const torch::Tensor& decoded, const torch::Tensor& view_code) {
+  return kLEColourScale * torch::sigmoid(out(torch::relu(hidden(torch::cat({decoded, view_code}, -1)))));
+}
+
+}  // namespace ablenerf

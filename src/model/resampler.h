@@ -1,0 +1,37 @@
+#pragma once
+// Stage 5 (spec 2.1, 2.4): where along each ray the tokens sit. Coarse fence-posts are linear
+// in depth (optionally mip-NeRF jittered); fine fence-posts are drawn by inverse-CDF sampling
+// from the last coarse layer's ray-token attention, blurred and padded, without gradient.
+#include <torch/torch.h>
+
+#include "model/attention.h"
+
+namespace ablenerf {
+
+// Uniform [0,1) numbers on options' device; drawn from `gen` (on its own device) when given.
+torch::Tensor uniform_like(at::IntArrayRef sizes, torch::Generator* gen, const torch::TensorOptions& options);
+
+// (rays, samples+1) fence-posts near + (far-near) k/samples; with `jitter`, each post is redrawn
+// uniformly between the mid-points to its left and right (ends clamped to near/far), per ray.
+torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t samples, bool jitter,
+                                 torch::Generator* gen, const torch::TensorOptions& options);
+
+// softmax(q0 K^T / sqrt(dh)) per head from the probe, mean over heads, column 0 (the ray token
+// itself) dropped: (B,S). Not renormalised (the PDF step normalises). No gradient.
+torch::Tensor ray_token_attention(const RayQueryProbe& probe);
+
+// mip-NeRF blur-pool: pad with the end values, max of adjacent pairs, mean of adjacent pairs,
+// then + padding. (B,S) -> (B,S).
+torch::Tensor blur_weights(const torch::Tensor& weights, double padding);
+
+// Piecewise-constant inverse-CDF sampling of `count` sorted values from bins (B,S+1) with
+// weights (B,S). u = linspace(0, 1 - eps_f32) or stratified when `randomized`.
+torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights, int64_t count,
+                         bool randomized, torch::Generator* gen);
+
+// The whole fine resampling step (no gradient): blur + pad the attention weights and draw
+// S+1 new fence-posts from the coarse ones. t: (B,S+1), weights: (B,S).
+torch::Tensor resample_fence_posts(const torch::Tensor& t, const torch::Tensor& weights, double padding,
+                                   bool randomized, torch::Generator* gen);
+
+}  // namespace ablenerf

@@ -1,0 +1,21 @@
+#pragma once
+// Stage 7 (spec 6): the two branch colours are summed in linear space, mapped through the sRGB
+// transfer curve and hard-clipped to [0,1] (zero gradient where saturated, like the release).
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+constexpr double kSrgbLinearThreshold = 0.0031308;
+constexpr double kSrgbLinearSlope = 12.92;
+constexpr double kSrgbScale = 1.055;
+constexpr double kSrgbOffset = 0.055;
+constexpr double kSrgbGamma = 2.4;
+constexpr double kSrgbPowFloor = 1e-7;  // keeps pow's gradient finite in the unused branch
+
+// Linear -> sRGB (no clipping).
+torch::Tensor linear_to_srgb(const torch::Tensor& x);
+
+// clamp(sRGB(ray_colour + le_colour), 0, 1). le_colour may be undefined (no-LE ablation).
+torch::Tensor tonemap(const torch::Tensor& ray_colour, const torch::Tensor& le_colour);
+
+}  // namespace ablenerf

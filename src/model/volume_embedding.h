@@ -1,0 +1,23 @@
+#pragma once
+// Stage 3 (spec 3): the volume-embedding MLP, shared by the coarse and fine passes:
+// in -> width -> width -> width -> width, ReLU between layers, none after the last.
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+// x (..., in) -> (..., out) through a Linear applied as one 2-D GEMM with fused bias
+// (a 3-D input would otherwise go through matmul + a separate bias add).
+torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x);
+
+class VolumeEmbeddingImpl : public torch::nn::Module {
+ public:
+  static constexpr int kLayers = 4;
+  VolumeEmbeddingImpl(int64_t in_features, int64_t width);
+  torch::Tensor forward(const torch::Tensor& x);
+
+ private:
+  std::vector<torch::nn::Linear> layers_;
+};
+TORCH_MODULE(VolumeEmbedding);
+
+}  // namespace ablenerf

@@ -1,0 +1,155 @@
+// Stage 8: the assembled model: parameter counts of the presets (spec 10), output contract,
+// gradient paths, the no-LE and no-mask ablations, the branch split and LE perturbation.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include "model/able_nerf.h"
+#include "model/tonemap.h"
+#include "test_util.h"
+
+namespace ablenerf {
+namespace {
+
+Config preset(const std::string& name) {
+  Config c = Config::load(test::source_dir() + "/configs/" + name + ".toml");
+  c.validate();
+  return c;
+}
+
+ModelConfig tiny() {
+  ModelConfig m;
+  m.width = 32;
+  m.heads = 2;
+  m.ff_ratio = 2;
+  m.coarse_layers = 2;
+  m.fine_layers = 2;
+  m.samples = 16;
+  m.ipe_degrees = 8;
+  m.le_count = 4;
+  m.le_layers = 1;
+  return m;
+}
+
+Rays some_rays(int64_t b) {
+  torch::manual_seed(99);
+  const auto o = torch::randn({b, 3}) * 0.2 + torch::tensor({0.0f, 0.0f, 4.0f});
+  const auto d = torch::randn({b, 3}) * 0.2 + torch::tensor({0.0f, 0.0f, -1.0f});
+  return {o, d, torch::full({b, 1}, 5.196e-4f)};
+}
+
+TEST(AbleNerf, PresetParameterCounts) {
+  EXPECT_EQ(AbleNerf(preset("blender").model)->parameter_count(), 6163404);  // spec 10
+  EXPECT_EQ(AbleNerf(preset("shiny").model)->parameter_count(), 6160332);    // 16 LE
+  EXPECT_GT(AbleNerf(preset("demo").model)->parameter_count(), 0);
+}
+
+TEST(AbleNerf, OutputContract) {
+  torch::manual_seed(1);
+  AbleNerf model(tiny());
+  model->eval();
+  const int64_t b = 5, s = 16;
+  const auto out = model->forward(some_rays(b), 2.0, 6.0);
+  ASSERT_EQ(out.rgb_coarse.sizes(), (std::vector<int64_t>{b, 3}));
+  ASSERT_EQ(out.rgb_fine.sizes(), (std::vector<int64_t>{b, 3}));
+  ASSERT_EQ(out.coarse_weights.sizes(), (std::vector<int64_t>{b, s}));
+  ASSERT_EQ(out.fine_weights.sizes(), (std::vector<int64_t>{b, s}));
+  ASSERT_EQ(out.fine_t.sizes(), (std::vector<int64_t>{b, s + 1}));
+  EXPECT_GE(out.rgb_fine.min().item<double>(), 0.0);
+  EXPECT_LE(out.rgb_fine.max().item<double>(), 1.0);
+  EXPECT_TRUE(torch::all(out.fine_t.slice(1, 1) >= out.fine_t.slice(1, 0, s)).item<bool>());
+  EXPECT_GE(out.fine_t.min().item<double>(), 2.0);
+  EXPECT_LE(out.fine_t.max().item<double>(), 6.0);
+  const auto sums = out.coarse_weights.sum(1);
+  EXPECT_TRUE(torch::all(sums > 0).item<bool>() && torch::all(sums < 1).item<bool>());
+  EXPECT_FALSE(out.coarse_weights.requires_grad());
+  // Deterministic in eval mode; rays are independent of their batch mates.
+  const auto again = model->forward(some_rays(b).slice(1, 3), 2.0, 6.0);
+  EXPECT_TRUE(torch::allclose(again.rgb_fine, out.rgb_fine.slice(0, 1, 3), 1e-5, 1e-6));
+}
+
+TEST(AbleNerf, FineLossTrainsTheCoarseStackThroughTheRayToken) {
+  torch::manual_seed(2);
+  AbleNerf model(tiny());
+  const auto out = model->forward(some_rays(4), 2.0, 6.0);
+  out.rgb_fine.sum().backward();
+  const auto named = model->named_parameters();
+  EXPECT_GT(named["coarse.blocks.1.ff_out.weight"].grad().abs().sum().item<double>(), 0.0);
+  EXPECT_GT(named["ray_token"].grad().abs().sum().item<double>(), 0.0);
+  EXPECT_GT(named["le"].grad().abs().sum().item<double>(), 0.0);
+  // The coarse colour heads only serve the coarse loss.
+  EXPECT_FALSE(named["ray_head_coarse.linear.weight"].grad().defined() &&
+               named["ray_head_coarse.linear.weight"].grad().abs().sum().item<double>() > 0);
+}
+
+TEST(AbleNerf, BranchesRecombineToTheOutput) {
+  torch::manual_seed(3);
+  AbleNerf model(tiny());
+  ForwardOptions opts;
+  opts.branches = true;
+  const auto out = model->forward(some_rays(6), 2.0, 6.0, opts);
+  EXPECT_TRUE(torch::allclose(out.rgb_fine, tonemap(out.ray_colour_fine, out.le_colour_fine)));
+  EXPECT_TRUE(torch::allclose(out.rgb_coarse, tonemap(out.ray_colour_coarse, out.le_colour_coarse)));
+  EXPECT_LE(out.le_colour_fine.max().item<double>(), 0.5);
+}
+
+TEST(AbleNerf, NoLEAblationHasNoLEBranch) {
+  auto cfg = tiny();
+  cfg.le_count = 0;
+  torch::manual_seed(4);
+  AbleNerf model(cfg);
+  for (const auto& p : model->named_parameters()) EXPECT_EQ(p.key().rfind("le", 0), std::string::npos) << p.key();
+  ForwardOptions opts;
+  opts.branches = true;
+  const auto out = model->forward(some_rays(3), 2.0, 6.0, opts);
+  EXPECT_TRUE(torch::equal(out.le_colour_fine, torch::zeros_like(out.le_colour_fine)));
+  EXPECT_TRUE(torch::allclose(out.rgb_fine, tonemap(out.ray_colour_fine, torch::Tensor())));
+}
+
+TEST(AbleNerf, MaskFlagChangesTheResult) {
+  auto cfg = tiny();
+  torch::manual_seed(5);
+  AbleNerf masked(cfg);
+  cfg.mask = false;
+  torch::manual_seed(5);
+  AbleNerf open(cfg);
+  const auto rays = some_rays(3);
+  EXPECT_FALSE(torch::allclose(masked->forward(rays, 2, 6).rgb_fine, open->forward(rays, 2, 6).rgb_fine));
+}
+
+TEST(AbleNerf, LEPerturbationIsReproducibleAndChangesOnlyTheLEColour) {
+  torch::manual_seed(6);
+  AbleNerf model(tiny());
+  model->eval();
+  const auto rays = some_rays(4);
+  ForwardOptions base;
+  base.branches = true;
+  ForwardOptions noisy = base;
+  noisy.le_noise = 1.0;
+  ForwardOptions zero = base;
+  zero.le_zero = true;
+  const auto a = model->forward(rays, 2, 6, base), n1 = model->forward(rays, 2, 6, noisy),
+             n2 = model->forward(rays, 2, 6, noisy), z = model->forward(rays, 2, 6, zero);
+  EXPECT_TRUE(torch::equal(n1.rgb_fine, n2.rgb_fine));  // same noise for every call/chunk
+  EXPECT_FALSE(torch::allclose(a.le_colour_fine, n1.le_colour_fine));
+  EXPECT_FALSE(torch::allclose(a.le_colour_fine, z.le_colour_fine));
+  EXPECT_TRUE(torch::equal(a.ray_colour_fine, z.ray_colour_fine));
+}
+
+TEST(AbleNerf, JitterOnlyInTrainingMode) {
+  auto cfg = tiny();
+  cfg.randomized = true;
+  torch::manual_seed(7);
+  AbleNerf model(cfg);
+  const auto rays = some_rays(2);
+  torch::Generator g1 = at::detail::createCPUGenerator(1), g2 = at::detail::createCPUGenerator(2);
+  ForwardOptions o1, o2;
+  o1.generator = &g1;
+  o2.generator = &g2;
+  model->train();
+  EXPECT_FALSE(torch::allclose(model->forward(rays, 2, 6, o1).fine_t, model->forward(rays, 2, 6, o2).fine_t));
+  model->eval();
+  EXPECT_TRUE(torch::equal(model->forward(rays, 2, 6, o1).fine_t, model->forward(rays, 2, 6, o2).fine_t));
+}
+
+}  // namespace
+}  // namespace ablenerf

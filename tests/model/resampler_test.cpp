@@ -1,0 +1,96 @@
+// Stage 5: blur-pool, inverse-CDF sampling against hand-computed values, concentration at the
+// attention peak, and the ray-token attention row recomputed from one extra query.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <limits>
+
+#include "model/ab_transformer.h"
+#include "model/resampler.h"
+
+namespace ablenerf {
+namespace {
+
+TEST(Resampler, BlurPoolByHand) {
+  // pad -> [0,0,1,0,0,0]; pair max -> [0,1,1,0,0]; pair mean -> [.5,1,.5,0]; + 0.01.
+  const auto w = torch::tensor({0.0, 1.0, 0.0, 0.0}).view({1, 4});
+  const auto b = blur_weights(w, 0.01);
+  EXPECT_TRUE(torch::allclose(b, torch::tensor({0.51, 1.01, 0.51, 0.01}).view({1, 4})));
+}
+
+TEST(Resampler, InverseCdfByHand) {
+  // Bins [0,1,2,3,4], weights [1,0,3,0] -> pdf [.25,0,.75,0], cdf [0,.25,.25,1,1].
+  // u = k (1-eps)/4: 0 -> 0; ~.25 -> end of bin 0 (t ~ 1); .5 -> 2 + (.5-.25)/.75 = 2 1/3;
+  // .75 -> 2 2/3; ~1 -> 3. The empty bin [1,2] and the last bin [3,4] receive nothing.
+  const auto bins = torch::tensor({0.0f, 1.0f, 2.0f, 3.0f, 4.0f}).view({1, 5});
+  const auto w = torch::tensor({1.0f, 0.0f, 3.0f, 0.0f}).view({1, 4});
+  const auto t = sample_pdf(bins, w, 5, false, nullptr)[0];
+  const std::vector<double> expected{0.0, 1.0, 2.0 + 1.0 / 3.0, 2.0 + 2.0 / 3.0, 3.0};
+  for (int i = 0; i < 5; ++i) EXPECT_NEAR(t[i].item<double>(), expected[i], 2e-6) << i;
+}
+
+TEST(Resampler, ConcentratesWhereWeightsPeakAndStaysSortedInRange) {
+  const int64_t s = 96;
+  const auto t = coarse_fence_posts(2, 2.0, 6.0, s, false, nullptr, torch::kFloat);
+  const auto centre = torch::arange(s, torch::kFloat);
+  // Ray 0 peaks at interval 60 (t ~ 4.5), ray 1 at interval 10 (t ~ 2.44).
+  const auto w = torch::stack({torch::exp(-0.5 * (centre - 60).pow(2)), torch::exp(-0.5 * (centre - 10).pow(2))}) * 0.9;
+  const auto f = resample_fence_posts(t, w, 0.01, false, nullptr);
+  ASSERT_EQ(f.sizes(), (std::vector<int64_t>{2, s + 1}));
+  EXPECT_TRUE(torch::all(f.slice(1, 1) >= f.slice(1, 0, s)).item<bool>());
+  EXPECT_NEAR(f.min().item<double>(), 2.0, 1e-6);
+  EXPECT_LE(f.max().item<double>(), 6.0);
+  EXPECT_NEAR(f[0][s].item<double>(), 6.0, 1e-4);
+  const double width = 4.0 / s;
+  for (int r = 0; r < 2; ++r) {
+    const double peak = 2.0 + width * ((r == 0 ? 60 : 10) + 0.5);
+    const auto near_peak = ((f[r] - peak).abs() < 4 * width).sum().item<int64_t>();
+    EXPECT_GT(near_peak, 0.7 * (s + 1)) << r;  // uniform spacing would put ~8 there
+  }
+}
+
+TEST(Resampler, StratifiedModeIsSeededSortedAndInRange) {
+  const int64_t s = 32;
+  torch::Generator g1 = at::detail::createCPUGenerator(7), g2 = at::detail::createCPUGenerator(7),
+                   g3 = at::detail::createCPUGenerator(8);
+  const auto t1 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g1, torch::kFloat);
+  const auto t2 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g2, torch::kFloat);
+  const auto t3 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g3, torch::kFloat);
+  EXPECT_TRUE(torch::equal(t1, t2));
+  EXPECT_FALSE(torch::equal(t1, t3));
+  EXPECT_TRUE(torch::all(t1.slice(1, 1) >= t1.slice(1, 0, s)).item<bool>());
+  // Each post stays between its neighbours' mid-points of the regular grid.
+  const auto grid = coarse_fence_posts(3, 2.0, 6.0, s, false, nullptr, torch::kFloat);
+  EXPECT_LE((t1 - grid).abs().max().item<double>(), 0.5 * 4.0 / s + 1e-6);
+  const auto w = torch::rand({3, s}, g1);
+  const auto f = resample_fence_posts(t1, w, 0.01, true, &g1);
+  EXPECT_TRUE(torch::all(f.slice(1, 1) >= f.slice(1, 0, s)).item<bool>());
+  EXPECT_GE(f.min().item<double>(), 2.0);
+  EXPECT_LE(f.max().item<double>(), 6.0);
+}
+
+TEST(Resampler, RayTokenRowFromOneQueryMatchesFullAttention) {
+  torch::manual_seed(11);
+  const int64_t e = 48, heads = 3, s = 12, b = 2, dh = e / heads;
+  ABTransformer ab(e, heads, 2 * e, 2);
+  const auto x = torch::randn({b, s + 1, e});
+  RayQueryProbe probe;
+  const auto mask = ray_attention_mask(s);
+  ab->forward(x, mask, &probe);
+  const auto w = ray_token_attention(probe);
+  ASSERT_EQ(w.sizes(), (std::vector<int64_t>{b, s}));
+  EXPECT_FALSE(w.requires_grad());
+  // Reference: the last block's input, its projections and the full masked attention matrix.
+  const auto h = ab->block(0)->forward_self(x, mask);
+  const auto& a = *ab->block(1)->attn;
+  const auto q = (h.matmul(a.in_proj_weight.slice(0, 0, e).t()) + a.in_proj_bias.slice(0, 0, e)).view({b, s + 1, heads, dh}).transpose(1, 2);
+  const auto k = (h.matmul(a.in_proj_weight.slice(0, e, 2 * e).t()) + a.in_proj_bias.slice(0, e, 2 * e)).view({b, s + 1, heads, dh}).transpose(1, 2);
+  const auto full = torch::softmax(q.matmul(k.transpose(-2, -1)) / std::sqrt(double(dh)) + mask, -1);  // (B,H,L,L)
+  const auto expected = full.select(2, 0).mean(1).slice(1, 1);
+  EXPECT_TRUE(torch::allclose(w, expected, 1e-5, 1e-6));
+  EXPECT_LT(w.sum(1).max().item<double>(), 1.0);  // column 0 dropped, not renormalised
+}
+
+}  // namespace
+}  // namespace ablenerf
