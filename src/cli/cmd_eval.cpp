@@ -1,15 +1,60 @@
-// `ablenerf eval`: placeholder until its issue lands.
+// `ablenerf eval`: renders the first N views of a split with a run's model, scores them (PSNR,
+// SSIM, LPIPS, depth error when known), writes RUN/eval/SPLIT/ (images, metrics.json) and
+// rewrites RUN/report.html. The work is eval/evaluate.h; this file is option plumbing.
 #include <iostream>
+#include <memory>
 
 #include "cli/command.h"
+#include "eval/evaluate.h"
+#include "eval/report.h"
 #include "util/errors.h"
 
 namespace ablenerf::cli {
 namespace {
+
+struct EvalArgs {
+  std::string run, split = "test", data, ssim, lpips_weights;
+  int64_t max_images = -1, chunk = 0;  // -1 / 0: defaults (all views / the run's eval.chunk)
+  int downscale = 0;
+};
+
 void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("eval", "", "not yet implemented"); });
+  auto a = std::make_shared<EvalArgs>();
+  app.add_option("--run", a->run, "Run folder written by `ablenerf train`")->required();
+  app.add_option("--split", a->split, "Dataset split to evaluate")->capture_default_str();
+  app.add_option("--max-images", a->max_images, "Evaluate only the first N views (default: all)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--downscale", a->downscale, "Image downscale factor (default: the run's data.downscale)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--data", a->data, "Dataset folder (default: the one recorded in RUN/run.json)");
+  app.add_option("--ssim", a->ssim, "SSIM variant: standard (valid 11x11 window) or release (zero-padded, "
+                                    "the authors' code); default: the run's eval.ssim");
+  app.add_option("--lpips-weights", a->lpips_weights,
+                 "LPIPS AlexNet weights (default: $ABLENERF_LPIPS_WEIGHTS or shared/weights; none -> skipped)");
+  app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
+      ->check(CLI::PositiveNumber);
+  app.callback([a] {
+    const RunFolder run = RunFolder::open(a->run);
+    EvalOptions o;
+    o.split = a->split;
+    o.max_images = a->max_images;
+    o.downscale = a->downscale;
+    o.data_dir = a->data;
+    o.ssim = a->ssim;
+    o.lpips_weights = a->lpips_weights;
+    o.chunk = a->chunk;
+    o.device = torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+    const auto m = evaluate_run(run, o);
+    write_report(run);
+    const auto& mean = m["mean"];
+    auto show = [](const nlohmann::json& v) { return v.is_number() ? std::to_string(v.get<double>()) : std::string("n/a"); };
+    std::cout << "eval " << a->split << ": " << m["images"].size() << " views  PSNR " << show(mean["psnr"])
+              << "  SSIM " << show(mean["ssim"]) << "  LPIPS " << show(mean["lpips"]);
+    if (mean.contains("depth_mae")) std::cout << "  depth MAE " << show(mean["depth_mae"]);
+    std::cout << "\nwrote " << eval_dir(run, a->split) << "/metrics.json and " << run.report_path() << std::endl;
+  });
 }
+
 }  // namespace
 ABLENERF_COMMAND("eval", 30, "Evaluate a run on a split (PSNR, SSIM, LPIPS, images, report)", setup);
 }  // namespace ablenerf::cli

@@ -1,15 +1,236 @@
-// `ablenerf render`: placeholder until its issue lands.
+// `ablenerf render`: renders a run's model along a camera path (orbit / spiral around the
+// training cameras' mean distance and elevation) or at the poses of a cameras json, into PNG
+// frames (plus depth, branch colours and raw float tensors on request) or an H.264 .mp4 through
+// ffmpeg. The analyses of the paper map to ForwardOptions: --le-noise, --le-zero, --branches.
+#include <ATen/CPUGeneratorImpl.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
 #include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
 
 #include "cli/command.h"
+#include "data/dataset.h"
+#include "eval/camera_path.h"
+#include "eval/colormap.h"
+#include "eval/progress.h"
+#include "eval/renderer.h"
+#include "eval/run_folder.h"
+#include "eval/video.h"
+#include "model/tonemap.h"
 #include "util/errors.h"
+#include "util/fs.h"
+#include "util/image_io.h"
+
+namespace fs = std::filesystem;
 
 namespace ablenerf::cli {
 namespace {
-void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("render", "", "not yet implemented"); });
+
+constexpr int kDefaultFrames = 120;
+constexpr double kDefaultFps = 30;
+
+struct RenderArgs {
+  std::string run, cameras, path, out;
+  int frames = kDefaultFrames, width = 0, height = 0;
+  bool raw = false, depth = false, branches = false, le_zero = false, fallback_frames = false;
+  double le_noise = 0, fps = kDefaultFps;
+  int64_t seed = 0, chunk = 0;
+};
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
+
+// Native image size of a cameras json: its "w"/"h", else the first frame's PNG header.
+// Returns {0,0} when neither is available.
+std::pair<int, int> native_size(const std::string& json_path) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_text_file(json_path));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(json_path, "", "invalid JSON");
+  }
+  if (j.is_object() && j.contains("w") && j.contains("h") && j["w"].is_number() && j["h"].is_number())
+    return {j["w"].get<int>(), j["h"].get<int>()};
+  if (!j.is_object() || !j.contains("frames") || !j["frames"].is_array() || j["frames"].empty() ||
+      !j["frames"][0].is_object() || !j["frames"][0].contains("file_path") || !j["frames"][0]["file_path"].is_string())
+    return {0, 0};
+  const fs::path base = fs::path(json_path).parent_path() / j["frames"][0]["file_path"].get<std::string>();
+  for (const fs::path& p : {base, fs::path(base.string() + ".png")}) {
+    if (fs::is_regular_file(p)) {
+      const auto [h, w] = png_size(p.string());
+      return {w, h};
+    }
+  }
+  return {0, 0};
+}
+
+// Cameras json of the run's dataset (Blender training split, or a single transforms.json).
+std::string dataset_cameras_json(const RunFolder& run) {
+  if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded (use --cameras)");
+  for (const char* name : {"transforms_train.json", "transforms.json"}) {
+    const auto p = fs::path(run.data_dir) / name;
+    if (fs::exists(p)) return p.string();
+  }
+  throw InputError(run.data_dir, "", "no transforms_train.json or transforms.json (use --cameras)");
+}
+
+// Output size: explicit --width/--height (one of them keeps the aspect ratio), else the native
+// size divided by `downscale`.
+std::pair<int, int> output_size(const std::string& json_path, int width, int height, int downscale) {
+  if (width > 0 && height > 0) return {width, height};
+  const auto [nw, nh] = native_size(json_path);
+  if (nw <= 0 || nh <= 0)
+    throw InputError(json_path, "w", "image size unknown (no w/h and no readable first image): give --width and --height");
+  if (width > 0) return {width, static_cast<int>(std::lround(static_cast<double>(width) * nh / nw))};
+  if (height > 0) return {static_cast<int>(std::lround(static_cast<double>(height) * nw / nh)), height};
+  return {nw / downscale, nh / downscale};
+}
+
+void save_tensor(const std::string& path, const torch::Tensor& t) {
+  const std::vector<char> bytes = torch::pickle_save(t.contiguous().to(torch::kCPU, torch::kFloat));
+  atomic_write(path, [&](const std::string& tmp) {
+    FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) throw InputError(path, "", "cannot write");
+    const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+    if (std::fclose(f) != 0 || !ok) throw InputError(path, "", "cannot write");
+  });
+}
+
+// Linear branch colour -> viewable sRGB in [0,1].
+torch::Tensor view_linear(const torch::Tensor& x) { return linear_to_srgb(x).clamp(0.0, 1.0); }
+
+std::string frame_name(int k) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "frame_%04d", k);
+  return buf;
+}
+
+void run_render(const RenderArgs& a) {
+  const RunFolder run = RunFolder::open(a.run);
+  const bool video = ends_with(a.out, ".mp4");
+  if (video) {
+    for (auto [flag, on] : std::initializer_list<std::pair<const char*, bool>>{
+             {"--raw", a.raw}, {"--depth", a.depth}, {"--branches", a.branches}})
+      if (on) throw InputError(flag, "", "writes extra images: give a folder as --out, not a .mp4");
+  }
+  if (a.le_noise < 0) throw InputError("--le-noise", "", "must be >= 0");
+
+  // Poses and intrinsics.
+  const std::string cams_json = a.cameras.empty() ? dataset_cameras_json(run) : a.cameras;
+  const auto [w, h] = output_size(cams_json, a.width, a.height, a.cameras.empty() ? run.config.data.downscale : 1);
+  const CameraList cams = load_cameras(cams_json, w, h);
+  torch::Tensor poses = cams.c2w;
+  if (!a.path.empty()) poses = camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
+  const int n = static_cast<int>(poses.size(0));
+
+  // Output: folder of frames, or a video (or frames beside it when ffmpeg is missing and asked).
+  std::string frame_dir;
+  std::optional<VideoWriter> writer;
+  if (video && ffmpeg_available()) {
+    ensure_dir(fs::absolute(a.out).parent_path().string());
+    writer.emplace(a.out, w, h, a.fps);
+  } else if (video) {
+    if (!a.fallback_frames)
+      throw InputError("--out", "", "ffmpeg not found on PATH, cannot write " + a.out +
+                                        " (install ffmpeg, or add --fallback-frames for PNG frames)");
+    frame_dir = a.out.substr(0, a.out.size() - 4) + "_frames";
+    std::cerr << "ffmpeg not found on PATH: writing PNG frames to " << frame_dir << " instead" << std::endl;
+  } else {
+    frame_dir = a.out;
+  }
+  if (!frame_dir.empty()) ensure_dir(frame_dir);
+
+  const torch::Device device = torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+  AbleNerf model = load_run_model(run, device);
+  if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
+    std::cerr << "note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing"
+              << std::endl;
+  torch::Generator gen = at::detail::createCPUGenerator(static_cast<uint64_t>(a.seed));
+  ForwardOptions fo;
+  fo.branches = a.branches;
+  fo.le_noise = a.le_noise;
+  fo.le_zero = a.le_zero;
+  fo.generator = &gen;
+  const int64_t chunk = a.chunk > 0 ? a.chunk : run.config.eval.chunk;
+  const double near = run.config.data.near, far = run.config.data.far;
+
+  const int64_t rays = static_cast<int64_t>(w) * h;
+  ProgressLine bar("render", rays * n, "rays");
+  for (int k = 0; k < n; ++k) {
+    const std::string note = "frame " + std::to_string(k + 1) + "/" + std::to_string(n);
+    const RenderResult r = render_image(model, poses[k], cams.intrinsics, near, far, chunk, fo, device,
+                                        [&](int64_t done, int64_t) { bar.update(k * rays + done, note); });
+    if (writer) {
+      writer->write(r.rgb);
+      continue;
+    }
+    const std::string stem = frame_dir + "/" + frame_name(k);
+    write_png(stem + ".png", r.rgb);
+    if (a.raw) save_tensor(stem + ".pt", r.rgb);
+    if (a.depth) {
+      write_png(stem + "_depth.png", colormap(r.depth_mean, near, far));
+      write_png(stem + "_depth_argmax.png", colormap(r.depth_argmax, near, far));
+      if (a.raw) {
+        save_tensor(stem + "_depth.pt", r.depth_mean);
+        save_tensor(stem + "_depth_argmax.pt", r.depth_argmax);
+      }
+    }
+    if (a.branches) {
+      write_png(stem + "_ray.png", view_linear(r.ray_colour));
+      write_png(stem + "_le.png", view_linear(r.le_colour));
+      if (a.raw) {
+        save_tensor(stem + "_ray.pt", r.ray_colour);
+        save_tensor(stem + "_le.pt", r.le_colour);
+      }
+    }
+  }
+  if (writer) writer->close();
+  bar.finish();
+  std::cout << "wrote " << n << " frames (" << w << "x" << h << ") to " << (writer ? a.out : frame_dir) << std::endl;
+}
+
+void setup(CLI::App& app) {
+  auto a = std::make_shared<RenderArgs>();
+  app.add_option("--run", a->run, "Run folder written by `ablenerf train`")->required();
+  auto* cams = app.add_option("--cameras", a->cameras, "Render at the poses of this Blender/transforms json");
+  auto* path = app.add_option("--path", a->path,
+                              "Camera path around the origin at the training cameras' mean distance: "
+                              "orbit (mean elevation) or spiral (elevation oscillating +-15 deg)");
+  cams->excludes(path);
+  app.add_option("--frames", a->frames, "Frames along --path")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--width", a->width, "Output width (default: dataset width / data.downscale)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--height", a->height, "Output height (default: keeps the aspect ratio)")->check(CLI::PositiveNumber);
+  app.add_flag("--raw", a->raw,
+               "Also write frame_NNNN.pt: float32 (H,W,3) colours before 8-bit rounding (torch.load-able); "
+               "with --depth/--branches also their tensors");
+  app.add_flag("--depth", a->depth,
+               "Also write depth from the fine attention: frame_NNNN_depth.png (weighted mean of the "
+               "interval mid-points) and _depth_argmax.png (most-attended volume), colour-mapped near..far");
+  app.add_flag("--branches", a->branches,
+               "Also write the fine ray-token and LE branch colours (_ray.png, _le.png): they are LINEAR "
+               "values, shown through the sRGB curve and clipped for viewing (the .pt files keep them linear)");
+  app.add_option("--le-noise", a->le_noise, "Add Gaussian noise of this std to the learnable embeddings");
+  app.add_flag("--le-zero", a->le_zero, "Zero the learnable embeddings");
+  app.add_option("--seed", a->seed, "Seed of the LE noise (same noise for every pixel and frame)")
+      ->capture_default_str();
+  app.add_option("--fps", a->fps, "Video frame rate")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
+      ->check(CLI::PositiveNumber);
+  app.add_flag("--fallback-frames", a->fallback_frames,
+               "With a .mp4 --out and no ffmpeg: write PNG frames to OUT_frames/ instead of failing");
+  app.add_option("--out", a->out, "Output folder for PNG frames, or FILE.mp4 (needs ffmpeg)")->required();
+  app.callback([a] {
+    if (a->cameras.empty() && a->path.empty()) throw InputError("render", "--path", "give --path orbit|spiral or --cameras FILE");
+    run_render(*a);
+  });
+}
+
 }  // namespace
 ABLENERF_COMMAND("render", 40, "Render images or a video along a camera path", setup);
 }  // namespace ablenerf::cli

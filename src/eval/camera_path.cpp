@@ -1,0 +1,69 @@
+#include "eval/camera_path.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "util/errors.h"
+
+namespace ablenerf {
+namespace {
+// Below this norm a direction is treated as degenerate.
+constexpr double kDegenerateNorm = 1e-9;
+}  // namespace
+
+PathKind parse_path_kind(const std::string& name, const std::string& source, const std::string& field) {
+  if (name == "orbit") return PathKind::Orbit;
+  if (name == "spiral") return PathKind::Spiral;
+  throw InputError(source, field, "unknown camera path '" + name + "' (use orbit or spiral)");
+}
+
+CameraRig camera_rig(const torch::Tensor& c2w) {
+  TORCH_CHECK(c2w.dim() == 3 && c2w.size(0) > 0 && c2w.size(1) >= 3 && c2w.size(2) == 4,
+              "camera_rig: expected (N,3,4) poses, got ", c2w.sizes());
+  const auto centres = c2w.slice(1, 0, 3).select(2, 3).to(torch::kDouble);  // (N,3)
+  const auto dist = centres.norm(2, 1);
+  // Elevation of each centre: asin(z / |c|); cameras at the origin carry no direction.
+  const auto elev = torch::asin((centres.select(1, 2) / dist.clamp_min(kDegenerateNorm)).clamp(-1.0, 1.0));
+  CameraRig rig;
+  rig.distance = dist.mean().item<double>();
+  rig.elevation = elev.mean().item<double>();
+  return rig;
+}
+
+torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, const torch::Tensor& up) {
+  const auto e = eye.to(torch::kDouble), t = target.to(torch::kDouble), u = up.to(torch::kDouble);
+  // The camera looks along -z, so its z axis points from the target back to the eye.
+  auto z = e - t;
+  const double zn = z.norm().item<double>();
+  if (zn < kDegenerateNorm) throw std::invalid_argument("look_at: eye equals target");
+  z = z / zn;
+  auto x = torch::linalg_cross(u, z);
+  const double xn = x.norm().item<double>();
+  if (xn < kDegenerateNorm) throw std::invalid_argument("look_at: view direction parallel to up");
+  x = x / xn;
+  const auto y = torch::linalg_cross(z, x);  // unit: z and x are orthonormal
+  return torch::stack({x, y, z, e}, 1).to(torch::kFloat);  // columns: right, up, back, centre
+}
+
+torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig) {
+  if (frames < 1) throw std::invalid_argument("camera_path: frames must be >= 1");
+  const auto origin = torch::zeros({3}, torch::kDouble);
+  const auto up = torch::tensor({0.0, 0.0, 1.0}, torch::kDouble);
+  std::vector<torch::Tensor> poses;
+  poses.reserve(static_cast<size_t>(frames));
+  for (int k = 0; k < frames; ++k) {
+    const double phase = 2.0 * M_PI * k / frames;
+    double elev = rig.elevation;
+    if (kind == PathKind::Spiral) elev += kSpiralAmplitudeRad * std::sin(kSpiralCycles * phase);
+    elev = std::clamp(elev, -kMaxElevationRad, kMaxElevationRad);
+    const double r = rig.distance;
+    const auto eye = torch::tensor(
+        {r * std::cos(elev) * std::cos(phase), r * std::cos(elev) * std::sin(phase), r * std::sin(elev)},
+        torch::kDouble);
+    poses.push_back(look_at(eye, origin, up));
+  }
+  return torch::stack(poses);
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,170 @@
+#include "eval/evaluate.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <iostream>
+#include <optional>
+
+#include "data/dataset.h"
+#include "eval/colormap.h"
+#include "eval/lpips.h"
+#include "eval/metrics.h"
+#include "eval/progress.h"
+#include "eval/renderer.h"
+#include "eval/report.h"
+#include "util/errors.h"
+#include "util/fs.h"
+#include "util/image_io.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+namespace {
+
+// JSON has no infinity/NaN: such scores are written as null.
+nlohmann::json finite_or_null(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); }
+
+// Mean of the non-null entries of images[*][key]; null when there are none or one is null
+// for a reason that must not be averaged away (all-or-nothing keeps means comparable).
+nlohmann::json mean_of(const nlohmann::json& images, const std::string& key) {
+  double sum = 0;
+  size_t n = 0;
+  for (const auto& im : images) {
+    if (!im.contains(key)) continue;
+    if (im[key].is_null()) return nullptr;
+    sum += im[key].get<double>();
+    ++n;
+  }
+  return n ? nlohmann::json(sum / static_cast<double>(n)) : nlohmann::json();
+}
+
+std::string join(const std::vector<std::string>& v) {
+  std::string s;
+  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
+  return s;
+}
+
+}  // namespace
+
+std::string eval_dir(const RunFolder& run, const std::string& split) { return run.path("eval/" + split); }
+
+nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
+  std::function<void(const std::string&)> note = opts.note;
+  if (!note) note = [](const std::string& s) { std::cerr << s << std::endl; };
+  const std::string data_dir = opts.data_dir.empty() ? run.data_dir : opts.data_dir;
+  if (data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded (pass --data DIR)");
+  if (!fs::is_directory(data_dir))
+    throw InputError(data_dir, "", std::string("dataset folder not found") + (opts.data_dir.empty() ? " (recorded in run.json; pass --data DIR)" : ""));
+  if (opts.chunk < 0) throw InputError("--chunk", "", "must be positive");
+  if (opts.downscale < 0) throw InputError("--downscale", "", "must be positive");
+  const SsimVariant variant = parse_ssim_variant(opts.ssim.empty() ? run.config.eval.ssim : opts.ssim, "--ssim");
+  const int64_t chunk = opts.chunk > 0 ? opts.chunk : run.config.eval.chunk;
+
+  const auto splits = available_splits(data_dir);
+  if (std::find(splits.begin(), splits.end(), opts.split) == splits.end())
+    throw InputError(data_dir, "--split",
+                     "no split '" + opts.split + "'" + (splits.empty() ? "" : " (available: " + join(splits) + ")"));
+  LoadOptions lo;
+  lo.downscale = opts.downscale > 0 ? opts.downscale : run.config.data.downscale;
+  lo.white_background = run.config.data.background == "white";
+  lo.near = run.config.data.near;
+  lo.far = run.config.data.far;
+  lo.splits = {opts.split};
+  const Dataset ds = Dataset::load(data_dir, lo);
+  const Split& split = ds.split(opts.split);
+  const Intrinsics& k = ds.intrinsics;
+
+  AbleNerf model = load_run_model(run, opts.device);
+
+  // LPIPS: explicit weights must load; otherwise the default location, if any.
+  std::optional<Lpips> lpips;
+  const std::string lpips_path = opts.lpips_weights.empty() ? default_lpips_weights_path() : opts.lpips_weights;
+  if (lpips_path.empty()) {
+    note("LPIPS skipped: no weights found (pass --lpips-weights FILE or set ABLENERF_LPIPS_WEIGHTS)");
+  } else if (k.width < Lpips::kMinSide || k.height < Lpips::kMinSide) {
+    note("LPIPS skipped: images are " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+         ", AlexNet needs at least " + std::to_string(Lpips::kMinSide) + " pixels a side");
+  } else {
+    lpips.emplace(lpips_path);
+  }
+  const bool ssim_ok = variant != SsimVariant::Standard || (k.width >= kSsimWindow && k.height >= kSsimWindow);
+  if (!ssim_ok)
+    note("SSIM skipped: the standard variant needs images of at least " + std::to_string(kSsimWindow) + "x" +
+         std::to_string(kSsimWindow));
+
+  const int64_t count = opts.max_images < 0 ? split.size() : std::min<int64_t>(opts.max_images, split.size());
+  const std::string out_dir = eval_dir(run, opts.split);
+  ensure_dir(out_dir);
+
+  const bool has_depth = split.depth.defined();
+  nlohmann::json images = nlohmann::json::array();
+  const int64_t rays_per_image = static_cast<int64_t>(k.width) * k.height;
+  std::optional<ProgressLine> bar;
+  if (opts.progress) bar.emplace("eval " + opts.split, count * rays_per_image, "rays");
+  double total_seconds = 0;
+  for (int64_t i = 0; i < count; ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::string view = "view " + std::to_string(i + 1) + "/" + std::to_string(count);
+    const RenderResult r = render_image(model, split.c2w[i], k, ds.near, ds.far, chunk, ForwardOptions{},
+                                        opts.device, [&](int64_t done, int64_t) {
+                                          if (bar) bar->update(i * rays_per_image + done, view);
+                                        });
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    total_seconds += seconds;
+    const torch::Tensor gt = split.images[i];
+
+    const std::string stem = out_dir + "/r_" + std::to_string(i);
+    write_png(stem + ".png", r.rgb);
+    write_png(stem + "_gt.png", gt);
+    write_png(stem + "_error.png", colormap((r.rgb - gt).abs().mean(-1), 0.0, kErrorMapMax));
+    write_png(stem + "_depth.png", colormap(r.depth_mean, ds.near, ds.far));
+
+    nlohmann::json im;
+    im["index"] = i;
+    im["file"] = split.files[static_cast<size_t>(i)];
+    im["render"] = "r_" + std::to_string(i) + ".png";
+    im["psnr"] = finite_or_null(psnr(r.rgb, gt));
+    im["ssim"] = ssim_ok ? finite_or_null(ssim(r.rgb, gt, variant)) : nlohmann::json();
+    im["lpips"] = lpips ? finite_or_null(lpips->distance(r.rgb, gt)) : nlohmann::json();
+    im["seconds"] = seconds;
+    if (has_depth) {
+      const auto d = split.depth[i];
+      const auto valid = (d > 0) & (split.alpha[i] > kDepthAlphaThreshold);
+      const int64_t n_valid = valid.sum().item<int64_t>();
+      auto mae = [&](const torch::Tensor& pred) {
+        return n_valid ? finite_or_null((pred - d).abs().masked_select(valid).mean().item<double>())
+                       : nlohmann::json();
+      };
+      im["depth_mae"] = mae(r.depth_mean);
+      im["depth_mae_argmax"] = mae(r.depth_argmax);
+    }
+    images.push_back(im);
+  }
+  if (bar) bar->finish();
+
+  nlohmann::json m;
+  m["split"] = opts.split;
+  m["data"] = data_dir;
+  m["images"] = images;
+  nlohmann::json mean;
+  for (const char* key : {"psnr", "ssim", "lpips"}) mean[key] = mean_of(images, key);
+  if (has_depth)
+    for (const char* key : {"depth_mae", "depth_mae_argmax"}) mean[key] = mean_of(images, key);
+  m["mean"] = mean;
+  m["seconds_per_image"] = count ? nlohmann::json(total_seconds / static_cast<double>(count)) : nlohmann::json();
+  m["lpips_weights"] = lpips ? nlohmann::json(lpips_path) : nlohmann::json();
+  m["ssim_variant"] = ssim_variant_name(variant);
+  const RunLog log = read_run_log(run.log_path());
+  m["step"] = log.last_step >= 0 ? nlohmann::json(log.last_step) : nlohmann::json();
+  m["width"] = k.width;
+  m["height"] = k.height;
+  m["near"] = ds.near;
+  m["far"] = ds.far;
+  m["error_map_max"] = kErrorMapMax;
+  atomic_write_text(out_dir + "/metrics.json", m.dump(2) + "\n");
+  return m;
+}
+
+}  // namespace ablenerf

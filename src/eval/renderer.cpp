@@ -1,0 +1,76 @@
+#include "eval/renderer.h"
+
+#include <algorithm>
+#include <optional>
+
+namespace ablenerf {
+namespace {
+// Keeps the mean depth finite for a ray whose volume attention underflows to zero everywhere.
+constexpr double kMinAttentionMass = 1e-12;
+}  // namespace
+
+AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::Tensor& t) {
+  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) &&
+                  t.size(1) == weights.size(1) + 1,
+              "depth_from_attention: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ",
+              t.sizes());
+  const auto mid = 0.5 * (t.slice(1, 0, -1) + t.slice(1, 1));  // (B,S) interval mid-points
+  const auto w = weights.to(mid.scalar_type());
+  AttentionDepth d;
+  d.mean = (w * mid).sum(1) / w.sum(1).clamp_min(kMinAttentionMass);
+  d.argmax = mid.gather(1, w.argmax(1, /*keepdim=*/true)).squeeze(1);
+  return d;
+}
+
+RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near,
+                          double far, int64_t chunk, const ForwardOptions& opts, const torch::Device& device,
+                          const RenderProgress& progress) {
+  TORCH_CHECK(chunk > 0, "render_image: chunk must be positive");
+  TORCH_CHECK(k.width > 0 && k.height > 0, "render_image: empty image ", k.width, "x", k.height);
+  TORCH_CHECK(c2w.dim() == 2 && c2w.size(0) >= 3 && c2w.size(1) == 4, "render_image: c2w must be (3,4) or (4,4)");
+  torch::NoGradGuard no_grad;
+  const int64_t h = k.height, w = k.width, n = h * w;
+  const auto cpu = torch::TensorOptions().dtype(torch::kFloat);
+  RenderResult out;
+  out.rgb = torch::empty({n, 3}, cpu);
+  out.depth_mean = torch::empty({n}, cpu);
+  out.depth_argmax = torch::empty({n}, cpu);
+  if (opts.branches) {
+    out.ray_colour = torch::empty({n, 3}, cpu);
+    out.le_colour = torch::empty({n, 3}, cpu);
+  }
+  const auto pose = c2w.slice(0, 0, 3).to(device, torch::kFloat).unsqueeze(0);  // (1,3,4)
+  const auto long_opts = torch::TensorOptions().dtype(torch::kLong).device(device);
+  for (int64_t begin = 0; begin < n; begin += chunk) {
+    const int64_t end = std::min(n, begin + chunk);
+    // Pixel indices of this chunk, row-major like rays_for_image.
+    const auto idx = torch::arange(begin, end, long_opts);
+    const Rays rays = rays_for_pixels(pose.expand({end - begin, 3, 4}), idx.remainder(w), idx.div(w, "floor"), k);
+    ForwardOptions o = opts;
+    std::optional<torch::Generator> gen;
+    if (opts.generator) {
+      gen = opts.generator->clone();
+      o.generator = &*gen;
+    }
+    const ModelOutput m = model->forward(rays, near, far, o);
+    out.rgb.slice(0, begin, end).copy_(m.rgb_fine);
+    const auto depth = depth_from_attention(m.fine_weights, m.fine_t);
+    out.depth_mean.slice(0, begin, end).copy_(depth.mean);
+    out.depth_argmax.slice(0, begin, end).copy_(depth.argmax);
+    if (opts.branches) {
+      out.ray_colour.slice(0, begin, end).copy_(m.ray_colour_fine);
+      out.le_colour.slice(0, begin, end).copy_(m.le_colour_fine);
+    }
+    if (progress) progress(end, n);
+  }
+  out.rgb = out.rgb.view({h, w, 3});
+  out.depth_mean = out.depth_mean.view({h, w});
+  out.depth_argmax = out.depth_argmax.view({h, w});
+  if (opts.branches) {
+    out.ray_colour = out.ray_colour.view({h, w, 3});
+    out.le_colour = out.le_colour.view({h, w, 3});
+  }
+  return out;
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,110 @@
+// Camera paths: rigid poses, looking at the origin with +z up, at the requested distance and
+// elevation; look_at on a hand-worked pose; the rig estimate from known cameras.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <tuple>
+
+#include "data/rays.h"
+#include "eval/camera_path.h"
+#include "util/errors.h"
+
+using namespace ablenerf;
+
+namespace {
+
+// Checks rotation orthonormality, det +1, optical axis (-z) through the origin, x horizontal.
+void expect_looks_at_origin(const torch::Tensor& pose, double distance) {
+  const auto p = pose.to(torch::kDouble);
+  const auto rot = p.slice(1, 0, 3), centre = p.select(1, 3);
+  EXPECT_TRUE(torch::allclose(rot.t().mm(rot), torch::eye(3, torch::kDouble), 0, 1e-6));
+  EXPECT_NEAR(torch::det(rot).item<double>(), 1.0, 1e-6);
+  EXPECT_NEAR(centre.norm().item<double>(), distance, 1e-5);
+  // Camera z (backwards) must point from the origin to the centre: z == centre / |centre|.
+  EXPECT_TRUE(torch::allclose(rot.select(1, 2), centre / centre.norm(), 0, 1e-6));
+  // +z up: camera x stays horizontal and camera y has a positive world-z component.
+  EXPECT_NEAR(rot[2][0].item<double>(), 0.0, 1e-6);
+  EXPECT_GT(rot[2][1].item<double>(), 0.0);
+}
+
+}  // namespace
+
+TEST(LookAt, HandWorkedPose) {
+  // Eye on -y looking at the origin: camera looks along +y, so z_cam = (0,-1,0), x = up x z =
+  // (1,0,0), y = z x x = (0,0,1).
+  const auto p = look_at(torch::tensor({0.0, -4.0, 0.0}), torch::zeros({3}), torch::tensor({0.0, 0.0, 1.0}));
+  const auto expected = torch::tensor({{1.f, 0.f, 0.f, 0.f}, {0.f, 0.f, -1.f, -4.f}, {0.f, 1.f, 0.f, 0.f}});
+  EXPECT_TRUE(torch::allclose(p, expected, 0, 1e-6)) << p;
+  EXPECT_THROW(look_at(torch::tensor({0.0, 0.0, 3.0}), torch::zeros({3}), torch::tensor({0.0, 0.0, 1.0})),
+               std::invalid_argument);
+}
+
+TEST(CameraPath, OrbitIsACircleAtTheRigElevation) {
+  const CameraRig rig{4.0, 0.5};
+  const auto poses = camera_path(PathKind::Orbit, 12, rig);
+  ASSERT_EQ(poses.sizes(), (std::vector<int64_t>{12, 3, 4}));
+  for (int i = 0; i < 12; ++i) {
+    expect_looks_at_origin(poses[i], 4.0);
+    EXPECT_NEAR(std::asin(poses[i][2][3].item<double>() / 4.0), 0.5, 1e-5);
+  }
+  // Evenly spaced azimuths: consecutive centres are 30 degrees apart around z.
+  const auto c0 = poses[0].select(1, 3), c1 = poses[1].select(1, 3);
+  const double az0 = std::atan2(c0[1].item<double>(), c0[0].item<double>());
+  const double az1 = std::atan2(c1[1].item<double>(), c1[0].item<double>());
+  EXPECT_NEAR(az1 - az0, 2 * M_PI / 12, 1e-5);
+}
+
+TEST(CameraPath, SpiralKeepsDistanceAndSwingsElevation) {
+  const CameraRig rig{3.0, 0.3};
+  const auto poses = camera_path(PathKind::Spiral, 40, rig);
+  double lo = 10, hi = -10;
+  for (int i = 0; i < 40; ++i) {
+    expect_looks_at_origin(poses[i], 3.0);
+    const double el = std::asin(poses[i][2][3].item<double>() / 3.0);
+    lo = std::min(lo, el), hi = std::max(hi, el);
+  }
+  // 40 frames, 2 cycles: samples land exactly on the sine's peaks (k = 5, 15, ...).
+  EXPECT_NEAR(hi, 0.3 + kSpiralAmplitudeRad, 1e-5);
+  EXPECT_NEAR(lo, 0.3 - kSpiralAmplitudeRad, 1e-5);
+}
+
+TEST(CameraPath, ElevationIsClampedBelowThePole) {
+  const auto poses = camera_path(PathKind::Spiral, 8, CameraRig{2.0, 1.5});
+  for (int i = 0; i < 8; ++i) expect_looks_at_origin(poses[i], 2.0);
+}
+
+TEST(CameraPath, CentrePixelRayPassesThroughTheOrigin) {
+  // Ties the poses to the ray convention of data/rays.h: the principal ray hits the origin.
+  Intrinsics k;
+  k.width = k.height = 2;
+  k.fx = k.fy = 1;
+  k.cx = k.cy = 1;  // pixel centres at +-0.5: average of the four rays is the optical axis
+  const auto pose = camera_path(PathKind::Orbit, 5, CameraRig{4.0, 0.7})[2];
+  const Rays r = rays_for_image(pose, k);
+  const auto axis = r.directions.mean(0).to(torch::kDouble);
+  const auto o = r.origins[0].to(torch::kDouble);
+  // Distance from the origin to the line o + s * axis.
+  const auto closest = o - axis * (o.dot(axis) / axis.dot(axis));
+  EXPECT_LT(closest.norm().item<double>(), 1e-5);
+}
+
+TEST(CameraRigTest, MeanDistanceAndElevationOfKnownCameras) {
+  const auto up = torch::tensor({0.0, 0.0, 1.0});
+  std::vector<torch::Tensor> poses;
+  // Two cameras at distance 3 (elevation 0.2, 0.6) and one at distance 6 (elevation 0.4).
+  for (auto [d, el, az] : std::initializer_list<std::tuple<double, double, double>>{
+           {3.0, 0.2, 0.0}, {3.0, 0.6, 1.0}, {6.0, 0.4, 2.0}})
+    poses.push_back(look_at(torch::tensor({d * std::cos(el) * std::cos(az), d * std::cos(el) * std::sin(az),
+                                           d * std::sin(el)}),
+                            torch::zeros({3}), up));
+  const CameraRig rig = camera_rig(torch::stack(poses));
+  EXPECT_NEAR(rig.distance, 4.0, 1e-5);
+  EXPECT_NEAR(rig.elevation, 0.4, 1e-5);
+}
+
+TEST(CameraPath, ParseKind) {
+  EXPECT_EQ(parse_path_kind("orbit"), PathKind::Orbit);
+  EXPECT_EQ(parse_path_kind("spiral"), PathKind::Spiral);
+  EXPECT_THROW(parse_path_kind("helix"), InputError);
+}

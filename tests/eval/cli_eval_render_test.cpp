@@ -1,0 +1,145 @@
+// The `eval` and `render` subcommands through the built CLI ($ABLENERF_BIN): exit codes and
+// one-line errors, raw tensors equal to the PNGs, depth/branch images, video through ffmpeg.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+
+#include "eval/video.h"
+#include "eval_fixtures.h"
+#include "test_util.h"
+#include "util/image_io.h"
+
+using namespace ablenerf;
+namespace fs = std::filesystem;
+
+namespace {
+
+int count_lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+torch::Tensor load_pt(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return torch::pickle_load(bytes).toTensor();
+}
+
+// Sets an environment variable for the lifetime of the object.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const std::string& value) : name_(name) {
+    if (const char* old = std::getenv(name)) old_ = old, had_ = true;
+    ::setenv(name, value.c_str(), 1);
+  }
+  ~ScopedEnv() { had_ ? ::setenv(name_, old_.c_str(), 1) : ::unsetenv(name_); }
+
+ private:
+  const char* name_;
+  std::string old_;
+  bool had_ = false;
+};
+
+}  // namespace
+
+TEST(CliEval, MissingRunExitsTwoWithOneLine) {
+  const auto r = test::run_cli("eval --run /nonexistent/run");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_EQ(count_lines(r.output), 1) << r.output;
+  EXPECT_NE(r.output.find("error: /nonexistent/run"), std::string::npos) << r.output;
+}
+
+TEST(CliEval, WritesMetricsAndReport) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 2, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const auto r = test::run_cli("eval --run " + t / "run" + " --max-images 1 --ssim release --chunk 13");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("LPIPS skipped"), std::string::npos) << r.output;
+  EXPECT_TRUE(fs::exists(t / "run/eval/test/metrics.json"));
+  EXPECT_TRUE(fs::exists(t / "run/eval/test/r_0.png"));
+  EXPECT_FALSE(fs::exists(t / "run/eval/test/r_1.png"));  // --max-images 1
+  EXPECT_TRUE(fs::exists(t / "run/report.html"));
+  const auto bad = test::run_cli("eval --run " + t / "run" + " --split val");
+  EXPECT_EQ(bad.exit_code, 2) << bad.output;
+  EXPECT_EQ(count_lines(bad.output), 1) << bad.output;
+}
+
+TEST(CliRender, RawTensorsMatchThePngsAndExtrasAreWritten) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 3, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const auto r = test::run_cli("render --run " + t / "run" +
+                               " --path spiral --frames 2 --width 10 --height 6 --raw --depth --branches"
+                               " --le-noise 0.5 --seed 3 --out " + t / "frames");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* f : {"frame_0000.png", "frame_0001.png", "frame_0000_depth.png", "frame_0000_depth_argmax.png",
+                        "frame_0000_ray.png", "frame_0000_le.png", "frame_0001.pt", "frame_0001_ray.pt"})
+    EXPECT_TRUE(fs::exists(t / "frames/" + std::string(f))) << f;
+  const auto raw = load_pt(t / "frames/frame_0001.pt");
+  ASSERT_EQ(raw.sizes(), (std::vector<int64_t>{6, 10, 3}));
+  EXPECT_EQ(raw.scalar_type(), torch::kFloat);
+  const auto png = read_png(t / "frames/frame_0001.png").to(torch::kFloat) / 255.0;
+  EXPECT_LE((raw - png).abs().max().item<double>(), 1.0 / 255);
+  // The branch PNG is the linear tensor through the sRGB curve: check one bright-enough pixel
+  // against the closed form 1.055 x^(1/2.4) - 0.055.
+  const auto ray = load_pt(t / "frames/frame_0000_ray.pt");
+  const auto ray_png = read_png(t / "frames/frame_0000_ray.png").to(torch::kFloat) / 255.0;
+  const double x = ray[0][0][0].item<double>();
+  const double expect = x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1 / 2.4) - 0.055;
+  EXPECT_NEAR(ray_png[0][0][0].item<double>(), std::clamp(expect, 0.0, 1.0), 0.5 / 255 + 1e-6);
+}
+
+TEST(CliRender, CamerasJsonAndBadOptions) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 2, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  // Poses of the test split at the native size (read from the first image).
+  const auto r = test::run_cli("render --run " + t / "run" + " --cameras " + t / "scene/transforms_test.json" +
+                               " --out " + t / "cams");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(read_png(t / "cams/frame_0001.png").sizes(), (std::vector<int64_t>{8, 8, 3}));
+  EXPECT_FALSE(fs::exists(t / "cams/frame_0002.png"));
+  for (const std::string& args : {std::string(" --path helix --out ") + t / "x",
+                                  std::string(" --out ") + t / "x",  // neither --path nor --cameras
+                                  std::string(" --path orbit --raw --out ") + t / "x.mp4"}) {
+    const auto bad = test::run_cli("render --run " + t / "run" + args);
+    EXPECT_EQ(bad.exit_code, 2) << args << ": " << bad.output;
+    EXPECT_EQ(count_lines(bad.output), 1) << args << ": " << bad.output;
+  }
+}
+
+TEST(CliRender, VideoWithoutFfmpegExitsTwoWithOneLine) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  ScopedEnv path("PATH", t / "empty_bin");  // no ffmpeg reachable
+  const auto r = test::run_cli("render --run " + t / "run" + " --path orbit --frames 2 --out " + t / "v.mp4");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_EQ(count_lines(r.output), 1) << r.output;
+  EXPECT_NE(r.output.find("ffmpeg not found"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(t / "v.mp4"));
+  const auto fb = test::run_cli("render --run " + t / "run" + " --path orbit --frames 2 --fallback-frames --out " +
+                                t / "v.mp4");
+  EXPECT_EQ(fb.exit_code, 0) << fb.output;
+  EXPECT_TRUE(fs::exists(t / "v_frames/frame_0001.png"));
+}
+
+TEST(CliRender, VideoThroughFfmpeg) {
+  if (!ffmpeg_available()) GTEST_SKIP() << "ffmpeg is not installed";
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const auto r = test::run_cli("render --run " + t / "run" + " --path orbit --frames 3 --width 16 --height 16 --fps 10 --out " +
+                               t / "v.mp4");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  ASSERT_TRUE(fs::exists(t / "v.mp4"));
+  EXPECT_GT(fs::file_size(t / "v.mp4"), 0u);
+}
