@@ -182,8 +182,8 @@ std::string views_section(const std::vector<SplitMetrics>& all) {
   const auto images = sm.m.value("images", nlohmann::json::array());
   const double near = sm.m.value("near", 2.0), far = sm.m.value("far", 6.0);
   s << "<p>Split <b>" << html_escape(sm.split) << "</b>: ground truth | render | error | depth.</p>";
-  s << colour_bar(0.0, sm.m.value("error_map_max", kErrorMapMax), "error: mean |render - gt| over RGB, 0 to")
-    << colour_bar(near, far, "depth: attention-weighted mean depth, near to far");
+  s << colour_bar(0.0, sm.m.value("error_map_max", kErrorMapMax), "error: mean |render - gt| over RGB")
+    << colour_bar(near, far, "depth: attention-weighted mean depth (near to far)");
   const int n = std::min<int>(kMaxViews, static_cast<int>(images.size()));
   for (int i = 0; i < n; ++i) {
     const auto& im = images[static_cast<size_t>(i)];
@@ -375,7 +375,17 @@ std::string svg_chart(const std::string& title, const std::string& x_label, cons
   o << "<text x=\"" << kMarginL + pw / 2 << "\" y=\"" << height - 6 << "\" text-anchor=\"middle\">"
     << html_escape(x_label) << "</text><text transform=\"translate(12," << kMarginT + ph / 2
     << ") rotate(-90)\" text-anchor=\"middle\">" << html_escape(y_label) << "</text>";
+  // Legend box behind the labels so that lines running through the corner stay readable.
+  int plotted = 0;
+  for (const auto& s : series)
+    for (size_t i = 0; i < s.x.size(); ++i)
+      if (usable(s.x[i], s.y[i])) {
+        ++plotted;
+        break;
+      }
   int legend_row = 0;
+  std::ostringstream legend;
+  legend << std::fixed << std::setprecision(1);
   for (const auto& s : series) {
     std::ostringstream pts;
     pts << std::fixed << std::setprecision(1);
@@ -392,11 +402,12 @@ std::string svg_chart(const std::string& title, const std::string& x_label, cons
       o << "<polyline fill=\"none\" stroke=\"" << s.colour << "\" stroke-width=\"1.5\" points=\"" << pts.str() << "\"/>";
     if (!n) continue;
     const double ly = kMarginT + 12 + 14 * legend_row++;
-    o << "<rect x=\"" << kMarginL + pw - 120 << "\" y=\"" << ly - 8 << "\" width=\"10\" height=\"10\" fill=\""
-      << s.colour << "\"/><text x=\"" << kMarginL + pw - 105 << "\" y=\"" << ly + 1 << "\">" << html_escape(s.label)
-      << "</text>";
+    legend << "<rect x=\"" << kMarginL + pw - 120 << "\" y=\"" << ly - 8 << "\" width=\"10\" height=\"10\" fill=\""
+           << s.colour << "\"/><text x=\"" << kMarginL + pw - 105 << "\" y=\"" << ly + 1 << "\">"
+           << html_escape(s.label) << "</text>";
   }
-  o << "</svg>";
+  o << "<rect x=\"" << kMarginL + pw - 126 << "\" y=\"" << kMarginT + 2 << "\" width=\"122\" height=\""
+    << 14 * plotted + 4 << "\" fill=\"#fff\" fill-opacity=\"0.85\" stroke=\"#ccc\"/>" << legend.str() << "</svg>";
   return o.str();
 }
 
