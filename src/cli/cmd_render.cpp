@@ -16,7 +16,7 @@
 #include "data/dataset.h"
 #include "eval/camera_path.h"
 #include "eval/colormap.h"
-#include "eval/progress.h"
+#include "util/progress.h"
 #include "eval/renderer.h"
 #include "eval/run_folder.h"
 #include "eval/video.h"
@@ -160,7 +160,7 @@ void run_render(const RenderArgs& a) {
   const double near = run.config.data.near, far = run.config.data.far;
 
   const int64_t rays = static_cast<int64_t>(w) * h;
-  ProgressLine bar("render", rays * n, "rays");
+  Progress bar("render (rays)", rays * n);
   for (int k = 0; k < n; ++k) {
     const std::string note = "frame " + std::to_string(k + 1) + "/" + std::to_string(n);
     const RenderResult r = render_image(model, poses[k], cams.intrinsics, near, far, chunk, fo, device,

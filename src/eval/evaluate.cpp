@@ -11,7 +11,7 @@
 #include "eval/colormap.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
-#include "eval/progress.h"
+#include "util/progress.h"
 #include "eval/renderer.h"
 #include "eval/report.h"
 #include "util/errors.h"
@@ -101,8 +101,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const bool has_depth = split.depth.defined();
   nlohmann::json images = nlohmann::json::array();
   const int64_t rays_per_image = static_cast<int64_t>(k.width) * k.height;
-  std::optional<ProgressLine> bar;
-  if (opts.progress) bar.emplace("eval " + opts.split, count * rays_per_image, "rays");
+  std::optional<Progress> bar;
+  if (opts.progress) bar.emplace("eval " + opts.split + " (rays)", count * rays_per_image);
   double total_seconds = 0;
   for (int64_t i = 0; i < count; ++i) {
     const auto t0 = std::chrono::steady_clock::now();

@@ -11,7 +11,7 @@
 
 #include "eval/colormap.h"
 #include "eval/evaluate.h"
-#include "eval/progress.h"
+#include "util/progress.h"
 #include "util/fs.h"
 
 namespace fs = std::filesystem;
@@ -117,7 +117,7 @@ std::string summary_section(const RunFolder& run, const RunLog& log) {
   row("Dataset", run.data_dir.empty() ? "n/a" : html_escape(run.data_dir));
   row("Steps", log.last_step >= 0 ? std::to_string(log.last_step) + " of " + std::to_string(run.config.train.steps)
                                   : "no training log");
-  row("Training time", log.elapsed_s >= 0 ? ProgressLine::format_duration(log.elapsed_s) : "n/a");
+  row("Training time", log.elapsed_s >= 0 ? Progress::format_duration(log.elapsed_s) : "n/a");
   if (!log.train.empty()) {
     const auto& last = log.train.back();
     row("Last train loss", fmt_json(last.value("loss", nlohmann::json())));
