@@ -98,6 +98,19 @@ double number_field(const json& j, const std::string& key, const std::string& fi
   return d;
 }
 
+// Largest image side accepted from json (w, h): far above any camera, small enough that
+// w * h * channels cannot overflow and that the double -> int conversion is defined.
+constexpr double kMaxImageSide = 1 << 20;
+
+// An image size field (w or h): a whole number in [1, kMaxImageSide].
+int size_field(const json& j, const std::string& key, const std::string& file) {
+  const double v = number_field(j, key, file, "");
+  if (!(v >= 1 && v <= kMaxImageSide) || v != std::floor(v))
+    throw InputError(file, key, "image size must be a whole number in [1, " +
+                                    std::to_string(static_cast<int>(kMaxImageSide)) + "]");
+  return static_cast<int>(v);
+}
+
 // Pose (3,4 or 4,4 rows) -> (3,4) float tensor, checked finite and rigid.
 torch::Tensor parse_pose(const json& m, const std::string& file, const std::string& field) {
   if (!m.is_array() || (m.size() != 4 && m.size() != 3))
@@ -261,12 +274,14 @@ void check_memory(const std::vector<SplitSpec>& specs, int h, int w, const LoadO
   int64_t frames = 0;
   for (const auto& s : specs) frames += static_cast<int64_t>(s.frames.size());
   const int64_t hh = h / opts.downscale, ww = w / opts.downscale;
-  const int64_t need = frames * hh * ww * 4 * static_cast<int64_t>(sizeof(float)) +
-                       static_cast<int64_t>(h) * w * 4 * 4 * 2;  // decoded + one full-res scratch
+  // In double: json sizes and frame counts are untrusted and their product may not fit int64.
+  const double need = static_cast<double>(frames) * hh * ww * 4 * sizeof(float) +
+                      static_cast<double>(h) * w * 4 * 4 * 2;  // decoded + one full-res scratch
   const int64_t have = opts.memory_limit_bytes > 0 ? opts.memory_limit_bytes : available_memory_bytes();
-  if (need > have)
+  if (need > static_cast<double>(have))
     throw InputError(root, "images",
-                     "the decoded images need " + std::to_string(need / (1 << 20)) + " MiB but only " +
+                     "the decoded images need " + std::to_string(static_cast<int64_t>(need / (1 << 20))) +
+                         " MiB but only " +
                          std::to_string(have / (1 << 20)) +
                          " MiB are available (try --set data.downscale=2 or fewer splits)");
 }
@@ -343,9 +358,8 @@ Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
         j.at("camera_model").get<std::string>() != "OPENCV" && j.at("camera_model").get<std::string>() != "PINHOLE")
       throw InputError(file, "camera_model", "only PINHOLE (or OPENCV without distortion) is supported");
     auto frames = parse_frames(j, root, file, false);
-    w = static_cast<int>(number_field(j, "w", file, ""));
-    h = static_cast<int>(number_field(j, "h", file, ""));
-    if (w <= 0 || h <= 0) throw InputError(file, "w", "image size must be positive");
+    w = size_field(j, "w", file);
+    h = size_field(j, "h", file);
     const double s = 1.0 / opts.downscale;
     if (j.contains("fl_x")) {
       fx = number_field(j, "fl_x", file, "") * s;
@@ -383,8 +397,8 @@ CameraList load_cameras(const std::string& path, int width, int height) {
   if (!j.contains("frames") || !j.at("frames").is_array() || j.at("frames").empty())
     throw InputError(path, "frames", "missing or empty");
   CameraList cl;
-  int w = j.contains("w") ? static_cast<int>(number_field(j, "w", path, "")) : width;
-  int h = j.contains("h") ? static_cast<int>(number_field(j, "h", path, "")) : height;
+  int w = j.contains("w") ? size_field(j, "w", path) : width;
+  int h = j.contains("h") ? size_field(j, "h", path) : height;
   if (w <= 0 || h <= 0) throw InputError(path, "w", "image size unknown: give --width/--height or w/h");
   double fx;
   if (j.contains("fl_x")) fx = number_field(j, "fl_x", path, "");

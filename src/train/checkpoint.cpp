@@ -74,7 +74,7 @@ void save_checkpoint(const std::string& path, const Config& config, AbleNerf& mo
     std::ofstream out(tmp, std::ios::binary);
     out.write(header.data(), static_cast<std::streamsize>(header.size()));
     out.write(payload.data(), static_cast<std::streamsize>(payload.size()));
-    out.flush();
+    out.close();  // close() flushes; a full disk surfaces here at the latest
     if (!out) throw InputError(path, "", "cannot write the checkpoint (disk full or no permission?)");
   });
 }

@@ -47,6 +47,8 @@ double mse_to_psnr(double mse) { return -10.0 * std::log10(std::max(mse, 1e-12))
 void log_line(const std::string& path, const nlohmann::json& j) {
   std::ofstream out(path, std::ios::app);
   out << j.dump() << "\n";
+  out.close();
+  if (!out) throw InputError(path, "", "cannot append to the log (disk full or no permission?)");
 }
 
 // Mean PSNR of the fine colour on the first `views` images of the held-out split.

@@ -17,11 +17,15 @@ namespace fs = std::filesystem;
 namespace ablenerf {
 
 namespace {
-void fsync_path(const std::string& path) {
+// Flushes a file (or folder) to the device. Returns 0 or the errno of the failure: on some file
+// systems (NFS, quota, thin provisioning) a full disk only shows up here, not in write().
+int fsync_path(const std::string& path) {
   int fd = ::open(path.c_str(), O_RDONLY);
-  if (fd < 0) return;
-  ::fsync(fd);
-  ::close(fd);
+  if (fd < 0) return errno;
+  const int rc = ::fsync(fd);
+  const int err = rc == 0 ? 0 : errno;
+  if (::close(fd) != 0 && err == 0) return errno;
+  return err;
 }
 }  // namespace
 
@@ -30,7 +34,8 @@ void atomic_write(const std::string& path, const std::function<void(const std::s
   const std::string tmp = path + ".tmp" + std::to_string(::getpid()) + "_" + std::to_string(counter++);
   try {
     writer(tmp);
-    fsync_path(tmp);
+    if (const int err = fsync_path(tmp))
+      throw InputError(path, "", std::string("cannot write: ") + std::strerror(err));
   } catch (...) {
     std::error_code ec;
     fs::remove(tmp, ec);
@@ -42,15 +47,17 @@ void atomic_write(const std::string& path, const std::function<void(const std::s
     fs::remove(tmp, ec);
     throw InputError(path, "", "cannot write: rename failed: " + ec.message());
   }
+  // Makes the rename durable; failures are ignored because some file systems cannot fsync a folder
+  // and the new file is already complete either way.
   const fs::path parent = fs::path(path).parent_path();
-  fsync_path(parent.empty() ? "." : parent.string());
+  (void)fsync_path(parent.empty() ? "." : parent.string());
 }
 
 void atomic_write_text(const std::string& path, const std::string& text) {
   atomic_write(path, [&](const std::string& tmp) {
     std::ofstream out(tmp, std::ios::binary);
     out.write(text.data(), static_cast<std::streamsize>(text.size()));
-    out.flush();
+    out.close();  // close() flushes; a full disk surfaces here at the latest
     if (!out) throw InputError(path, "", std::string("cannot write: ") + std::strerror(errno));
   });
 }
