@@ -1,15 +1,57 @@
-// `ablenerf bench`: placeholder until its issue lands.
+// `ablenerf bench`: training and rendering throughput, achieved FLOP/s against the device's
+// measured sgemm peak, and peak memory, printed as one JSON object (measuring code: train/bench.h).
 #include <iostream>
 
 #include "cli/command.h"
+#include "cli/common.h"
+#include "train/bench.h"
 #include "util/errors.h"
 
 namespace ablenerf::cli {
 namespace {
+
+struct BenchArgs {
+  ConfigOptions cfg;
+  std::string device = "cpu";
+  int64_t rays = 64, render_rays = 0, steps = 5, warmup = 1, matmul = 2048, image = 800;
+  int threads = 0;
+};
+
 void setup(CLI::App& app) {
-  app.allow_extras();
-  app.callback([] { throw InputError("bench", "", "not yet implemented"); });
+  auto a = std::make_shared<BenchArgs>();
+  a->cfg.add_to(app, false);
+  app.add_option("--device", a->device, "cpu | cuda | cuda:N | auto")->capture_default_str();
+  app.add_option("--rays", a->rays, "Rays per training step")->capture_default_str();
+  app.add_option("--render-rays", a->render_rays, "Rays per rendering forward (0 = --rays)")->capture_default_str();
+  app.add_option("--steps", a->steps, "Timed repetitions (median reported)")->capture_default_str();
+  app.add_option("--warmup", a->warmup, "Untimed repetitions first")->capture_default_str();
+  app.add_option("--matmul", a->matmul, "n of the n^3 sgemm measuring the peak")->capture_default_str();
+  app.add_option("--image", a->image, "Side of the square image for seconds/image")->capture_default_str();
+  app.add_option("--threads", a->threads, "Intra-op CPU threads (0 = LibTorch default)")->capture_default_str();
+  app.callback([a] {
+    const Config c = resolve_config(a->cfg);
+    if (a->rays < 1) throw InputError("bench", "--rays", "must be >= 1");
+    if (a->render_rays < 0) throw InputError("bench", "--render-rays", "must be >= 0");
+    if (a->steps < 1) throw InputError("bench", "--steps", "must be >= 1");
+    if (a->warmup < 0) throw InputError("bench", "--warmup", "must be >= 0");
+    if (a->matmul < 1) throw InputError("bench", "--matmul", "must be >= 1");
+    if (a->image < 1) throw InputError("bench", "--image", "must be >= 1");
+    if (a->threads < 0) throw InputError("bench", "--threads", "must be >= 0");
+    if (a->threads > 0) torch::set_num_threads(a->threads);
+    BenchOptions o;
+    o.device = parse_device(a->device);
+    o.train_rays = a->rays;
+    o.render_rays = a->render_rays;
+    o.steps = a->steps;
+    o.warmup = a->warmup;
+    o.matmul_size = a->matmul;
+    o.image_side = a->image;
+    o.near = c.data.near;
+    o.far = c.data.far;
+    std::cout << bench_report(c, o, measure(c, o)).dump(2) << std::endl;
+  });
 }
+
 }  // namespace
 ABLENERF_COMMAND("bench", 50, "Measure training and rendering speed", setup);
 }  // namespace ablenerf::cli

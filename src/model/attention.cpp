@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "model/attention_core.h"
 #include "model/volume_embedding.h"
 
 namespace ablenerf {
@@ -69,14 +70,11 @@ torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const to
   const auto o = mask.defined() ? at::scaled_dot_product_attention(q, k, v, mask)
                                 : at::scaled_dot_product_attention(q, k, v);
 #else
-  // Batched GEMMs over B*H; baddbmm folds the 1/sqrt(dh) scale and the shared (L,L) mask
-  // (broadcast, never copied per ray or head) into the score GEMM.
+  // Many small products (one per ray and head), split across threads by attention_core; the
+  // shared (L,L) mask is broadcast, never copied per ray or head.
   const double scale = 1.0 / std::sqrt(static_cast<double>(dh));
-  const auto q3 = q.reshape({b * heads_, lq, dh});
-  const auto kt = k.reshape({b * heads_, lk, dh}).transpose(1, 2);
-  const auto scores = mask.defined() ? torch::baddbmm(mask, q3, kt, /*beta=*/1.0, /*alpha=*/scale)
-                                     : torch::bmm(q3, kt).mul_(scale);
-  const auto o = torch::bmm(torch::softmax(scores, -1), v.reshape({b * heads_, lk, dh}))
+  const auto o = attention_core(q.reshape({b * heads_, lq, dh}), k.reshape({b * heads_, lk, dh}),
+                                v.reshape({b * heads_, lk, dh}), mask, scale)
                      .view({b, heads_, lq, dh});
 #endif
   return linear_tokens(out_proj, o.transpose(1, 2).reshape({b, lq, width_}));

@@ -1,0 +1,281 @@
+#include "train/bench.h"
+
+#include <sys/resource.h>
+#include <torch/cuda.h>
+#include <torch/version.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <stdexcept>
+
+#include "model/able_nerf.h"
+#include "model/ipe.h"
+#include "model/view_encoding.h"
+
+// Device-side peak memory needs the CUDA caching allocator, which only CUDA builds of LibTorch
+// link; build with -DABLENERF_WITH_CUDA against such a LibTorch (>= 2) to report it.
+#if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
+#include <c10/cuda/CUDACachingAllocator.h>
+#define ABLENERF_CUDA_MEMORY_STATS 1
+#endif
+
+namespace ablenerf {
+
+namespace {
+
+constexpr double kFlopPerMac = 2.0;
+// The backward of a product whose two operands both need gradients is two products of the same
+// size (one per operand); a product with one constant operand (input features, no-grad probes)
+// needs only the other operand's gradient.
+constexpr double kBackwardBothOperands = 2.0;
+constexpr double kBackwardOneOperand = 1.0;
+constexpr int64_t kRgb = 3;
+constexpr int64_t kQkv = 3, kKv = 2;
+constexpr int64_t kVolumeEmbeddingHiddenLayers = 3;  // 4 Linear layers: in->E, then 3 x E->E
+// Blender's pixel footprint: radius = 2/sqrt(12) / focal, focal ~1111 px at 800x800.
+constexpr float kBlenderRayRadius = 5.196e-4f;
+constexpr double kCameraDistance = 4.0;
+constexpr double kDirectionJitter = 0.1;
+constexpr int64_t kBytesPerKiB = 1024;
+
+// Accumulates products with their backward multiplier.
+struct Tally {
+  FlopCount c;
+  // m x k times k x n.
+  void product(double m, double k, double n, double backward_factor) {
+    const double f = kFlopPerMac * m * k * n;
+    c.forward += f;
+    c.backward += backward_factor * f;
+  }
+};
+
+// One post-norm transformer block per ray: lq queries attending to lk keys. `q_per_ray` is
+// false when the queries are shared by the whole batch (the LE cross-attention), so their
+// projection is a per-call cost, not a per-ray one.
+void transformer_block(Tally& t, double lq, double lk, double e, double ff, bool self, bool q_per_ray) {
+  if (self) {
+    t.product(lq, e, kQkv * e, kBackwardBothOperands);  // packed Q/K/V
+  } else {
+    if (q_per_ray) t.product(lq, e, e, kBackwardBothOperands);
+    t.product(lk, e, kKv * e, kBackwardBothOperands);  // packed K/V
+  }
+  // Scores and weighted values, summed over heads (heads x dh = E).
+  t.product(lq, e, lk, kBackwardBothOperands);
+  t.product(lq, lk, e, kBackwardBothOperands);
+  t.product(lq, e, e, kBackwardBothOperands);   // output projection
+  t.product(lq, e, ff, kBackwardBothOperands);  // feed-forward in
+  t.product(lq, ff, e, kBackwardBothOperands);  // feed-forward out
+}
+
+// The volume-embedding MLP of one pass; its input (the IPE features) needs no gradient.
+void volume_embedding(Tally& t, const ModelConfig& c) {
+  const double e = c.width, s = c.samples;
+  t.product(s, static_cast<double>(ipe_width(c.ipe_degrees)), e, kBackwardOneOperand);
+  for (int64_t i = 0; i < kVolumeEmbeddingHiddenLayers; ++i) t.product(s, e, e, kBackwardBothOperands);
+}
+
+void le_branch(Tally& t, const ModelConfig& c) {
+  const double e = c.width, ff = double(c.width) * c.ff_ratio, s = c.samples, n = c.le_count;
+  const double view = static_cast<double>(view_encoding_width(c.view_encoding));
+  transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);          // LE x volumes
+  for (int64_t j = 0; j < c.le_layers; ++j) transformer_block(t, n, n, e, ff, true, true);
+  transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);            // view decodes LE
+  t.product(1, e + view, e, kBackwardBothOperands);  // LE colour head hidden layer
+  t.product(1, e, kRgb, kBackwardBothOperands);      // LE colour head output
+}
+
+}  // namespace
+
+FlopCount model_flops_per_ray(const ModelConfig& c) {
+  Tally t;
+  const double e = c.width, ff = double(c.width) * c.ff_ratio, tokens = double(c.samples) + 1;
+  const bool le = c.le_count > 0;
+  if (le) {
+    // View token, shared by both passes; its input (the view encoding) needs no gradient.
+    t.product(1, static_cast<double>(view_encoding_width(c.view_encoding)), e, kBackwardOneOperand);
+  }
+  for (const int layers : {c.coarse_layers, c.fine_layers}) {
+    volume_embedding(t, c);
+    // AB transformer over the ray token plus S volume tokens (the full score matrix is
+    // computed: the causal mask is added, not skipped).
+    for (int i = 0; i < layers; ++i) transformer_block(t, tokens, tokens, e, ff, true, true);
+    // Resampling probe: the ray token's query against every key, without gradient.
+    t.product(1, e, tokens, 0.0);
+    t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
+    if (le) le_branch(t, c);
+  }
+  return t.c;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) throw std::invalid_argument("median of an empty list");
+  std::sort(v.begin(), v.end());
+  const size_t h = v.size() / 2;
+  return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
+}
+
+double Timing::wall_median() const { return median(wall_s); }
+double Timing::cpu_median() const { return median(cpu_s); }
+
+namespace {
+
+double process_cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  const auto sec = [](const timeval& t) { return double(t.tv_sec) + 1e-6 * double(t.tv_usec); };
+  return sec(u.ru_utime) + sec(u.ru_stime);
+}
+
+int64_t peak_rss_bytes() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return int64_t{u.ru_maxrss} * kBytesPerKiB;  // Linux reports KiB
+}
+
+void sync(const torch::Device& d) {
+  if (d.is_cuda()) torch::cuda::synchronize(d.index());
+}
+
+// Warm-up, then `reps` timed calls of fn; device work is synchronised before each clock read.
+template <class Fn>
+Timing time_it(const torch::Device& d, int64_t warmup, int64_t reps, Fn&& fn) {
+  for (int64_t i = 0; i < warmup; ++i) fn();
+  sync(d);
+  Timing t;
+  for (int64_t i = 0; i < reps; ++i) {
+    const auto w0 = std::chrono::steady_clock::now();
+    const double c0 = process_cpu_seconds();
+    fn();
+    sync(d);
+    t.cpu_s.push_back(process_cpu_seconds() - c0);
+    t.wall_s.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count());
+  }
+  return t;
+}
+
+// Blender-like rays: cameras on a radius-4 shell looking roughly at the origin.
+Rays bench_rays(int64_t n, uint64_t seed, const torch::Device& d) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  const auto o = torch::nn::functional::normalize(torch::randn({n, 3}, gen)) * kCameraDistance;
+  const auto dir = -o / kCameraDistance + kDirectionJitter * torch::randn({n, 3}, gen);
+  return {o.to(d), dir.to(d), torch::full({n, 1}, kBlenderRayRadius).to(d)};
+}
+
+}  // namespace
+
+BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
+  BenchMeasurements m;
+  m.threads = at::get_num_threads();
+  const auto& d = o.device;
+  const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
+
+  torch::manual_seed(static_cast<uint64_t>(o.seed));
+  AbleNerf model(cfg.model);
+  model->to(d);
+  m.parameters = model->parameter_count();
+
+  {
+    const auto rays = bench_rays(o.train_rays, o.seed, d);
+    const auto target = torch::full({o.train_rays, kRgb}, 0.5f, torch::TensorOptions().device(d));
+    torch::optim::Adam adam(model->parameters(), torch::optim::AdamOptions(cfg.train.lr_init));
+    model->train();
+    m.train = time_it(d, o.warmup, o.steps, [&] {
+      adam.zero_grad();
+      const auto out = model->forward(rays, o.near, o.far);
+      const auto loss = cfg.train.coarse_weight * torch::mse_loss(out.rgb_coarse, target) +
+                        cfg.train.fine_weight * torch::mse_loss(out.rgb_fine, target);
+      loss.backward();
+      adam.step();
+    });
+  }
+  {
+    const auto rays = bench_rays(render_rays, o.seed + 1, d);
+    model->eval();
+    m.render = time_it(d, o.warmup, o.steps, [&] {
+      torch::InferenceMode guard;
+      const auto out = model->forward(rays, o.near, o.far);
+      (void)out;
+    });
+  }
+  {
+    const auto opts = torch::TensorOptions().device(d);
+    const auto a = torch::randn({o.matmul_size, o.matmul_size}, opts);
+    const auto b = torch::randn({o.matmul_size, o.matmul_size}, opts);
+    auto c = torch::empty({o.matmul_size, o.matmul_size}, opts);
+    m.matmul = time_it(d, 1, o.matmul_reps, [&] { torch::mm_out(c, a, b); });
+  }
+
+#ifdef ABLENERF_CUDA_MEMORY_STATS
+  if (d.is_cuda()) {
+    const auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(d.index() < 0 ? 0 : d.index());
+    m.peak_memory_bytes = stats.allocated_bytes[0].peak;  // aggregate pool
+    m.peak_memory_source = "CUDA caching allocator peak allocated bytes";
+  }
+#endif
+  if (m.peak_memory_source.empty()) {
+    m.peak_memory_bytes = peak_rss_bytes();
+    m.peak_memory_source = d.is_cuda() ? "host getrusage ru_maxrss (device statistics not compiled in)"
+                                       : "getrusage ru_maxrss (process peak resident set)";
+  }
+  return m;
+}
+
+namespace {
+
+nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, double peak_flops) {
+  nlohmann::json j;
+  const double wall = t.wall_median(), cpu = t.cpu_median();
+  const double rays_per_s = rays / wall;
+  j["rays"] = rays;
+  j["wall_s_median"] = wall;
+  j["cpu_s_median"] = cpu;
+  j["wall_s"] = t.wall_s;
+  j["cpu_s"] = t.cpu_s;
+  j["rays_per_s"] = rays_per_s;
+  j["rays_per_cpu_s"] = rays / cpu;
+  j["achieved_flop_per_s"] = flops_per_ray * rays_per_s;
+  j["fraction_of_matmul_peak"] = flops_per_ray * rays_per_s / peak_flops;
+  return j;
+}
+
+}  // namespace
+
+nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const BenchMeasurements& m) {
+  const FlopCount f = model_flops_per_ray(cfg.model);
+  const double n = static_cast<double>(o.matmul_size);
+  const double matmul_flops = kFlopPerMac * n * n * n;
+  const double peak = matmul_flops / m.matmul.wall_median();
+  const double render_rays = static_cast<double>(o.render_rays > 0 ? o.render_rays : o.train_rays);
+  const double pixels = static_cast<double>(o.image_side) * static_cast<double>(o.image_side);
+
+  nlohmann::json j;
+  j["config"] = cfg.source;
+  j["device"] = o.device.str();
+  j["threads"] = m.threads;
+  const char* coretype = std::getenv("OPENBLAS_CORETYPE");
+  j["openblas_coretype"] = coretype ? nlohmann::json(coretype) : nlohmann::json(nullptr);
+  j["parameters"] = m.parameters;
+  j["repetitions"] = {{"warmup", o.warmup}, {"timed", o.steps}, {"statistic", "median"}};
+  j["flops_per_ray"] = {{"forward", f.forward},
+                        {"train", f.train()},
+                        {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
+  j["matmul_peak"] = {{"n", o.matmul_size},
+                      {"flop_per_s", peak},
+                      {"wall_s_median", m.matmul.wall_median()},
+                      {"cpu_s_median", m.matmul.cpu_median()},
+                      {"wall_s", m.matmul.wall_s}};
+  j["train"] = timing_json(m.train, static_cast<double>(o.train_rays), f.train(), peak);
+  j["train"]["includes"] = "forward + backward + Adam step";
+  auto render = timing_json(m.render, render_rays, f.forward, peak);
+  render["includes"] = "inference forward (InferenceMode), one chunk per repetition";
+  render["image_side"] = o.image_side;
+  render["seconds_per_image"] = pixels / render["rays_per_s"].get<double>();
+  render["seconds_per_image_note"] = "extrapolated: pixels / measured render rays/s";
+  j["render"] = render;
+  j["peak_memory_bytes"] = m.peak_memory_bytes;
+  j["peak_memory_source"] = m.peak_memory_source;
+  return j;
+}
+
+}  // namespace ablenerf

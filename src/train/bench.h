@@ -1,0 +1,63 @@
+#pragma once
+// `ablenerf bench`: model throughput on one device. Measures a full training step (forward,
+// backward, Adam) and an inference forward at a fixed ray batch, the device's own sgemm peak in
+// the same run, and reports rays/s, achieved FLOP/s (from an analytic count of the matrix
+// products), the fraction of the measured peak and peak memory as one JSON object.
+#include <torch/torch.h>
+
+#include <nlohmann/json.hpp>
+#include <vector>
+
+#include "util/config.h"
+
+namespace ablenerf {
+
+// Floating-point operations per ray of the matrix products the model runs (dense GEMMs,
+// attention scores and attention-weighted sums; 2 FLOP per multiply-add). Element-wise work
+// (IPE, softmax, LayerNorm, GELU, resampling) is not counted. The LE query projection, computed
+// once per forward call for the whole batch, is not a per-ray cost and is left out.
+struct FlopCount {
+  double forward = 0;   // inference forward
+  double backward = 0;  // gradients of a training step (no-grad products excluded)
+  double train() const { return forward + backward; }
+};
+FlopCount model_flops_per_ray(const ModelConfig& cfg);
+
+struct BenchOptions {
+  torch::Device device{torch::kCPU};
+  int64_t train_rays = 64;    // rays per training step
+  int64_t render_rays = 0;    // rays per inference forward (0 = same as train_rays)
+  int64_t steps = 5;          // timed repetitions; the median is reported
+  int64_t warmup = 1;         // untimed repetitions first
+  int64_t image_side = 800;   // the "seconds per image" extrapolation is for side x side pixels
+  int64_t matmul_size = 2048;  // n of the n x n x n sgemm that measures the device peak
+  int64_t matmul_reps = 5;
+  double near = 2.0, far = 6.0;
+  uint64_t seed = 4;
+};
+
+// One timed quantity: per-repetition wall and process-CPU seconds.
+struct Timing {
+  std::vector<double> wall_s, cpu_s;
+  double wall_median() const;
+  double cpu_median() const;
+};
+
+struct BenchMeasurements {
+  Timing train, render, matmul;
+  int64_t peak_memory_bytes = -1;  // -1 = unknown
+  std::string peak_memory_source;
+  int64_t threads = 1;            // intra-op threads used
+  int64_t parameters = 0;
+};
+
+// Median of a non-empty list (mean of the middle two for an even count).
+double median(std::vector<double> values);
+
+// Runs every measurement (warm-up, then `steps` timed repetitions each).
+BenchMeasurements measure(const Config& cfg, const BenchOptions& opts);
+
+// The JSON report from measurements (pure arithmetic, no timing).
+nlohmann::json bench_report(const Config& cfg, const BenchOptions& opts, const BenchMeasurements& m);
+
+}  // namespace ablenerf

@@ -1,0 +1,127 @@
+// The bench's arithmetic: the FLOP count against a hand count and the spec's published
+// estimate, the report's derived numbers from given measurements, and a tiny end-to-end run
+// that must produce every field (no timing assertions).
+#include <gtest/gtest.h>
+
+#include "train/bench.h"
+#include "test_util.h"
+
+namespace ablenerf {
+namespace {
+
+ModelConfig hand_config() {
+  ModelConfig m;
+  m.width = 4;        // E
+  m.heads = 2;
+  m.ff_ratio = 2;     // F = 8
+  m.coarse_layers = 1;
+  m.fine_layers = 1;
+  m.samples = 2;      // S = 2, L = 3 tokens
+  m.ipe_degrees = 1;  // P = 6 IPE features
+  m.le_count = 1;     // N = 1
+  m.le_layers = 1;
+  m.view_encoding = "release";  // V = 27
+  return m;
+}
+
+TEST(BenchFlops, TinyConfigMatchesHandCount) {
+  // Forward, 2 FLOP per multiply-add, per ray:
+  //  view token 27->4: 2*27*4 = 216
+  //  per pass: volume MLP 2*2*6*4 + 3*(2*2*4*4) = 96 + 192 = 288
+  //            AB block (L=3): QKV 2*3*4*12=288, scores 2*3*4*3=72, values 72, out 2*3*4*4=96,
+  //                            FF 2*3*4*8 + 2*3*8*4 = 384  -> 912
+  //            probe 2*1*4*3 = 24; ray head 2*4*3 = 24
+  //            LE cross (N=1 over S=2): KV 2*2*4*8=128, 16, 16, out 32, FF 128 -> 320
+  //            LE self (N=1): QKV 96, 8, 8, out 32, FF 128 -> 272
+  //            decode (1 query over N=1): Q 32, KV 64, 8, 8, out 32, FF 128 -> 272
+  //            LE head: 2*(4+27)*4 + 2*4*3 = 248 + 24 = 272
+  //            pass = 288 + 912 + 24 + 24 + 320 + 272 + 272 + 272 = 2384
+  //  forward = 216 + 2*2384 = 4984
+  const double forward = 216 + 2 * 2384;
+  // Backward = 2 x forward, less the products whose constant operand gets no gradient:
+  //  view token (-216), first volume layer in each pass (-96 each), probe in each pass (-48 each).
+  const double backward = 2 * forward - 216 - 2 * 96 - 2 * 48;
+  const FlopCount f = model_flops_per_ray(hand_config());
+  EXPECT_DOUBLE_EQ(f.forward, forward);
+  EXPECT_DOUBLE_EQ(f.backward, backward);
+  EXPECT_DOUBLE_EQ(f.train(), 14448.0);
+}
+
+TEST(BenchFlops, NoLeDropsTheLeBranch) {
+  ModelConfig m = hand_config();
+  m.le_count = 0;
+  // Per pass without LE: 288 + 912 + 24 + 24 = 1248; no view token.
+  EXPECT_DOUBLE_EQ(model_flops_per_ray(m).forward, 2 * 1248.0);
+}
+
+TEST(BenchFlops, BlenderPresetMatchesSpecEstimate) {
+  // Spec 10.1: ~0.43 G multiply-adds (~0.86 GFLOP) forward, ~2.6 GFLOP forward+backward per ray.
+  const FlopCount f = model_flops_per_ray(Config::load(test::source_dir() + "/configs/blender.toml").model);
+  EXPECT_NEAR(f.forward, 0.86e9, 0.03 * 0.86e9);
+  EXPECT_NEAR(f.train(), 2.6e9, 0.03 * 2.6e9);
+}
+
+TEST(BenchMedian, OddEvenAndUnsorted) {
+  EXPECT_DOUBLE_EQ(median({3.0, 1.0, 2.0}), 2.0);
+  EXPECT_DOUBLE_EQ(median({4.0, 1.0, 3.0, 2.0}), 2.5);
+  EXPECT_THROW(median({}), std::invalid_argument);
+}
+
+TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
+  Config cfg;
+  cfg.model = hand_config();
+  BenchOptions o;
+  o.train_rays = 10;
+  o.render_rays = 40;
+  o.matmul_size = 100;  // 2e6 FLOP per sgemm
+  o.image_side = 20;    // 400 pixels
+  BenchMeasurements m;
+  m.train.wall_s = {0.5, 0.2, 0.3};  // median 0.3 s -> 33.3 rays/s
+  m.train.cpu_s = {0.6, 0.4, 0.5};   // median 0.5
+  m.render.wall_s = {0.1, 0.1};      // 400 rays/s -> 1 s per 400-pixel image
+  m.render.cpu_s = {0.2, 0.2};
+  m.matmul.wall_s = {0.001, 0.002, 0.004};  // median 0.002 s -> 1e9 FLOP/s
+  m.matmul.cpu_s = {0.001, 0.002, 0.004};
+  m.peak_memory_bytes = 123;
+  m.peak_memory_source = "test";
+  const auto j = bench_report(cfg, o, m);
+  EXPECT_DOUBLE_EQ(j["matmul_peak"]["flop_per_s"].get<double>(), 1e9);
+  EXPECT_DOUBLE_EQ(j["train"]["rays_per_s"].get<double>(), 10 / 0.3);
+  EXPECT_DOUBLE_EQ(j["train"]["rays_per_cpu_s"].get<double>(), 20.0);
+  EXPECT_DOUBLE_EQ(j["train"]["achieved_flop_per_s"].get<double>(), 14448.0 * 10 / 0.3);
+  EXPECT_DOUBLE_EQ(j["train"]["fraction_of_matmul_peak"].get<double>(), 14448.0 * 10 / 0.3 / 1e9);
+  EXPECT_DOUBLE_EQ(j["render"]["rays_per_s"].get<double>(), 400.0);
+  EXPECT_DOUBLE_EQ(j["render"]["achieved_flop_per_s"].get<double>(), 4984.0 * 400);
+  EXPECT_DOUBLE_EQ(j["render"]["seconds_per_image"].get<double>(), 1.0);
+  EXPECT_EQ(j["peak_memory_bytes"].get<int64_t>(), 123);
+  EXPECT_DOUBLE_EQ(j["flops_per_ray"]["forward"].get<double>(), 4984.0);
+}
+
+TEST(BenchRun, TinyRunReportsEveryField) {
+  Config cfg;
+  cfg.model = hand_config();
+  BenchOptions o;
+  o.train_rays = 4;
+  o.steps = 2;
+  o.warmup = 1;
+  o.matmul_size = 32;
+  o.matmul_reps = 2;
+  const auto m = measure(cfg, o);
+  ASSERT_EQ(m.train.wall_s.size(), 2u);
+  ASSERT_EQ(m.render.cpu_s.size(), 2u);
+  EXPECT_GT(m.peak_memory_bytes, 0);
+  EXPECT_GT(m.parameters, 0);
+  const auto j = bench_report(cfg, o, m);
+  for (const char* key : {"config", "device", "threads", "parameters", "flops_per_ray", "matmul_peak", "train",
+                          "render", "peak_memory_bytes", "peak_memory_source"})
+    EXPECT_TRUE(j.contains(key)) << key;
+  for (const char* part : {"train", "render"})
+    for (const char* key : {"rays", "rays_per_s", "rays_per_cpu_s", "wall_s_median", "cpu_s_median",
+                            "achieved_flop_per_s", "fraction_of_matmul_peak"})
+      EXPECT_TRUE(j[part].contains(key)) << part << "." << key;
+  EXPECT_TRUE(j["render"].contains("seconds_per_image"));
+  EXPECT_EQ(j["render"]["rays"].get<double>(), 4.0);  // render chunk defaults to the train batch
+}
+
+}  // namespace
+}  // namespace ablenerf
