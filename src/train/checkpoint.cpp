@@ -60,6 +60,9 @@ void save_checkpoint(const std::string& path, const Config& config, AbleNerf& mo
   archive.write("step", torch::tensor(state.step, torch::kLong));
   archive.write("elapsed_seconds", torch::tensor(state.elapsed_seconds, torch::kDouble));
   archive.write("rng_state", state.rng_state.cpu());
+  // LibTorch's global CPU stream drives the stratified jitter (model.randomized) and the LE noise:
+  // saved so that a resumed randomized run continues the same stream.
+  archive.write("torch_rng_state", at::detail::getDefaultCPUGenerator().get_state());
   archive.write("model_signature", c10::IValue(model_signature(config)));
   archive.write("config", c10::IValue(config.to_toml()));
   std::ostringstream payload_stream;
@@ -119,6 +122,11 @@ TrainState load_checkpoint(const std::string& path, const Config& config, AbleNe
   archive.read("elapsed_seconds", elapsed);
   st.elapsed_seconds = elapsed.item<double>();
   archive.read("rng_state", st.rng_state);
+  torch::Tensor global_rng;
+  if (archive.try_read("torch_rng_state", global_rng)) {
+    at::Generator global = at::detail::getDefaultCPUGenerator();  // a handle to the global stream
+    global.set_state(global_rng);
+  }
   return st;
 }
 

@@ -75,6 +75,17 @@ bool gradients_finite(AbleNerf& model) {
   return torch::stack(norms).isfinite().all().item<bool>();
 }
 
+// A kill -9 during an atomic write leaves its temporary file (NAME.tmpPID_N) behind; the real file
+// is intact, so the temporaries of the run's own outputs are simply removed.
+void remove_stale_temporaries(const std::string& dir) {
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    for (const char* stem : {"checkpoint.pt.tmp", "weights.pt.tmp", "config.toml.tmp", "run.json.tmp"})
+      if (name.rfind(stem, 0) == 0) fs::remove(e.path(), ec);
+  }
+}
+
 }  // namespace
 
 void install_interrupt_handlers() {
@@ -104,6 +115,7 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
     else run.dir = opts.out_dir, run.config = config, run.data_dir = opts.data_dir;
   }
   if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "missing: give --data");
+  if (leader) remove_stale_temporaries(run.dir);
 
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};

@@ -106,6 +106,25 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
 
+TEST(Trainer, ResumeEqualsUninterruptedWithStratifiedJitter) {
+  // model.randomized draws from LibTorch's global stream, which the checkpoint carries too.
+  SingleThread st;
+  test::TempDir t;
+  Config c = test::tiny_config();
+  c.set("model.randomized=true");
+  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
+  TrainOptions o = options(t / "pieces");
+  o.max_steps_this_run = 5;  // stops right on a periodic checkpoint
+  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
+  // a temporary left by a kill during a checkpoint write is cleaned up on resume
+  test::write_file(t / "pieces/checkpoint.pt.tmp999_0", "partial");
+  o.max_steps_this_run = -1;
+  o.resume = true;
+  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  EXPECT_FALSE(fs::exists(t / "pieces/checkpoint.pt.tmp999_0"));
+  expect_same_weights(t / "straight", t / "pieces", 0.0);
+}
+
 TEST(Trainer, RefusesToOverwriteARun) {
   test::TempDir t;
   Config c = test::tiny_config();
