@@ -46,7 +46,7 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   load_weights(loaded, dir / "out.pt");
   const auto p = loaded->named_parameters();
   EXPECT_TRUE(torch::equal(p["le"], dict.at("model.light_probes").toTensor()));
-  EXPECT_TRUE(torch::equal(p["fine.blocks.1.ff_in.bias"], dict.at("model.fine.layers.1.ff_layer.0.bias").toTensor()));
+  EXPECT_TRUE(torch::equal(p["fine.blocks.0.ff_in.bias"], dict.at("model.fine.layers.0.ff_layer.0.bias").toTensor()));
 
   // A wrong shape is one line naming the release parameter, exit code 2.
   dict.insert_or_assign("model.color_token", torch::zeros({1, 1, 7}));
@@ -54,7 +54,8 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   std::ofstream(dir / "bad.pt", std::ios::binary).write(bad.data(), static_cast<std::streamsize>(bad.size()));
   r = test::run_cli("import --weights " + (dir / "bad.pt") + " --config " + demo_config() + " --out " + (dir / "run2"));
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_EQ(r.output, "error: " + (dir / "bad.pt") + ": color_token: expected shape [1, 1, 64] got [1, 1, 7]\n");
+  EXPECT_EQ(r.output, "error: " + (dir / "bad.pt") + ": color_token: expected shape [1, 1, " +
+                          std::to_string(c.model.width) + "] got [1, 1, 7]\n");
 }
 
 TEST(ExportImportCli, ExportNeedsExactlyOneSource) {
