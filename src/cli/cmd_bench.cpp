@@ -15,6 +15,7 @@ struct BenchArgs {
   std::string device = "cpu";
   int64_t rays = 64, render_rays = 0, steps = 5, warmup = 1, matmul = 2048, image = 800;
   int threads = 0;
+  bool compare = false;
 };
 
 void setup(CLI::App& app) {
@@ -28,6 +29,9 @@ void setup(CLI::App& app) {
   app.add_option("--matmul", a->matmul, "n of the n^3 sgemm measuring the peak")->capture_default_str();
   app.add_option("--image", a->image, "Side of the square image for seconds/image")->capture_default_str();
   app.add_option("--threads", a->threads, "Intra-op CPU threads (0 = LibTorch default)")->capture_default_str();
+  app.add_flag("--compare", a->compare,
+               "Also measure the same model with every fast path off (compute.precision=fp32, "
+               "compute.attention=plain) in this run, and report the ratios");
   app.callback([a] {
     const Config c = resolve_config(a->cfg);
     if (a->rays < 1) throw InputError("bench", "--rays", "must be >= 1");
@@ -48,7 +52,23 @@ void setup(CLI::App& app) {
     o.image_side = a->image;
     o.near = c.data.near;
     o.far = c.data.far;
-    std::cout << bench_report(c, o, measure(c, o)).dump(2) << std::endl;
+    if (!a->compare) {
+      std::cout << bench_report(c, o, measure(c, o)).dump(2) << std::endl;
+      return;
+    }
+    Config base = c;
+    base.compute.precision = "fp32";
+    base.compute.attention = "plain";
+    const auto reference = bench_report(base, o, measure(base, o));
+    const auto fast = bench_report(c, o, measure(c, o));
+    const auto ratio = [&](const char* what) {
+      return fast[what]["rays_per_s"].get<double>() / reference[what]["rays_per_s"].get<double>();
+    };
+    nlohmann::json j{{"fast", fast},
+                     {"reference", reference},
+                     {"speedup", {{"train", ratio("train")}, {"render", ratio("render")}}},
+                     {"speedup_note", "rays/s of the config's compute settings over fp32 + plain attention, same run"}};
+    std::cout << j.dump(2) << std::endl;
   });
 }
 

@@ -26,7 +26,7 @@ void setup(CLI::App& app) {
   app.add_flag("--resume", a->resume, "Continue the run in --out from its last checkpoint (starts fresh if none)");
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)");
   app.add_option("--stop-after", a->max_steps, "Checkpoint and stop after this many steps of this invocation");
-  app.add_option("--dist-backend", a->backend, "c10d backend when WORLD_SIZE > 1: gloo (CPU) or nccl (CUDA)");
+  app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
   app.footer(
@@ -50,7 +50,9 @@ void setup(CLI::App& app) {
     const DistEnv env = DistEnv::from_environment();
     if (env.local_rank > 0 && o.device.is_cuda()) o.device = torch::Device(torch::kCUDA, env.local_rank);
     std::unique_ptr<Distributed> dist;
-    if (env.world_size > 1) {
+    // A group whenever a launcher set WORLD_SIZE (torchrun does so for one process too, so a
+    // one-process launch runs the same collective code path as a larger one).
+    if (env.world_size > 1 || env.launched) {
       dist = Distributed::join(env, a->backend, a->dist_timeout);
       o.dist = dist.get();
     }

@@ -1,5 +1,7 @@
 #include "eval/run_folder.h"
 
+#include "model/compute.h"
+
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
@@ -51,6 +53,10 @@ AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
   if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "missing (the run has no weights yet)");
   load_weights(model, run.weights_path());
   model->to(device);
+  // A run trained in bf16 on a GPU still renders on a CPU: there, in fp32.
+  ComputeConfig compute = run.config.compute;
+  if (compute.precision == "bf16" && !bf16_autocast_available(device)) compute.precision = "fp32";
+  model->set_precision(apply_compute_config(compute, device, run.path("config.toml")));
   model->eval();
   return model;
 }

@@ -81,6 +81,7 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
   const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
   const int64_t b = rays.size();
   const bool jitter = cfg_.randomized && is_training();
+  const AutocastScope autocast(precision_, ray_token_.device());
 
   torch::Tensor le, view, view_code;
   if (has_le()) {
@@ -95,22 +96,26 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
 
   const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, jitter, opts.generator, options);
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code);
-  const auto t_f = resample_fence_posts(t_c, c.weights, cfg_.resample_padding, jitter, opts.generator);
+  // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
+  const auto t_f = resample_fence_posts(t_c, c.weights.to(torch::kFloat), cfg_.resample_padding, jitter,
+                                        opts.generator);
   // The fine ray token is the coarse output token, not detached (spec 4.4).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
                           view_code);
 
+  // Outputs in fp32 whatever the precision of the products (no-ops in fp32).
+  const auto fp32 = [](const torch::Tensor& x) { return x.to(torch::kFloat); };
   ModelOutput out;
-  out.rgb_coarse = c.rgb;
-  out.rgb_fine = f.rgb;
-  out.coarse_weights = c.weights;
-  out.fine_weights = f.weights;
+  out.rgb_coarse = fp32(c.rgb);
+  out.rgb_fine = fp32(f.rgb);
+  out.coarse_weights = fp32(c.weights);
+  out.fine_weights = fp32(f.weights);
   out.fine_t = t_f;
   if (opts.branches) {
-    out.ray_colour_coarse = c.ray_colour;
-    out.ray_colour_fine = f.ray_colour;
-    out.le_colour_coarse = has_le() ? c.le_colour : torch::zeros_like(c.ray_colour);
-    out.le_colour_fine = has_le() ? f.le_colour : torch::zeros_like(f.ray_colour);
+    out.ray_colour_coarse = fp32(c.ray_colour);
+    out.ray_colour_fine = fp32(f.ray_colour);
+    out.le_colour_coarse = has_le() ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
+    out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;
 }

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "data/rays.h"
+#include "model/compute.h"
 #include "model/ab_transformer.h"
 #include "model/colour_heads.h"
 #include "model/le_transformer.h"
@@ -46,6 +47,9 @@ class AbleNerfImpl : public torch::nn::Module {
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }
   bool has_le() const { return cfg_.le_count > 0; }
+  // Precision of the matrix products in forward (model/compute.h); outputs are always fp32.
+  void set_precision(Precision p) { precision_ = p; }
+  Precision precision() const { return precision_; }
 
  private:
   struct Pass {
@@ -57,6 +61,7 @@ class AbleNerfImpl : public torch::nn::Module {
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;
+  Precision precision_ = Precision::Fp32;
   torch::Tensor ray_token_;  // (1,1,E) initial ray token
   torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
   VolumeEmbedding volume_embedding_{nullptr};

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "model/attention_core.h"
+#include "model/compute.h"
 #include "model/volume_embedding.h"
 
 namespace ablenerf {
@@ -65,18 +66,31 @@ torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const to
                                              const torch::Tensor& v, const torch::Tensor& mask) {
   const int64_t b = k.size(0), lq = q_in.size(2), lk = k.size(2), dh = width_ / heads_;
   const auto q = q_in.expand({b, heads_, lq, dh});
-#if TORCH_VERSION_MAJOR >= 2
-  // Fused kernels (flash / memory-efficient on CUDA); an additive float mask broadcasts.
-  const auto o = mask.defined() ? at::scaled_dot_product_attention(q, k, v, mask)
-                                : at::scaled_dot_product_attention(q, k, v);
-#else
-  // Many small products (one per ray and head), split across threads by attention_core; the
-  // shared (L,L) mask is broadcast, never copied per ray or head.
   const double scale = 1.0 / std::sqrt(static_cast<double>(dh));
-  const auto o = attention_core(q.reshape({b * heads_, lq, dh}), k.reshape({b * heads_, lk, dh}),
-                                v.reshape({b * heads_, lk, dh}), mask, scale)
-                     .view({b, heads_, lq, dh});
+  torch::Tensor o;
+#if TORCH_VERSION_MAJOR >= 2
+  if (attention_kernel() == AttentionKernel::Fused) {
+    // Fused kernels (flash / memory-efficient on CUDA); the shared (L,L) mask broadcasts over rays
+    // and heads. Queries shared by the batch (LE cross-attention) are materialised: the kernels
+    // want a real batch stride.
+    const auto qc = q_in.size(0) == b ? q : q.contiguous();
+    o = mask.defined() ? at::scaled_dot_product_attention(qc, k, v, mask) : at::scaled_dot_product_attention(qc, k, v);
+  }
 #endif
+  if (!o.defined()) {
+    if (q.device().is_cpu() && q.scalar_type() == torch::kFloat && k.scalar_type() == torch::kFloat) {
+      // Many small products (one per ray and head), split across threads by attention_core; the
+      // shared (L,L) mask is broadcast, never copied per ray or head.
+      o = attention_core(q.reshape({b * heads_, lq, dh}), k.reshape({b * heads_, lk, dh}),
+                         v.reshape({b * heads_, lk, dh}), mask, scale)
+              .view({b, heads_, lq, dh});
+    } else {
+      // The reference: explicit scores, additive mask, softmax, weighted sum.
+      auto scores = torch::matmul(q, k.transpose(-2, -1)) * scale;
+      if (mask.defined()) scores = scores + mask;
+      o = torch::matmul(torch::softmax(scores, -1), v);
+    }
+  }
   return linear_tokens(out_proj, o.transpose(1, 2).reshape({b, lq, width_}));
 }
 

@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "model/able_nerf.h"
+#include "model/compute.h"
 #include "model/ipe.h"
 #include "model/view_encoding.h"
 
@@ -173,7 +174,12 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   torch::manual_seed(static_cast<uint64_t>(o.seed));
   AbleNerf model(cfg.model);
   model->to(d);
+  const Precision precision = apply_compute_config(cfg.compute, d, cfg.source);
+  model->set_precision(precision);
   m.parameters = model->parameter_count();
+#ifdef ABLENERF_CUDA_MEMORY_STATS
+  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
+#endif
 
   {
     const auto rays = bench_rays(o.train_rays, o.seed, d);
@@ -199,7 +205,10 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     });
   }
   {
-    const auto opts = torch::TensorOptions().device(d);
+    // The peak in the precision the model's products run in.
+    const auto opts = torch::TensorOptions().device(d).dtype(precision == Precision::Bf16 ? torch::kBFloat16
+                                                                                        : torch::kFloat);
+    m.matmul_dtype = precision == Precision::Bf16 ? "bf16" : "fp32";
     const auto a = torch::randn({o.matmul_size, o.matmul_size}, opts);
     const auto b = torch::randn({o.matmul_size, o.matmul_size}, opts);
     auto c = torch::empty({o.matmul_size, o.matmul_size}, opts);
@@ -260,7 +269,10 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["flops_per_ray"] = {{"forward", f.forward},
                         {"train", f.train()},
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
+  j["precision"] = cfg.compute.precision;
+  j["attention"] = cfg.compute.attention;
   j["matmul_peak"] = {{"n", o.matmul_size},
+                      {"dtype", m.matmul_dtype},
                       {"flop_per_s", peak},
                       {"wall_s_median", m.matmul.wall_median()},
                       {"cpu_s_median", m.matmul.cpu_median()},

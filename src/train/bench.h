@@ -49,6 +49,7 @@ struct BenchMeasurements {
   std::string peak_memory_source;
   int64_t threads = 1;            // intra-op threads used
   int64_t parameters = 0;
+  std::string matmul_dtype;       // dtype of the peak-measuring product ("fp32" | "bf16")
 };
 
 // Median of a non-empty list (mean of the middle two for an even count).

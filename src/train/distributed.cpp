@@ -5,9 +5,15 @@
 
 #include "util/errors.h"
 
+#include <torch/version.h>
+
 #ifdef ABLENERF_HAVE_C10D
 #include <torch/csrc/distributed/c10d/ProcessGroupGloo.hpp>
 #include <torch/csrc/distributed/c10d/TCPStore.hpp>
+#endif
+#ifdef ABLENERF_HAVE_NCCL
+#include <c10/cuda/CUDAFunctions.h>
+#include <torch/csrc/distributed/c10d/ProcessGroupNCCL.hpp>
 #endif
 
 namespace ablenerf {
@@ -32,6 +38,7 @@ DistEnv DistEnv::from_environment() {
   e.rank = env_int("RANK", 0);
   e.local_rank = env_int("LOCAL_RANK", e.rank);
   e.master_port = env_int("MASTER_PORT", 29500);
+  e.launched = std::getenv("WORLD_SIZE") != nullptr;
   if (const char* a = std::getenv("MASTER_ADDR"); a && *a) e.master_addr = a;
   if (e.world_size < 1) throw InputError("environment", "WORLD_SIZE", "must be >= 1");
   if (e.rank >= e.world_size)
@@ -44,9 +51,16 @@ DistEnv DistEnv::from_environment() {
 
 namespace {
 
+// The collective interface both backends implement (LibTorch 2 split it out of ProcessGroup).
+#if TORCH_VERSION_MAJOR >= 2
+using CollectiveBackend = c10d::Backend;
+#else
+using CollectiveBackend = c10d::ProcessGroup;
+#endif
+
 class C10dGroup : public Distributed {
  public:
-  C10dGroup(const DistEnv& env, double timeout_s) : env_(env) {
+  C10dGroup(const DistEnv& env, const std::string& backend, double timeout_s) : env_(env) {
     const auto timeout = std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000));
     c10d::TCPStoreOptions so;
     so.port = static_cast<uint16_t>(env.master_port);
@@ -59,12 +73,23 @@ class C10dGroup : public Distributed {
       throw std::runtime_error("rank " + std::to_string(env.rank) + ": rendezvous at " + env.master_addr + ":" +
                                std::to_string(env.master_port) + " failed: " + first_line(e.what()));
     }
-    auto opts = c10d::ProcessGroupGloo::Options::create(timeout);
-    // Loopback rendezvous (one machine): bind Gloo to loopback too; otherwise to this host's address.
-    const bool local = env.master_addr == "localhost" || env.master_addr.rfind("127.", 0) == 0;
-    opts->devices.push_back(local ? c10d::ProcessGroupGloo::createDeviceForHostname("127.0.0.1")
-                                  : c10d::ProcessGroupGloo::createDefaultDevice());
-    pg_ = c10::make_intrusive<c10d::ProcessGroupGloo>(store_, env.rank, env.world_size, opts);
+    if (backend == "nccl") {
+#ifdef ABLENERF_HAVE_NCCL
+      // One GPU per process: LOCAL_RANK picks it (the trainer puts the model there too).
+      c10::cuda::set_device(static_cast<c10::DeviceIndex>(env.local_rank));
+      auto opts = c10d::ProcessGroupNCCL::Options::create();
+      opts->timeout = timeout;
+      pg_ = c10::make_intrusive<c10d::ProcessGroupNCCL>(store_, env.rank, env.world_size, opts);
+      on_host_ = false;
+#endif
+    } else {
+      auto opts = c10d::ProcessGroupGloo::Options::create(timeout);
+      // Loopback rendezvous (one machine): bind Gloo to loopback too; otherwise to this host's address.
+      const bool local = env.master_addr == "localhost" || env.master_addr.rfind("127.", 0) == 0;
+      opts->devices.push_back(local ? c10d::ProcessGroupGloo::createDeviceForHostname("127.0.0.1")
+                                    : c10d::ProcessGroupGloo::createDefaultDevice());
+      pg_ = c10::make_intrusive<c10d::ProcessGroupGloo>(store_, env.rank, env.world_size, opts);
+    }
   }
 
   int rank() const override { return env_.rank; }
@@ -73,7 +98,7 @@ class C10dGroup : public Distributed {
   void broadcast_parameters(AbleNerf& model) override {
     torch::NoGradGuard ng;
     for (auto& bucket : buckets(model->parameters(), false)) {
-      auto flat = torch::cat(bucket.views).cpu();
+      auto flat = staged(torch::cat(bucket.views));
       std::vector<at::Tensor> ts{flat};
       wait(pg_->broadcast(ts), "broadcast of the initial weights");
       scatter(flat, bucket);
@@ -85,8 +110,9 @@ class C10dGroup : public Distributed {
     auto bs = buckets(model->parameters(), true);
     for (size_t b = 0; b < bs.size(); ++b) {
       std::vector<torch::Tensor> parts = bs[b].views;
-      if (b + 1 == bs.size()) parts.push_back(torch::from_blob(stats, {n}, torch::kDouble).to(torch::kFloat));
-      auto flat = torch::cat(parts).cpu().contiguous();
+      if (b + 1 == bs.size())
+        parts.push_back(torch::from_blob(stats, {n}, torch::kDouble).to(parts.front().device(), torch::kFloat));
+      auto flat = staged(torch::cat(parts));
       std::vector<at::Tensor> ts{flat};
       wait(pg_->allreduce(ts), "gradient all-reduce");
       scatter(flat, bs[b]);
@@ -98,7 +124,7 @@ class C10dGroup : public Distributed {
   }
 
   void barrier() override {
-    auto t = torch::zeros({1});
+    auto t = on_host_ ? torch::zeros({1}) : torch::zeros({1}, torch::Device(torch::kCUDA, env_.local_rank));
     std::vector<at::Tensor> ts{t};
     wait(pg_->allreduce(ts), "barrier");
   }
@@ -110,6 +136,9 @@ class C10dGroup : public Distributed {
   };
 
   static std::string first_line(const std::string& s) { return s.substr(0, s.find('\n')); }
+
+  // Gloo reduces host memory; NCCL reduces the tensors where they are (the GPU).
+  torch::Tensor staged(const torch::Tensor& t) const { return on_host_ ? t.cpu().contiguous() : t.contiguous(); }
 
   // Groups parameters (or their gradients) into buckets of about kBucketBytes.
   static std::vector<Bucket> buckets(const std::vector<torch::Tensor>& params, bool grads) {
@@ -147,17 +176,25 @@ class C10dGroup : public Distributed {
   }
 
   DistEnv env_;
+  bool on_host_ = true;
   c10::intrusive_ptr<c10d::Store> store_;
-  c10::intrusive_ptr<c10d::ProcessGroupGloo> pg_;
+  c10::intrusive_ptr<CollectiveBackend> pg_;
 };
 
 }  // namespace
 
 std::unique_ptr<Distributed> Distributed::join(const DistEnv& env, const std::string& backend, double timeout_s) {
-  if (backend != "gloo")
+#ifdef ABLENERF_HAVE_NCCL
+  const bool nccl_built = true;
+#else
+  const bool nccl_built = false;
+#endif
+  if (backend == "nccl" && !nccl_built)
     throw InputError("train", "--dist-backend",
-                     "'" + backend + "' is not available in this build (gloo is; nccl needs a CUDA LibTorch)");
-  return std::make_unique<C10dGroup>(env, timeout_s);
+                     "nccl is not available in this build (it needs a CUDA LibTorch with NCCL; gloo is available)");
+  if (backend != "gloo" && backend != "nccl")
+    throw InputError("train", "--dist-backend", "'" + backend + "': expected gloo or nccl");
+  return std::make_unique<C10dGroup>(env, backend, timeout_s);
 }
 
 #else

@@ -16,6 +16,7 @@ struct DistEnv {
   int rank = 0, world_size = 1, local_rank = 0;
   std::string master_addr = "127.0.0.1";
   int master_port = 29500;
+  bool launched = false;  // WORLD_SIZE is set (torchrun sets it even for one process)
   // Reads torchrun's variables; InputError naming the variable when one is malformed.
   static DistEnv from_environment();
 };

@@ -13,6 +13,7 @@
 #include "eval/renderer.h"
 #include "eval/run_folder.h"
 #include "model/able_nerf.h"
+#include "model/compute.h"
 #include "train/checkpoint.h"
 #include "train/distributed.h"
 #include "train/lr_schedule.h"
@@ -94,7 +95,7 @@ void install_interrupt_handlers() {
 }
 
 TrainResult train(const Config& config, const TrainOptions& opts) {
-  const bool single = opts.dist == nullptr || opts.dist->world_size() == 1;
+  const bool single = opts.dist == nullptr;
   const int rank = single ? 0 : opts.dist->rank();
   const int world = single ? 1 : opts.dist->world_size();
   const bool leader = rank == 0;
@@ -130,6 +131,7 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
   torch::manual_seed(static_cast<uint64_t>(tc.seed));
   AbleNerf model(config.model);
   model->to(opts.device);
+  model->set_precision(apply_compute_config(config.compute, opts.device, config.source));
   model->train();
   torch::optim::Adam optim(model->parameters(),
                            torch::optim::AdamOptions(tc.lr_init).betas({0.9, 0.999}).eps(1e-8).weight_decay(0));

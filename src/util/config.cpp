@@ -57,6 +57,8 @@ void visit_fields(C& c, F&& f) {
   f("train.max_bad_steps", &c.train.max_bad_steps);
   f("eval.chunk", &c.eval.chunk);
   f("eval.ssim", &c.eval.ssim);
+  f("compute.precision", &c.compute.precision);
+  f("compute.attention", &c.compute.attention);
 }
 
 std::map<std::string, FieldRef> field_map(Config& c) {
@@ -207,6 +209,10 @@ void Config::validate() const {
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
   need(eval.ssim == "standard" || eval.ssim == "release", "eval.ssim",
        "must be \"standard\" or \"release\"");
+  need(compute.precision == "fp32" || compute.precision == "bf16", "compute.precision",
+       "must be \"fp32\" or \"bf16\"");
+  need(compute.attention == "fused" || compute.attention == "plain", "compute.attention",
+       "must be \"fused\" or \"plain\"");
 }
 
 std::vector<std::pair<std::string, std::string>> Config::items() const {

@@ -55,11 +55,18 @@ struct EvalConfig {
   std::string ssim = "standard"; // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
 };
 
+// How the arithmetic runs (model/compute.h); never changes what is computed beyond rounding.
+struct ComputeConfig {
+  std::string precision = "fp32";  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
+  std::string attention = "fused"; // "fused" (SDPA where LibTorch >= 2) | "plain" (explicit softmax)
+};
+
 struct Config {
   ModelConfig model;
   DataConfig data;
   TrainConfig train;
   EvalConfig eval;
+  ComputeConfig compute;
   std::string source = "<defaults>";  // where it came from, for error messages
 
   // Loads a TOML file over the defaults. Throws InputError(file, key, ...) on any problem.

@@ -1,0 +1,139 @@
+#!/usr/bin/env bash
+# Build, test and measure ablenerf on a CUDA machine with PyTorch 2.x and no package registry
+# (docs/GPU.md). Header-only and small dependencies travel in .carry/root (Debian packages
+# unpacked here, see docs/GPU.md); LibTorch is the one inside the machine's PyTorch.
+#   scripts/gpu.sh STAGE...    stages run in order; logs and results go to $OUT (default /tmp/gpu)
+# Stages:
+#   env        versions: GPU, driver, PyTorch, compiler, where nccl.h and gloo headers are
+#   build      configure + build build-cuda (Release, every target but Google Benchmark)
+#   test       ctest in build-cuda (the CPU test suites, built against the CUDA LibTorch)
+#   bench      ablenerf bench on the GPU at the blender preset, bf16 + fused vs fp32 + plain
+#   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
+#   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
+#   lego8      lego at full resolution, blender preset, 8 minutes of training, eval on 20 test views
+set -uo pipefail
+cd "$(dirname "$0")/.."
+OUT=${OUT:-/tmp/gpu}
+mkdir -p "$OUT"
+root=$PWD/.carry/root
+export LD_LIBRARY_PATH=$root/usr/lib/x86_64-linux-gnu:$root/lib/x86_64-linux-gnu:${LD_LIBRARY_PATH:-}
+bin=build-cuda/ablenerf
+lego=.carry/lego   # lego's train split + the first 20 test views (docs/GPU.md)
+
+stamp() { echo "== $(date -u +%H:%M:%S) $*"; }
+
+stage_env() {
+  nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.sm,clocks.max.sm --format=csv
+  python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda, 'cxx11abi', torch._C._GLIBCXX_USE_CXX11_ABI)"
+  g++ --version | head -1; cmake --version | head -1; command -v ninja && ninja --version
+  nproc
+  find "$(python3 -c 'import torch, os; print(os.path.dirname(os.path.dirname(torch.__file__)))')" -name nccl.h 2>/dev/null | head -3
+  ls "$(python3 -c 'import torch, os; print(os.path.dirname(torch.__file__))')/include" | tr '\n' ' '; echo
+}
+
+stage_build() {
+  local torch_prefix nccl_inc gen=()
+  torch_prefix=$(python3 -c "import torch; print(torch.utils.cmake_prefix_path)")
+  nccl_inc=$(dirname "$(find "$(dirname "$(dirname "$torch_prefix")")/.." -name nccl.h 2>/dev/null | head -1)" 2>/dev/null)
+  command -v ninja >/dev/null && gen=(-G Ninja)
+  local t0=$SECONDS
+  cmake -S . -B build-cuda "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DABLENERF_BENCH=OFF \
+    -DCMAKE_PREFIX_PATH="$torch_prefix;$root/usr" -DCMAKE_CUDA_ARCHITECTURES=90 \
+    -DNCCL_INCLUDE_DIR="$nccl_inc" \
+    -DPNG_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libpng16.so" -DPNG_PNG_INCLUDE_DIR="$root/usr/include" \
+    -DZLIB_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libz.so" -DZLIB_INCLUDE_DIR="$root/usr/include" \
+    > "$OUT/cmake.log" 2>&1 || { tail -40 "$OUT/cmake.log"; return 1; }
+  grep -E "c10d|nccl|Gloo|CUDA" "$OUT/cmake.log" | head
+  cmake --build build-cuda -j "$(nproc)" -- $([ ${#gen[@]} -gt 0 ] && echo -k 0 || echo -k) > "$OUT/build.log" 2>&1
+  local rc=$?
+  echo "build rc $rc in $((SECONDS - t0)) s"
+  [ $rc -eq 0 ] || grep -E "error|Error" "$OUT/build.log" | head -40
+  return $rc
+}
+
+stage_test() {
+  (cd build-cuda && ctest --output-on-failure -j 8 --timeout 900) > "$OUT/ctest.log" 2>&1
+  local rc=$?
+  tail -15 "$OUT/ctest.log"
+  return $rc
+}
+
+stage_bench() {
+  # Training: 8192 rays per step in one micro-batch; rendering: 65536-ray chunks.
+  $bin bench --config configs/blender.toml --device cuda --rays 8192 --render-rays 65536 --steps 5 --warmup 2 \
+    --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused --compare > "$OUT/bench_blender_h100.json" \
+    2> "$OUT/bench.err"
+  local rc=$?
+  python3 - "$OUT/bench_blender_h100.json" <<'PY' || tail -5 "$OUT/bench.err"
+import json, sys
+j = json.load(open(sys.argv[1]))
+for k in ("reference", "fast"):
+    r = j[k]
+    print(f"{k:9s} {r['precision']} {r['attention']}: train {r['train']['rays_per_s']:.0f} rays/s, "
+          f"render {r['render']['rays_per_s']:.0f} rays/s = {r['render']['seconds_per_image']:.2f} s/800x800, "
+          f"peak {r['peak_memory_bytes']/2**30:.1f} GiB, matmul {r['matmul_peak']['flop_per_s']/1e12:.0f} TFLOP/s "
+          f"({r['matmul_peak']['dtype']}), train at {100*r['train']['fraction_of_matmul_peak']:.1f}% of it")
+print("speedup", j["speedup"])
+PY
+  return $rc
+}
+
+
+stage_nccl() {
+  $bin synth --out /tmp/syn --res 32 --train-views 8 --test-views 2 > /dev/null || return 1
+  rm -rf /tmp/nccl_run
+  WORLD_SIZE=1 RANK=0 LOCAL_RANK=0 MASTER_ADDR=127.0.0.1 MASTER_PORT=29517 timeout 300 \
+    $bin train --data /tmp/syn --config configs/demo.toml --out /tmp/nccl_run --device cuda --dist-backend nccl \
+    --set train.steps=30 --set train.eval_every=0 --set train.log_every=10 > "$OUT/nccl.log" 2>&1
+  local rc=$?
+  echo "nccl one-process run rc $rc"; tail -3 "$OUT/nccl.log"; tail -1 /tmp/nccl_run/log.jsonl
+  return $rc
+}
+
+# The same short run (seed, batches, schedule) in two compute modes on lego at 400x400.
+stage_quality() {
+  local steps=${QUALITY_STEPS:-400}
+  for mode in "fp32 plain" "bf16 fused"; do
+    set -- $mode
+    local run=/tmp/q_$1
+    rm -rf "$run"
+    local t0=$SECONDS
+    $bin train --data "$lego" --config configs/blender.toml --out "$run" --device cuda \
+      --set data.downscale=2 --set train.steps="$steps" --set train.rays_per_step=4096 --set train.micro_batch=4096 \
+      --set train.lr_warmup_steps=100 --set train.lr_decay_steps=0 --set train.eval_every=0 --set train.log_every=50 \
+      --set eval.chunk=32768 --set compute.precision=$1 --set compute.attention=$2 > "$OUT/quality_$1.log" 2>&1 || {
+      tail -5 "$OUT/quality_$1.log"; return 1; }
+    local train_s=$((SECONDS - t0))
+    $bin eval --run "$run" --split test --max-images 8 > "$OUT/quality_$1_eval.log" 2>&1 || { tail -5 "$OUT/quality_$1_eval.log"; return 1; }
+    echo "$1 $2: $steps steps in ${train_s} s; $(tail -1 "$OUT/quality_$1_eval.log" | head -c 0)$(grep '^eval' "$OUT/quality_$1_eval.log")"
+    cp "$run/eval/test/metrics.json" "$OUT/quality_$1_metrics.json"
+    cp "$run/log.jsonl" "$OUT/quality_$1_log.jsonl"
+  done
+}
+
+stage_lego8() {
+  local steps=${LEGO_STEPS:?set LEGO_STEPS (steps that fit 8 minutes)} run=/tmp/lego8
+  rm -rf "$run"
+  local t0=$SECONDS
+  $bin train --data "$lego" --config configs/blender.toml --out "$run" --device cuda \
+    --set train.steps="$steps" --set train.rays_per_step=8192 --set train.micro_batch=8192 \
+    --set train.lr_warmup_steps=$((steps / 20)) --set train.lr_decay_steps=0 \
+    --set train.eval_every=$((steps / 4)) --set train.eval_views=2 --set train.log_every=25 \
+    --set train.ckpt_every=0 --set eval.chunk=32768 \
+    --set compute.precision=bf16 --set compute.attention=fused > "$OUT/lego8_train.log" 2>&1 || {
+    tail -5 "$OUT/lego8_train.log"; return 1; }
+  echo "lego8: $steps steps in $((SECONDS - t0)) s (wall, data loading included)"
+  $bin eval --run "$run" --split test --max-images 20 > "$OUT/lego8_eval.log" 2>&1 || { tail -5 "$OUT/lego8_eval.log"; return 1; }
+  grep '^eval' "$OUT/lego8_eval.log"
+  cp "$run/log.jsonl" "$OUT/lego8_log.jsonl"
+  cp "$run/eval/test/metrics.json" "$OUT/lego8_metrics.json"
+  cp "$run/report.html" "$OUT/lego8_report.html"
+}
+
+rc=0
+for s in "$@"; do
+  stamp "$s"
+  "stage_$s" || { rc=1; echo "stage $s FAILED"; }
+done
+stamp done
+exit $rc
