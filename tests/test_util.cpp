@@ -1,5 +1,7 @@
 #include "test_util.h"
 
+#include <ftw.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 
 #include <array>
@@ -28,9 +30,14 @@ TempDir::TempDir(const std::string& tag) {
   throw std::runtime_error("cannot create a temporary folder");
 }
 
+namespace {
+int remove_entry(const char* path, const struct stat*, int, struct FTW*) { return ::remove(path); }
+}  // namespace
+
 TempDir::~TempDir() {
-  std::error_code ec;
-  fs::remove_all(path_, ec);
+  // POSIX nftw, children first, links not followed. Not std::filesystem::remove_all: linked with
+  // PyTorch 2.11's LibTorch (pip wheel) and g++ 13, remove_all crashed inside libstdc++.
+  if (!path_.empty()) ::nftw(path_.c_str(), remove_entry, 16, FTW_DEPTH | FTW_PHYS);
 }
 
 std::string source_dir() {

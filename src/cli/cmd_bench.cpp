@@ -13,7 +13,7 @@ namespace {
 struct BenchArgs {
   ConfigOptions cfg;
   std::string device = "cpu";
-  int64_t rays = 64, render_rays = 0, steps = 5, warmup = 1, matmul = 2048, image = 800;
+  int64_t rays = 64, micro_batch = 0, render_rays = 0, steps = 5, warmup = 1, matmul = 2048, image = 800;
   int threads = 0;
   bool compare = false;
 };
@@ -23,6 +23,8 @@ void setup(CLI::App& app) {
   a->cfg.add_to(app, false);
   app.add_option("--device", a->device, "cpu | cuda | cuda:N | auto")->capture_default_str();
   app.add_option("--rays", a->rays, "Rays per training step")->capture_default_str();
+  app.add_option("--micro-batch", a->micro_batch, "Rays per forward/backward within a step (0 = --rays)")
+      ->capture_default_str();
   app.add_option("--render-rays", a->render_rays, "Rays per rendering forward (0 = --rays)")->capture_default_str();
   app.add_option("--steps", a->steps, "Timed repetitions (median reported)")->capture_default_str();
   app.add_option("--warmup", a->warmup, "Untimed repetitions first")->capture_default_str();
@@ -35,6 +37,7 @@ void setup(CLI::App& app) {
   app.callback([a] {
     const Config c = resolve_config(a->cfg);
     if (a->rays < 1) throw InputError("bench", "--rays", "must be >= 1");
+    if (a->micro_batch < 0) throw InputError("bench", "--micro-batch", "must be >= 0");
     if (a->render_rays < 0) throw InputError("bench", "--render-rays", "must be >= 0");
     if (a->steps < 1) throw InputError("bench", "--steps", "must be >= 1");
     if (a->warmup < 0) throw InputError("bench", "--warmup", "must be >= 0");
@@ -46,6 +49,7 @@ void setup(CLI::App& app) {
     o.device = parse_device(a->device);
     o.train_rays = a->rays;
     o.render_rays = a->render_rays;
+    o.micro_batch = a->micro_batch;
     o.steps = a->steps;
     o.warmup = a->warmup;
     o.matmul_size = a->matmul;

@@ -15,6 +15,7 @@ struct TrainArgs {
   std::string data, out, device = "auto", backend = "gloo";
   bool resume = false;
   int64_t max_steps = -1;
+  double time_limit = 0;
   double dist_timeout = 120;
   ConfigOptions cfg;
 };
@@ -26,6 +27,9 @@ void setup(CLI::App& app) {
   app.add_flag("--resume", a->resume, "Continue the run in --out from its last checkpoint (starts fresh if none)");
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)");
   app.add_option("--stop-after", a->max_steps, "Checkpoint and stop after this many steps of this invocation");
+  app.add_option("--time-limit", a->time_limit,
+                 "Checkpoint and stop after this many seconds of training in this invocation (0 = none)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
@@ -46,6 +50,7 @@ void setup(CLI::App& app) {
     o.out_dir = a->out;
     o.resume = a->resume;
     o.max_steps_this_run = a->max_steps;
+    o.time_limit_s = a->time_limit;
     o.device = parse_device(a->device);
     const DistEnv env = DistEnv::from_environment();
     if (env.local_rank > 0 && o.device.is_cuda()) o.device = torch::Device(torch::kCUDA, env.local_rank);
@@ -53,6 +58,8 @@ void setup(CLI::App& app) {
     // A group whenever a launcher set WORLD_SIZE (torchrun does so for one process too, so a
     // one-process launch runs the same collective code path as a larger one).
     if (env.world_size > 1 || env.launched) {
+      // Ranks would stop at different steps and leave the others waiting in an all-reduce.
+      if (a->time_limit > 0) throw InputError("train", "--time-limit", "not supported with several processes");
       dist = Distributed::join(env, a->backend, a->dist_timeout);
       o.dist = dist.get();
     }

@@ -186,12 +186,20 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     const auto target = torch::full({o.train_rays, kRgb}, 0.5f, torch::TensorOptions().device(d));
     torch::optim::Adam adam(model->parameters(), torch::optim::AdamOptions(cfg.train.lr_init));
     model->train();
+    const int64_t micro = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
     m.train = time_it(d, o.warmup, o.steps, [&] {
       adam.zero_grad();
-      const auto out = model->forward(rays, o.near, o.far);
-      const auto loss = cfg.train.coarse_weight * torch::mse_loss(out.rgb_coarse, target) +
-                        cfg.train.fine_weight * torch::mse_loss(out.rgb_fine, target);
-      loss.backward();
+      // Gradient accumulation as in the trainer: each micro-batch's loss is weighted by its share.
+      for (int64_t b = 0; b < o.train_rays; b += micro) {
+        const int64_t e = std::min(o.train_rays, b + micro);
+        const Rays mb{rays.origins.slice(0, b, e), rays.directions.slice(0, b, e), rays.radii.slice(0, b, e)};
+        const auto out = model->forward(mb, o.near, o.far);
+        const auto t = target.slice(0, b, e);
+        const double share = static_cast<double>(e - b) / static_cast<double>(o.train_rays);
+        const auto loss = share * (cfg.train.coarse_weight * torch::mse_loss(out.rgb_coarse, t) +
+                                   cfg.train.fine_weight * torch::mse_loss(out.rgb_fine, t));
+        loss.backward();
+      }
       adam.step();
     });
   }
@@ -279,6 +287,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
                       {"wall_s", m.matmul.wall_s}};
   j["train"] = timing_json(m.train, static_cast<double>(o.train_rays), f.train(), peak);
   j["train"]["includes"] = "forward + backward + Adam step";
+  j["train"]["micro_batch"] = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
   auto render = timing_json(m.render, render_rays, f.forward, peak);
   render["includes"] = "inference forward (InferenceMode), one chunk per repetition";
   render["image_side"] = o.image_side;

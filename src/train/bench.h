@@ -26,6 +26,7 @@ FlopCount model_flops_per_ray(const ModelConfig& cfg);
 struct BenchOptions {
   torch::Device device{torch::kCPU};
   int64_t train_rays = 64;    // rays per training step
+  int64_t micro_batch = 0;    // rays per forward/backward within a step (0 = the whole step)
   int64_t render_rays = 0;    // rays per inference forward (0 = same as train_rays)
   int64_t steps = 5;          // timed repetitions; the median is reported
   int64_t warmup = 1;         // untimed repetitions first

@@ -170,8 +170,12 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
       if (leader) std::cerr << "\ntrain: interrupted; checkpoint saved at step " << state.step << "\n";
       return TrainResult::Interrupted;
     }
-    if (opts.max_steps_this_run >= 0 && steps_this_run >= opts.max_steps_this_run) {
+    const bool step_limit = opts.max_steps_this_run >= 0 && steps_this_run >= opts.max_steps_this_run;
+    const bool time_limit = opts.time_limit_s > 0 && progress.elapsed_seconds() >= opts.time_limit_s;
+    if (step_limit || time_limit) {
       save();
+      if (time_limit && leader && !opts.quiet)
+        std::cerr << "\ntrain: time limit reached at step " << state.step << "; checkpoint saved (--resume continues)\n";
       return TrainResult::StoppedEarly;
     }
     const double lr = schedule(state.step);

@@ -19,6 +19,9 @@ struct TrainOptions {
   // Stop (with a checkpoint) after this many steps of this invocation; < 0 = run to the budget.
   // Lets tests and schedulers split a run into pieces.
   int64_t max_steps_this_run = -1;
+  // Stop (with a checkpoint) once this invocation has trained this many seconds; <= 0 = no limit.
+  // The schedule stays the one of train.steps: this is a wall-clock guard, not a budget.
+  double time_limit_s = 0;
   bool quiet = false;  // no progress line (tests)
   Distributed* dist = nullptr;  // null = one process
 };
