@@ -136,9 +136,12 @@ TEST(CrashSafety, KillNineAnywhereThenResumeEqualsUninterrupted) {
     int64_t step = -1;
     ASSERT_NO_THROW(step = load_step(run));
     EXPECT_GE(step, last_step);  // a checkpoint never goes back in time
-    EXPECT_LT(step, kSteps);
+    EXPECT_LE(step, kSteps);
     last_step = step;
     ++kills_with_checkpoint;
+    // On a fast machine a kill can land after the final checkpoint, before the process exits:
+    // the run is complete and the remaining moments are not reachable.
+    if (step == kSteps) break;
   }
   // The plan really interrupted the run mid-way several times (the test is not vacuous).
   EXPECT_GE(kills, 5);
