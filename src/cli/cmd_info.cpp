@@ -5,6 +5,7 @@
 
 #include "cli/command.h"
 #include "cli/common.h"
+#include "data/load_options.h"
 #include "data/dataset.h"
 
 namespace ablenerf::cli {
@@ -52,7 +53,7 @@ void setup(CLI::App& app) {
     }
     if (!data->empty()) {
       Config c = resolve_config(*cfg);
-      out["dataset"] = dataset_summary(Dataset::load(*data, load_options(c)));
+      out["dataset"] = dataset_summary(Dataset::load(*data, load_options_for(c)));
     }
     if (out.is_null()) throw InputError("info", "--data", "give --data DIR and/or --config FILE");
     std::cout << out.dump(2) << std::endl;

@@ -23,15 +23,6 @@ torch::Device parse_device(const std::string& name) {
   }
 }
 
-LoadOptions load_options(const Config& c) {
-  LoadOptions o;
-  o.downscale = c.data.downscale;
-  o.white_background = c.data.background == "white";
-  o.near = c.data.near;
-  o.far = c.data.far;
-  return o;
-}
-
 nlohmann::json config_summary(const Config& c) {
   nlohmann::json j;
   j["source"] = c.source;

@@ -1,5 +1,7 @@
 #include "eval/evaluate.h"
 
+#include "data/load_options.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,6 +10,7 @@
 #include <optional>
 
 #include "data/dataset.h"
+#include "data/load_options.h"
 #include "eval/colormap.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
@@ -66,12 +69,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   if (std::find(splits.begin(), splits.end(), opts.split) == splits.end())
     throw InputError(data_dir, "--split",
                      "no split '" + opts.split + "'" + (splits.empty() ? "" : " (available: " + join(splits) + ")"));
-  LoadOptions lo;
-  lo.downscale = opts.downscale > 0 ? opts.downscale : run.config.data.downscale;
-  lo.white_background = run.config.data.background == "white";
-  lo.near = run.config.data.near;
-  lo.far = run.config.data.far;
-  lo.splits = {opts.split};
+  LoadOptions lo = load_options_for(run.config, {opts.split});
+  if (opts.downscale > 0) lo.downscale = opts.downscale;
   const Dataset ds = Dataset::load(data_dir, lo);
   const Split& split = ds.split(opts.split);
   const Intrinsics& k = ds.intrinsics;

@@ -55,7 +55,11 @@ class SingleThreadedBlas {
 };
 
 int64_t worker_count(int64_t n) {
-  const int64_t cores = std::max<int64_t>(1, std::thread::hardware_concurrency());
+  // The threads the user allows: LibTorch's intra-op pool or OpenBLAS's (which follows
+  // OPENBLAS_NUM_THREADS / OMP_NUM_THREADS), whichever is larger; LibTorch 1.13 here defaults to
+  // one intra-op thread while OpenBLAS uses every core.
+  const auto& blas = blas_threads();
+  const int64_t cores = std::max<int64_t>({1, at::get_num_threads(), blas.get ? blas.get() : 1});
   return std::max<int64_t>(1, std::min(cores, n / kMinMatricesPerThread));
 }
 

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/dataset.h"
+#include "data/load_options.h"
 #include "eval/metrics.h"
 #include "eval/renderer.h"
 #include "eval/run_folder.h"
@@ -31,16 +32,6 @@ namespace {
 std::atomic<bool> g_interrupt{false};
 
 void on_signal(int) { g_interrupt.store(true); }
-
-LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
-  LoadOptions o;
-  o.downscale = c.data.downscale;
-  o.white_background = c.data.background == "white";
-  o.near = c.data.near;
-  o.far = c.data.far;
-  o.splits = std::move(splits);
-  return o;
-}
 
 double mse_to_psnr(double mse) { return -10.0 * std::log10(std::max(mse, 1e-12)); }
 

@@ -71,6 +71,31 @@ TEST(Distributed, TwoProcessesEqualOneProcess) {
   EXPECT_NE(last.find("\"step\":20"), std::string::npos) << last;
 }
 
+// Under a launcher (WORLD_SIZE set, as torchrun does even for one process) a single process joins a
+// group of one and runs the collective path; its all-reduce is the identity, so the weights equal a
+// launcher-free run's bit for bit.
+TEST(Distributed, OneProcessGroupEqualsNoGroup) {
+  test::TempDir t;
+  ASSERT_EQ(test::run_cli("synth --out " + t.path() + "/data --res 16 --train-views 4 --test-views 1").exit_code, 0);
+  const std::string common = std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=10";
+  // Both single-threaded (env() sets OMP_NUM_THREADS=1), so BLAS sums in the same order.
+  const std::string plain = "cd " + t.path() + " && OMP_NUM_THREADS=1 " + bin() + common + " --out plain > p.log 2>&1";
+  ASSERT_EQ(std::system(plain.c_str()), 0);
+  const std::string cmd = "cd " + t.path() + " && " + env(0, 1, free_port()) + bin() + common + " --out group > g.log 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  auto a = read_weights_dict(t.path() + "/plain/weights.pt"), b = read_weights_dict(t.path() + "/group/weights.pt");
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_GT(a.size(), 0u);
+  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+  // The launched run really went through the group: a time limit is refused there.
+  const std::string refused = "cd " + t.path() + " && " + env(0, 1, free_port()) + bin() + common +
+                              " --out group2 --time-limit 5 > r.log 2>&1";
+  EXPECT_NE(std::system(refused.c_str()), 0);
+  std::ifstream lg(t.path() + "/r.log");
+  const std::string log((std::istreambuf_iterator<char>(lg)), std::istreambuf_iterator<char>());
+  EXPECT_NE(log.find("--time-limit"), std::string::npos) << log;
+}
+
 TEST(Distributed, DeadRankFailsTheOthersWithAMessage) {
   test::TempDir t;
   ASSERT_EQ(test::run_cli("synth --out " + t.path() + "/data --res 16 --train-views 2 --test-views 1").exit_code, 0);

@@ -1,0 +1,15 @@
+#include "data/load_options.h"
+
+namespace ablenerf {
+
+LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
+  LoadOptions o;
+  o.downscale = c.data.downscale;
+  o.white_background = c.data.background == "white";
+  o.near = c.data.near;
+  o.far = c.data.far;
+  o.splits = std::move(splits);
+  return o;
+}
+
+}  // namespace ablenerf
