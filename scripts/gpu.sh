@@ -62,8 +62,8 @@ stage_test() {
 }
 
 stage_bench() {
-  # Training: 8192 rays per step in two micro-batches of 4096; rendering: 65536-ray chunks.
-  $bin bench --config configs/blender.toml --device cuda --rays 8192 --micro-batch 4096 --render-rays 65536 \
+  # Training: 8192 rays per step in two micro-batches of 4096; rendering: 16384-ray chunks.
+  $bin bench --config configs/blender.toml --device cuda --rays 8192 --micro-batch 4096 --render-rays 16384 \
     --steps 5 --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused --compare \
     > "$OUT/bench_blender_h100.json" 2> "$OUT/bench.err"
   local rc=$?
@@ -105,7 +105,7 @@ stage_quality() {
     $bin train --data "$lego" --config configs/blender.toml --out "$run" --device cuda \
       --set data.downscale=2 --set train.steps="$steps" --set train.rays_per_step=4096 --set train.micro_batch=4096 \
       --set train.lr_warmup_steps=100 --set train.lr_decay_steps=0 --set train.eval_every=0 --set train.log_every=50 \
-      --set eval.chunk=65536 --set compute.precision=$1 --set compute.attention=$2 > "$OUT/quality_$1.log" 2>&1 || {
+      --set eval.chunk=16384 --set compute.precision=$1 --set compute.attention=$2 > "$OUT/quality_$1.log" 2>&1 || {
       tail -5 "$OUT/quality_$1.log"; return 1; }
     local train_s=$((SECONDS - t0))
     $bin eval --run "$run" --split test --max-images 8 > "$OUT/quality_$1_eval.log" 2>&1 || { tail -5 "$OUT/quality_$1_eval.log"; return 1; }
@@ -127,7 +127,7 @@ stage_lego8() {
     --set train.steps="$steps" --set train.rays_per_step=8192 --set train.micro_batch=4096 \
     --set train.lr_warmup_steps=$((steps / 20)) --set train.lr_decay_steps=0 \
     --set train.eval_every=$((steps / 4)) --set train.eval_views=2 --set train.log_every=25 \
-    --set train.ckpt_every=0 --set eval.chunk=65536 \
+    --set train.ckpt_every=0 --set eval.chunk=16384 \
     --set compute.precision=bf16 --set compute.attention=fused > "$OUT/lego8_train.log" 2>&1
   local rc=$?
   echo "lego8: train rc $rc, $steps steps planned, $((SECONDS - t0)) s wall (data loading included)"
