@@ -1,30 +1,82 @@
-// libFuzzer target: the dataset loader (Blender transforms_train.json or a single
-// transforms.json, chosen by the first byte) on arbitrary json text, beside one valid 2x2 PNG
-// (r_0.png) so that well-formed inputs reach pose parsing, path resolution and decoding.
-// Dataset::load must either load or throw InputError; anything else is a finding.
+// libFuzzer target: the dataset json reader (data/transforms_json, torch-free) on arbitrary json
+// text: a Blender transforms_train.json or a single transforms.json, chosen by the first byte,
+// beside one valid 2x2 PNG (r_0.png) so that well-formed inputs reach pose parsing, path
+// resolution, the PNG header and decoding of every frame. The same file is also read as a camera
+// list (read_camera_json, what `render --cameras` uses).
+// Bait for the path check: a valid PNG just outside the dataset folder (../outside.png) and a
+// symlink inside it that points there (escape.png); both must be refused (seeds *_outside*.json).
+// Every call must either succeed or throw InputError. Findings: any other exception, a crash, a
+// sanitizer report, or a result that breaks the reader's promises (a resolved path outside the
+// dataset folder, a non-finite pose, a focal length that is not positive and finite, an empty
+// split). Seed ngp_zero_angle.json: camera_angle_x = 0 once gave an infinite focal length.
+#include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 
-#include "data/dataset.h"
+#include "data/transforms_json.h"
 #include "fuzz_common.h"
 #include "util/errors.h"
-#include "util/image_io.h"
+#include "util/png_codec.h"
 
 namespace {
 
 constexpr int kImageSide = 2;
-// Refuse to decode more than this, so that a json listing thousands of frames measures the
-// loader, not the allocator (check_memory must refuse it up front).
-constexpr int64_t kMemoryLimitBytes = int64_t(64) << 20;
+constexpr int kChannels = 4;
+constexpr uint8_t kGrey = 128;
+// Decode at most this many frames per input, so that a json listing hundreds of frames measures
+// the reader, not repeated decoding of the same 2x2 PNG.
+constexpr size_t kMaxDecodedFrames = 16;
+
+[[noreturn]] void finding(const char* what) {
+  std::fprintf(stderr, "fuzz_transforms: %s\n", what);
+  std::abort();
+}
 
 std::string dataset_dir() {
   static const std::string dir = [] {
+    const std::string outside = ablenerf::fuzz::scratch_dir() + "/outside.png";
     const std::string d = ablenerf::fuzz::scratch_dir() + "/data";
     std::filesystem::create_directories(d);
-    ablenerf::write_png(d + "/r_0.png", torch::full({kImageSide, kImageSide, 4}, 0.5f));
-    return d;
+    const std::vector<uint8_t> pixels(kImageSide * kImageSide * kChannels, kGrey);
+    ablenerf::encode_png_file(d + "/r_0.png", kImageSide, kImageSide, kChannels, pixels.data());
+    ablenerf::encode_png_file(outside, kImageSide, kImageSide, kChannels, pixels.data());
+    std::filesystem::create_symlink(outside, d + "/escape.png");
+    return std::filesystem::canonical(d).string();
   }();
   return dir;
+}
+
+bool inside(const std::string& path, const std::string& dir) {
+  return path.size() > dir.size() && path.compare(0, dir.size(), dir) == 0 && path[dir.size()] == '/';
+}
+
+bool finite_pose(const ablenerf::Pose34& pose) {
+  for (float v : pose)
+    if (!std::isfinite(v)) return false;
+  return true;
+}
+
+void check_dataset(const ablenerf::DatasetJson& ds, const std::string& dir) {
+  if (!(std::isfinite(ds.fx) && std::isfinite(ds.fy) && ds.fx > 0 && ds.fy > 0)) finding("bad focal length");
+  if (ds.width < 1 || ds.height < 1) finding("image size below 1");
+  size_t decoded = 0;
+  for (const auto& split : ds.splits) {
+    if (split.frames.empty()) finding("a split without frames");
+    for (const auto& fr : split.frames) {
+      if (!inside(fr.image, dir)) finding("an image path resolved outside the dataset folder");
+      if (!fr.depth.empty() && !inside(fr.depth, dir)) finding("a depth path resolved outside the dataset folder");
+      if (!finite_pose(fr.pose)) finding("a non-finite pose");
+      if (decoded++ < kMaxDecodedFrames) {
+        try {
+          (void)ablenerf::decode_png_file(fr.image);  // what Dataset::load does next
+        } catch (const ablenerf::InputError&) {
+          // e.g. a frame that names the json file itself: refused like any bad PNG.
+        }
+      }
+    }
+  }
 }
 
 }  // namespace
@@ -39,13 +91,19 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::error_code ec;
   std::filesystem::remove(drop, ec);
   ablenerf::fuzz::write_bytes(keep, data + 1, size - 1);
-  ablenerf::LoadOptions opts;
-  opts.memory_limit_bytes = kMemoryLimitBytes;
   try {
-    const ablenerf::Dataset ds = ablenerf::Dataset::load(dir, opts);
-    (void)ds;
+    check_dataset(ablenerf::read_dataset_json(dir, {}, 1), dir);
   } catch (const ablenerf::InputError&) {
     // Refused with a message naming the file and field: expected for bad input.
+  }
+  try {
+    const ablenerf::CameraJson cams = ablenerf::read_camera_json(keep);
+    if (cams.poses.empty()) finding("a camera list without poses");
+    if (!(std::isfinite(cams.fx) && std::isfinite(cams.fy) && cams.fx > 0 && cams.fy > 0))
+      finding("bad camera focal length");
+    for (const auto& pose : cams.poses)
+      if (!finite_pose(pose)) finding("a non-finite camera pose");
+  } catch (const ablenerf::InputError&) {
   }
   return 0;
 }

@@ -2,12 +2,14 @@
 # Builds the libFuzzer targets (clang, ASan + UBSan, coverage) and fuzzes each for N seconds,
 # starting from the committed seed corpus in fuzz/corpus/NAME.
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     (default: 60 s, every fuzz/fuzz_*.cpp)
+# The build is -DABLENERF_FUZZ_ONLY=ON: only the torch-free sources that are fuzzed
+# (src/util/png_codec, src/util/fs, src/data/transforms_json) and the targets, no LibTorch.
 # Environment:
 #   ABLENERF_FUZZ_BUILD  build folder (default build-fuzz)
 #   ABLENERF_JOBS        build parallelism (default 1)
 #   ABLENERF_FUZZ_MERGE=1  afterwards, merge what the run found into fuzz/corpus/NAME (minimised)
 # New inputs go to BUILD/fuzz-corpus/NAME, crashes to BUILD/fuzz-artifacts/. Exit status 1 when a
-# target crashed or a sanitizer reported an error.
+# target crashed, leaked or a sanitizer reported an error.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 secs=${1:-60}
@@ -22,32 +24,36 @@ if ! command -v clang++ >/dev/null; then
   echo "fuzz: clang++ not found (Debian: apt-get install -y clang libclang-rt-14-dev)" >&2
   exit 1
 fi
-if [ ! -f "$build/CMakeCache.txt" ]; then
-  cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
-    -DABLENERF_FUZZ=ON -DABLENERF_TESTS=OFF -DABLENERF_BENCH=OFF >/dev/null
-fi
+start=$SECONDS
+# Configured every time (a second or two): a folder left by the older LibTorch-based fuzz build
+# is switched over to the torch-free one.
+mkdir -p "$build"
+cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
+  -DABLENERF_FUZZ_ONLY=ON >"$build/fuzz-configure.log" 2>&1 ||
+  { cat "$build/fuzz-configure.log" >&2; exit 1; }
 cmake --build "$build" -j "${ABLENERF_JOBS:-1}" --target "${targets[@]/#/fuzz_}" >"$build/fuzz-build.log" 2>&1 ||
   { tail -30 "$build/fuzz-build.log" >&2; exit 1; }
+echo "fuzz: build ${build} took $((SECONDS - start)) s"
 
-# LibTorch keeps some allocations for the life of the process on purpose: leak reports would be
-# about it, not about us. Everything else (overflows, use-after-free, UB) stops the run.
-export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=0:abort_on_error=1:detect_container_overflow=0}
+# No LibTorch in these binaries, so leaks are findings too.
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
-export OMP_NUM_THREADS=1
 
 status=0
 for t in "${targets[@]}"; do
   found="$build/fuzz-corpus/$t"
   mkdir -p "$found" "$build/fuzz-artifacts"
   echo "fuzz: $t for ${secs}s (seeds fuzz/corpus/$t, new inputs $found)"
+  t_start=$SECONDS
   if ! "$build/fuzz_$t" -max_total_time="$secs" -max_len=4096 -timeout=10 -rss_limit_mb=4096 -print_final_stats=1 \
       -artifact_prefix="$build/fuzz-artifacts/$t-" "$found" "fuzz/corpus/$t" >"$build/fuzz-$t.log" 2>&1; then
     echo "fuzz: $t FAILED (log: $build/fuzz-$t.log, inputs: $build/fuzz-artifacts/)" >&2
-    grep -E "ERROR|runtime error|SUMMARY|Test unit written" "$build/fuzz-$t.log" | head -10 >&2
+    grep -E "^fuzz_|ERROR|runtime error|SUMMARY|Test unit written" "$build/fuzz-$t.log" | head -10 >&2
     status=1
   else
     grep -E "stat::number_of_executed_units|cov: " "$build/fuzz-$t.log" | tail -2
   fi
+  echo "fuzz: $t took $((SECONDS - t_start)) s"
   if [ "${ABLENERF_FUZZ_MERGE:-0}" = 1 ]; then
     "$build/fuzz_$t" -merge=1 -max_len=4096 "fuzz/corpus/$t" "$found" >"$build/fuzz-$t-merge.log" 2>&1
   fi

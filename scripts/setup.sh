@@ -15,6 +15,7 @@ packages=(
   libgloo-dev                             # headers for c10d's Gloo backend (multi-process training)
   libgtest-dev libgmock-dev libbenchmark-dev
   ffmpeg                                  # MP4 output of `ablenerf render`
+  clang libclang-rt-14-dev                # libFuzzer + ASan/UBSan runtimes (fuzz smoke run in scripts/test.sh)
 )
 
 if [ "${ABLENERF_SKIP_APT:-0}" != 1 ]; then

@@ -1,8 +1,25 @@
 #!/usr/bin/env bash
-# The test command: installs what is missing, builds, runs every test with ctest.
+# The test command: installs what is missing, builds, runs every test with ctest, then a
+# 60-second libFuzzer smoke run (30 s per target) when clang and its fuzzer runtime are present.
+# Environment: ABLENERF_FUZZ_SECONDS (per target, default 30; 0 skips the smoke run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
 scripts/setup.sh build
-cd build
-ctest --output-on-failure --timeout 900 -j "${ABLENERF_TEST_JOBS:-1}"
+(cd build && ctest --output-on-failure --timeout 900 -j "${ABLENERF_TEST_JOBS:-1}")
+
+# Fuzz smoke stage: builds the torch-free fuzz targets in build-fuzz (clang, ASan + UBSan; about a
+# minute from scratch) and fuzzes each from its committed corpus. A finding fails the script.
+fuzz_secs=${ABLENERF_FUZZ_SECONDS:-30}
+have_fuzzer_runtime() {
+  dpkg-query -W -f='${Status}' libclang-rt-14-dev 2>/dev/null | grep -q "install ok installed"
+}
+if [ "$fuzz_secs" = 0 ]; then
+  echo "test: fuzz smoke run skipped (ABLENERF_FUZZ_SECONDS=0)"
+elif command -v clang++ >/dev/null && have_fuzzer_runtime; then
+  fuzz_start=$SECONDS
+  scripts/fuzz.sh "$fuzz_secs"
+  echo "test: fuzz smoke stage (build + fuzzing) took $((SECONDS - fuzz_start)) s"
+else
+  echo "test: fuzz smoke run skipped (needs clang++ and libclang-rt-14-dev: scripts/setup.sh installs them)"
+fi

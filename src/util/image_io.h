@@ -1,17 +1,17 @@
 #pragma once
-// PNG reading and writing (libpng), strict: truncated or corrupt files raise InputError.
+// PNG reading and writing as tensors, strict: truncated or corrupt files raise InputError.
+// The libpng work lives in util/png_codec.h (torch-free, fuzzed); these are thin tensor wrappers.
 #include <torch/torch.h>
 
 #include <string>
+
+#include "util/png_codec.h"  // png_size
 
 namespace ablenerf {
 
 // Decodes an 8-bit (or 16-bit, reduced to 8) PNG into a uint8 tensor (H, W, C) with C in {1,3,4}
 // (grey+alpha is expanded to RGBA, palettes to RGB(A)). Throws InputError naming the file.
 torch::Tensor read_png(const std::string& path);
-
-// Reads only the header: {height, width}. Throws InputError on failure.
-std::pair<int, int> png_size(const std::string& path);
 
 // Writes a uint8 (H,W,C) or float (H,W,C) in [0,1] tensor, C in {1,3,4}. Floats are clamped
 // and rounded half-up (x*255 + 0.5), like torchvision's save_image. The file is written to a

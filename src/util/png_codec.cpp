@@ -1,0 +1,81 @@
+#include "util/png_codec.h"
+
+#include <png.h>
+
+#include <cstring>
+
+#include "util/errors.h"
+#include "util/fs.h"
+
+namespace ablenerf {
+
+namespace {
+
+// Owns a png_image and frees libpng's state on every exit path (png_image_free is a no-op on an
+// image that holds none).
+struct PngHandle {
+  png_image img;
+  PngHandle() {
+    std::memset(&img, 0, sizeof(img));
+    img.version = PNG_IMAGE_VERSION;
+  }
+  ~PngHandle() { png_image_free(&img); }
+  PngHandle(const PngHandle&) = delete;
+  PngHandle& operator=(const PngHandle&) = delete;
+};
+
+int channels_of(png_uint_32 format) {
+  const bool alpha = format & PNG_FORMAT_FLAG_ALPHA;
+  const bool colour = format & PNG_FORMAT_FLAG_COLOR;
+  if (colour || alpha) return alpha ? 4 : 3;  // grey+alpha is expanded to RGBA
+  return 1;
+}
+
+png_uint_32 format_of(int channels) {
+  return channels == 4 ? PNG_FORMAT_RGBA : channels == 3 ? PNG_FORMAT_RGB : PNG_FORMAT_GRAY;
+}
+
+void begin_read(PngHandle& p, const std::string& path) {
+  if (!png_image_begin_read_from_file(&p.img, path.c_str()))
+    throw InputError(path, "", std::string("not a readable PNG: ") + p.img.message);
+}
+
+}  // namespace
+
+std::pair<int, int> png_size(const std::string& path) {
+  PngHandle p;
+  begin_read(p, path);
+  return {static_cast<int>(p.img.height), static_cast<int>(p.img.width)};
+}
+
+PngImage decode_png_file(const std::string& path) {
+  PngHandle p;
+  begin_read(p, path);
+  PngImage out;
+  out.channels = channels_of(p.img.format);
+  p.img.format = format_of(out.channels);
+  const int64_t h = p.img.height, w = p.img.width;
+  if (h <= 0 || w <= 0 || h * w > kMaxPngPixels)
+    throw InputError(path, "", "unsupported PNG size " + std::to_string(w) + "x" + std::to_string(h));
+  out.width = static_cast<int>(w);
+  out.height = static_cast<int>(h);
+  out.pixels.resize(static_cast<size_t>(h * w * out.channels));
+  if (!png_image_finish_read(&p.img, nullptr, out.pixels.data(), 0, nullptr))
+    throw InputError(path, "", std::string("corrupt or truncated PNG: ") + p.img.message);
+  return out;
+}
+
+void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels) {
+  if (width <= 0 || height <= 0 || (channels != 1 && channels != 3 && channels != 4))
+    throw InputError(path, "", "cannot write PNG: expected a non-empty image with 1, 3 or 4 channels");
+  atomic_write(path, [&](const std::string& tmp) {
+    PngHandle p;
+    p.img.width = static_cast<png_uint_32>(width);
+    p.img.height = static_cast<png_uint_32>(height);
+    p.img.format = format_of(channels);
+    if (!png_image_write_to_file(&p.img, tmp.c_str(), 0, pixels, 0, nullptr))
+      throw InputError(path, "", std::string("cannot write PNG: ") + p.img.message);
+  });
+}
+
+}  // namespace ablenerf

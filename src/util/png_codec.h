@@ -1,0 +1,33 @@
+#pragma once
+// PNG decoding and encoding on plain byte buffers (libpng's simplified API), without LibTorch, so
+// that the libFuzzer targets can be built from a handful of small translation units.
+// Strict: unreadable, truncated or corrupt files raise InputError naming the file.
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace ablenerf {
+
+// A decoded image: row-major (height, width, channels) bytes, channels in {1, 3, 4}.
+struct PngImage {
+  int width = 0, height = 0, channels = 0;
+  std::vector<uint8_t> pixels;
+};
+
+// Largest number of pixels (width * height) decode_png_file accepts: 2^28, i.e. a 16384 x 16384
+// image, 1 GiB as RGBA. Far above any NeRF dataset; refuses headers that claim absurd sizes.
+constexpr int64_t kMaxPngPixels = int64_t(1) << 28;
+
+// Decodes an 8-bit (or 16-bit, reduced to 8) PNG. Grey stays 1 channel; grey+alpha is expanded
+// to RGBA, palettes to RGB(A). Throws InputError(path, "", ...) on failure.
+PngImage decode_png_file(const std::string& path);
+
+// Reads only the header: {height, width}. Throws InputError on failure.
+std::pair<int, int> png_size(const std::string& path);
+
+// Writes `pixels` (row-major height x width x channels, channels in {1, 3, 4}) as a PNG through
+// atomic_write: an existing file is never left half-written. Throws InputError naming `path`.
+void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels);
+
+}  // namespace ablenerf
