@@ -168,6 +168,16 @@ TEST(BadInput, MissingCameraAngle) {
   expect_bad(t.path(), "transforms_train.json", "camera_angle_x");
 }
 
+// Found by the fuzz smoke run: an angle of 0 gave an infinite focal length (tan(0) = 0).
+TEST(BadInput, CameraAngleOutsideZeroToPi) {
+  for (const char* angle : {"0", "-0.5", "3.2"}) {
+    test::TempDir t;
+    make_blender(t.path(), 1, 4, 4, kIdentityPose, std::string("\"camera_angle_x\": ") + angle);
+    SCOPED_TRACE(angle);
+    expect_bad(t.path(), "transforms_train.json", "camera_angle_x");
+  }
+}
+
 TEST(BadInput, ZeroFrames) {
   test::TempDir t;
   make_blender(t.path(), 1, 4, 4);
