@@ -155,7 +155,23 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
   auto log_clock = std::chrono::steady_clock::now();
   double rays_per_s = 0;
 
+  if (!single && tc.time_budget_s > 0)
+    throw InputError(config.source, "train.time_budget_s",
+                     "not supported with several processes (ranks would disagree on the schedule)");
+  // Where the schedule stands: the step, or with a time budget the share of it already spent if
+  // that is further along (elapsed time counts across resumes).
+  const auto schedule_step = [&]() -> int64_t {
+    if (tc.time_budget_s <= 0) return state.step;
+    const double spent = (elapsed_before + progress.elapsed_seconds()) / tc.time_budget_s;
+    return std::max<int64_t>(state.step, static_cast<int64_t>(spent * static_cast<double>(tc.steps)));
+  };
+
   while (state.step < tc.steps) {
+    if (schedule_step() >= tc.steps) {
+      if (leader && !opts.quiet)
+        std::cerr << "\ntrain: time budget of " << tc.time_budget_s << " s spent at step " << state.step << "\n";
+      break;
+    }
     if (g_interrupt.load()) {
       save();
       if (leader) std::cerr << "\ntrain: interrupted; checkpoint saved at step " << state.step << "\n";
@@ -169,7 +185,7 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
         std::cerr << "\ntrain: time limit reached at step " << state.step << "; checkpoint saved (--resume continues)\n";
       return TrainResult::StoppedEarly;
     }
-    const double lr = schedule(state.step);
+    const double lr = schedule(schedule_step());
     for (auto& g : optim.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
 
     RayBatch batch = sampler.next(tc.rays_per_step, rank, world);

@@ -55,6 +55,7 @@ void visit_fields(C& c, F&& f) {
   f("train.eval_views", &c.train.eval_views);
   f("train.ckpt_every", &c.train.ckpt_every);
   f("train.max_bad_steps", &c.train.max_bad_steps);
+  f("train.time_budget_s", &c.train.time_budget_s);
   f("eval.chunk", &c.eval.chunk);
   f("eval.ssim", &c.eval.ssim);
   f("compute.precision", &c.compute.precision);
@@ -206,6 +207,7 @@ void Config::validate() const {
   need(t.eval_views >= 0, "train.eval_views", "must be >= 0");
   need(t.ckpt_every >= 0, "train.ckpt_every", "must be >= 0");
   need(t.max_bad_steps >= 1, "train.max_bad_steps", "must be >= 1");
+  need(t.time_budget_s >= 0 && std::isfinite(t.time_budget_s), "train.time_budget_s", "must be >= 0 seconds");
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
   need(eval.ssim == "standard" || eval.ssim == "release", "eval.ssim",
        "must be \"standard\" or \"release\"");

@@ -48,6 +48,10 @@ struct TrainConfig {
   int64_t eval_views = 4;        // held-out views used for that check
   int64_t ckpt_every = 5000;     // steps between checkpoints (0 = only at the end)
   int64_t max_bad_steps = 5;     // consecutive non-finite losses before the run stops
+  // Wall-clock budget in seconds (0 = none). With one, the learning-rate schedule advances by
+  // whichever is further along, steps or time, and training ends when either runs out, so a run
+  // finishes in its budget on a slow machine with its schedule complete. Single process only.
+  double time_budget_s = 0;
 };
 
 struct EvalConfig {

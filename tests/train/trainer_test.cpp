@@ -91,6 +91,36 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   EXPECT_EQ(r.data_dir, fs::absolute(test::tiny_dataset()).lexically_normal().string());
 }
 
+// With train.time_budget_s the run ends in its budget with the schedule run to its end (the learning
+// rate of the last step is at lr_final), however many of train.steps it reached.
+TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
+  test::TempDir t;
+  Config c = test::tiny_config();
+  c.set("train.steps=1000000");
+  c.set("train.lr_warmup_steps=0");
+  c.set("train.lr_decay_steps=0");
+  c.set("train.lr_init=1e-3");
+  c.set("train.lr_final=1e-4");
+  c.set("train.log_every=1");
+  c.set("train.eval_every=0");
+  c.set("train.ckpt_every=0");
+  c.set("train.time_budget_s=3");
+  ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
+  const auto log = read_log(t / "run");
+  ASSERT_GE(log.size(), 3u);
+  const auto& first = log.front();
+  const auto& last = log.back();
+  EXPECT_LT(last["step"].get<int64_t>(), 1000000);
+  // The first step runs near lr_init, the last near lr_final (log-linear: a tenth of the budget
+  // left would still be 1e-4 * 10^0.1 = 1.26e-4).
+  EXPECT_GT(first["lr"].get<double>(), 7e-4);
+  EXPECT_LT(last["lr"].get<double>(), 1.26e-4);
+  EXPECT_GE(last["lr"].get<double>(), 1e-4 * (1 - 1e-9));
+  EXPECT_LT(last["elapsed_s"].get<double>(), 3.0 + 1.0);
+  // A checkpoint of the final state was written, as at the end of any run.
+  EXPECT_TRUE(fs::exists(t / "run/checkpoint.pt"));
+}
+
 TEST(Trainer, ResumeEqualsUninterrupted) {
   SingleThread st;
   test::TempDir t;
