@@ -21,10 +21,15 @@ ABTransformerImpl::ABTransformerImpl(int64_t width, int64_t heads, int64_t ff_wi
 }
 
 torch::Tensor ABTransformerImpl::forward(const torch::Tensor& tokens, const torch::Tensor& mask,
-                                         RayQueryProbe* probe) {
+                                         RayQueryProbe* probe, bool ray_token_only) {
   auto x = tokens;
-  for (size_t i = 0; i < blocks_.size(); ++i)
-    x = blocks_[i]->forward_self(x, mask, i + 1 == blocks_.size() ? probe : nullptr);
+  for (size_t i = 0; i < blocks_.size(); ++i) {
+    const bool last = i + 1 == blocks_.size();
+    // The ray token's row of the mask blocks nothing, so its row alone is plain cross-attention.
+    x = last && ray_token_only ? blocks_[i]->forward_first(x, probe)
+                               : blocks_[i]->forward_self(x, mask, last ? probe : nullptr);
+  }
+  if (ray_token_only && blocks_.empty()) x = x.slice(1, 0, 1);
   return x;
 }
 

@@ -17,9 +17,10 @@ class ABTransformerImpl : public torch::nn::Module {
  public:
   ABTransformerImpl(int64_t width, int64_t heads, int64_t ff_width, int64_t layers);
   // tokens: (B,S+1,E); mask: ray_attention_mask(S) or undefined (bidirectional ablation).
-  // `probe` receives the last layer's ray-token query and keys.
+  // `probe` receives the last layer's ray-token query and keys. With `ray_token_only` the result
+  // is only the ray token, (B,1,E): the last layer then computes that row alone.
   torch::Tensor forward(const torch::Tensor& tokens, const torch::Tensor& mask,
-                        RayQueryProbe* probe = nullptr);
+                        RayQueryProbe* probe = nullptr, bool ray_token_only = false);
   int64_t layers() const { return static_cast<int64_t>(blocks_.size()); }
   TransformerBlock& block(int64_t i) { return blocks_.at(static_cast<size_t>(i)); }
 

@@ -2,6 +2,7 @@
 
 #include <ATen/CPUGeneratorImpl.h>
 
+#include "model/cpu_parallel.h"
 #include "model/frustum.h"
 #include "model/ipe.h"
 #include "model/resampler.h"
@@ -13,6 +14,25 @@ namespace ablenerf {
 namespace {
 // Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
 constexpr uint64_t kLeNoiseSeed = 4;
+// Fewest rays per CPU thread in a ray-parallel forward (below, thread start-up dominates).
+constexpr int64_t kMinRaysPerWorker = 8;
+
+// Row-wise concatenation of the outputs of consecutive ray slices (undefined fields stay so).
+ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
+  const auto cat = [&](torch::Tensor ModelOutput::*field) {
+    if (!(parts.front().*field).defined()) return torch::Tensor();
+    std::vector<torch::Tensor> xs;
+    xs.reserve(parts.size());
+    for (const auto& p : parts) xs.push_back(p.*field);
+    return torch::cat(xs, 0);
+  };
+  ModelOutput out;
+  for (auto field : {&ModelOutput::rgb_coarse, &ModelOutput::rgb_fine, &ModelOutput::coarse_weights,
+                     &ModelOutput::fine_weights, &ModelOutput::fine_t, &ModelOutput::ray_colour_coarse,
+                     &ModelOutput::le_colour_coarse, &ModelOutput::ray_colour_fine, &ModelOutput::le_colour_fine})
+    out.*field = cat(field);
+  return out;
+}
 }  // namespace
 
 AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg) : cfg_(cfg) {
@@ -60,16 +80,18 @@ torch::Tensor AbleNerfImpl::effective_le(const ForwardOptions& opts) const {
 AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in,
                                           ABTransformer& ab, RayColourHead& ray_head, LETransformer* le_tf,
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
-                                          const torch::Tensor& view_code) {
+                                          const torch::Tensor& view_code, bool colour) {
   const int64_t b = t.size(0);
   const auto g = cast_intervals(t, rays);
   const auto volumes = volume_embedding_(integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees));
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
-  const auto y = ab->forward(tokens, mask_, &probe);
+  // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).
+  const auto y = ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour);
   Pass p;
   p.ray_token = y.select(1, 0);
   p.weights = ray_token_attention(probe);
+  if (!colour) return p;
   p.ray_colour = ray_head(p.ray_token);
   if (le_tf) p.le_colour = (*le_head)((*le_tf)(le, y.slice(1, 1), view), view_code);
   p.rgb = tonemap(p.ray_colour, p.le_colour);
@@ -77,6 +99,21 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
 }
 
 ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const ForwardOptions& opts) {
+  // Ray-parallel on the CPU when nothing is recorded for autograd and no random stream is drawn
+  // (a generator's draws would depend on the split); rays never interact inside the model.
+  const bool draws_randomness = opts.generator != nullptr || (cfg_.randomized && is_training());
+  const bool split = ray_token_.device().is_cpu() && cpu_split() == CpuSplit::Rays &&
+                     !torch::GradMode::is_enabled() && !draws_randomness;
+  const int64_t workers = split ? cpu_workers(in.size(), kMinRaysPerWorker) : 1;
+  if (workers == 1) return forward_serial(in, near, far, opts);
+  std::vector<ModelOutput> parts(static_cast<size_t>(workers));
+  parallel_slices(in.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
+    parts[static_cast<size_t>(w)] = forward_serial(in.slice(lo, hi), near, far, opts);
+  });
+  return concat_outputs(parts);
+}
+
+ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far, const ForwardOptions& opts) {
   const auto options = ray_token_.options();
   const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
   const int64_t b = rays.size();
@@ -95,16 +132,17 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
   const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, jitter, opts.generator, options);
-  const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code);
+  const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
+                          opts.coarse_colour);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
   const auto t_f = resample_fence_posts(t_c, c.weights.to(torch::kFloat), cfg_.resample_padding, jitter,
                                         opts.generator);
   // The fine ray token is the coarse output token, not detached (spec 4.4).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
-                          view_code);
+                          view_code, /*colour=*/true);
 
   // Outputs in fp32 whatever the precision of the products (no-ops in fp32).
-  const auto fp32 = [](const torch::Tensor& x) { return x.to(torch::kFloat); };
+  const auto fp32 = [](const torch::Tensor& x) { return x.defined() ? x.to(torch::kFloat) : x; };
   ModelOutput out;
   out.rgb_coarse = fp32(c.rgb);
   out.rgb_fine = fp32(f.rgb);
@@ -114,7 +152,7 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);
-    out.le_colour_coarse = has_le() ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
+    out.le_colour_coarse = has_le() || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
     out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;

@@ -22,6 +22,10 @@ struct ForwardOptions {
   bool branches = false;   // also return the two branch colours before tone mapping
   double le_noise = 0.0;   // std of Gaussian noise added to the LE (0 = none)
   bool le_zero = false;    // zero the LE
+  // Compute the coarse pass's colour (rgb_coarse and its branch colours). Rendering needs only
+  // the fine colour: without it the coarse pass skips its LE branch and its last layer computes
+  // the ray token's row alone; every fine output is unchanged.
+  bool coarse_colour = true;
   // Source of the LE noise and of the stratified jitter (optional). The LE noise is drawn once
   // per forward call; without a generator it comes from a fixed seed, so every chunk of an
   // image sees the same perturbed LE.
@@ -29,7 +33,7 @@ struct ForwardOptions {
 };
 
 struct ModelOutput {
-  torch::Tensor rgb_coarse, rgb_fine;  // (B,3) sRGB in [0,1]
+  torch::Tensor rgb_coarse, rgb_fine;  // (B,3) sRGB in [0,1]; rgb_coarse undefined without coarse_colour
   torch::Tensor coarse_weights;        // (B,S) last coarse layer's ray-token attention over volumes
   torch::Tensor fine_weights;          // (B,S) last fine layer's ray-token attention over volumes
   torch::Tensor fine_t;                // (B,S+1) fine fence-posts (interval i = [t_i, t_i+1])
@@ -42,7 +46,9 @@ class AbleNerfImpl : public torch::nn::Module {
  public:
   explicit AbleNerfImpl(const ModelConfig& cfg);
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
-  // training mode.
+  // training mode. On the CPU without gradient recording (rendering, evaluation) the rays are
+  // split across CPU threads (model/cpu_parallel.h); outputs equal the serial ones to float
+  // tolerance.
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }
@@ -55,9 +61,11 @@ class AbleNerfImpl : public torch::nn::Module {
   struct Pass {
     torch::Tensor ray_token, weights, ray_colour, le_colour, rgb;
   };
+  // colour = false: only the ray token and the attention weights (no colour, no LE branch).
   Pass run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in, ABTransformer& ab,
                 RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
-                const torch::Tensor& view, const torch::Tensor& view_code);
+                const torch::Tensor& view, const torch::Tensor& view_code, bool colour);
+  ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;

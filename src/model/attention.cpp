@@ -49,7 +49,8 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
   return attend(q, k, v, mask);
 }
 
-torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in) {
+torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in,
+                                                    RayQueryProbe* probe) {
   const int64_t dh = width_ / heads_;
   const auto wq = in_proj_weight.slice(0, 0, width_), bq = in_proj_bias.slice(0, 0, width_);
   const auto wkv = in_proj_weight.slice(0, width_), bkv = in_proj_bias.slice(0, width_);
@@ -59,6 +60,10 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const auto kv = torch::addmm(bkv, kv_in.reshape({-1, width_}), wkv.t())
                       .view({kv_in.size(0), kv_in.size(1), 2, heads_, dh})
                       .permute({2, 0, 3, 1, 4});
+  if (probe) {
+    probe->q0 = q.select(2, 0).detach();
+    probe->k = kv[0].detach();
+  }
   return attend(q, kv[0], kv[1], torch::Tensor());
 }
 
@@ -115,8 +120,13 @@ torch::Tensor TransformerBlockImpl::forward_self(const torch::Tensor& x, const t
   return finish(x, attn->forward_self(x, mask, probe));
 }
 
-torch::Tensor TransformerBlockImpl::forward_cross(const torch::Tensor& q, const torch::Tensor& kv) {
-  return finish(q, attn->forward_cross(q, kv));
+torch::Tensor TransformerBlockImpl::forward_cross(const torch::Tensor& q, const torch::Tensor& kv,
+                                                  RayQueryProbe* probe) {
+  return finish(q, attn->forward_cross(q, kv, probe));
+}
+
+torch::Tensor TransformerBlockImpl::forward_first(const torch::Tensor& x, RayQueryProbe* probe) {
+  return forward_cross(x.slice(1, 0, 1), x, probe);
 }
 
 }  // namespace ablenerf

@@ -25,7 +25,8 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                              RayQueryProbe* probe = nullptr);
   // Cross-attention without mask. q: (Bq,Lq,E) with Bq == B or 1 (broadcast); kv: (B,Lk,E).
-  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv);
+  // Fills `probe` (q0 = the first query) when given.
+  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
   void reset_parameters();
   int64_t heads() const { return heads_; }
 
@@ -47,7 +48,11 @@ class TransformerBlockImpl : public torch::nn::Module {
   torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                              RayQueryProbe* probe = nullptr);
   // q may have batch 1 (shared queries, e.g. the LE); the result has kv's batch.
-  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv);
+  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
+  // Row 0 of forward_self, (B,1,E), for a mask whose row 0 blocks nothing (the ray token's): the
+  // first token attends to every token, so only its query, its output projection and its
+  // feed-forward are computed. Fills `probe` like forward_self.
+  torch::Tensor forward_first(const torch::Tensor& x, RayQueryProbe* probe = nullptr);
 
   MultiHeadAttention attn{nullptr};
   torch::nn::Linear ff_in{nullptr}, ff_out{nullptr};

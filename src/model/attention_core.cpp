@@ -1,10 +1,6 @@
 #include "model/attention_core.h"
 
-#include <dlfcn.h>
-
-#include <algorithm>
-#include <thread>
-#include <vector>
+#include "model/cpu_parallel.h"
 
 namespace ablenerf {
 
@@ -13,84 +9,16 @@ namespace {
 // Below this many matrices per thread the thread start-up costs more than it saves.
 constexpr int64_t kMinMatricesPerThread = 16;
 
-// OpenBLAS's runtime thread control, looked up at run time so that other BLAS builds (or a
-// LibTorch with MKL) simply skip it.
-using SetThreads = void (*)(int);
-using GetThreads = int (*)();
-
-struct BlasThreads {
-  SetThreads set = nullptr;
-  GetThreads get = nullptr;
-  BlasThreads() {
-    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
-    if (!set || !get) set = nullptr, get = nullptr;
-  }
-};
-
-const BlasThreads& blas_threads() {
-  static const BlasThreads b;
-  return b;
-}
-
-// Single-threaded BLAS for the scope (restores the previous count).
-class SingleThreadedBlas {
- public:
-  SingleThreadedBlas() {
-    const auto& b = blas_threads();
-    if (b.set) {
-      previous_ = b.get();
-      if (previous_ != 1) b.set(1);
-    }
-  }
-  ~SingleThreadedBlas() {
-    const auto& b = blas_threads();
-    if (b.set && previous_ > 1) b.set(previous_);
-  }
-  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
-  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
-
- private:
-  int previous_ = 0;
-};
-
-int64_t worker_count(int64_t n) {
-  // The threads the user allows: LibTorch's intra-op pool or OpenBLAS's (which follows
-  // OPENBLAS_NUM_THREADS / OMP_NUM_THREADS), whichever is larger; LibTorch 1.13 here defaults to
-  // one intra-op thread while OpenBLAS uses every core.
-  const auto& blas = blas_threads();
-  const int64_t cores = std::max<int64_t>({1, at::get_num_threads(), blas.get ? blas.get() : 1});
-  return std::max<int64_t>(1, std::min(cores, n / kMinMatricesPerThread));
-}
-
-// out[i] = a[i] @ b[i] for the whole batch, split into contiguous slices, one per thread.
+// out[i] = a[i] @ b[i] for the whole batch, split into contiguous slices, one per thread. Grad
+// recording is off in the workers: autograd is handled by AttentionCoreFunction.
 void bmm_into(torch::Tensor& out, const torch::Tensor& a, const torch::Tensor& b) {
-  const int64_t n = a.size(0), workers = worker_count(n);
-  if (!a.device().is_cpu() || workers == 1 || !blas_threads().set) {
-    at::bmm_out(out, a, b);
-    return;
-  }
-  SingleThreadedBlas single;
-  const bool inference = c10::InferenceMode::is_enabled();
-  const auto slice = [&](int64_t w) {
-    const int64_t lo = n * w / workers, hi = n * (w + 1) / workers;
+  const int64_t n = a.size(0);
+  const int64_t workers = a.device().is_cpu() ? cpu_workers(n, kMinMatricesPerThread) : 1;
+  torch::NoGradGuard no_grad;
+  parallel_slices(n, workers, [&](int64_t, int64_t lo, int64_t hi) {
     auto o = out.slice(0, lo, hi);
     at::bmm_out(o, a.slice(0, lo, hi), b.slice(0, lo, hi));
-  };
-  std::vector<std::thread> threads;
-  for (int64_t w = 1; w < workers; ++w)
-    threads.emplace_back([&, w] {
-      // Grad and inference modes are thread-local: mirror the caller's (no graph is recorded
-      // here; autograd is handled by AttentionCoreFunction).
-      c10::InferenceMode inference_guard(inference);
-      torch::NoGradGuard no_grad;
-      slice(w);
-    });
-  {
-    torch::NoGradGuard no_grad;
-    slice(0);
-  }
-  for (auto& t : threads) t.join();
+  });
 }
 
 torch::Tensor forward_probabilities(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& mask,

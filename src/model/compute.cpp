@@ -29,6 +29,12 @@ Precision parse_precision(const std::string& name) {
   throw std::invalid_argument("expected 'fp32' or 'bf16', got '" + name + "'");
 }
 
+CpuSplit parse_cpu_split(const std::string& name) {
+  if (name == "rays") return CpuSplit::Rays;
+  if (name == "ops") return CpuSplit::Ops;
+  throw std::invalid_argument("expected 'rays' or 'ops', got '" + name + "'");
+}
+
 const char* to_string(AttentionKernel k) { return k == AttentionKernel::Fused ? "fused" : "plain"; }
 const char* to_string(Precision p) { return p == Precision::Bf16 ? "bf16" : "fp32"; }
 
@@ -36,7 +42,11 @@ bool fused_attention_compiled() { return TORCH_VERSION_MAJOR >= 2; }
 
 namespace {
 std::atomic<AttentionKernel> g_attention_kernel{AttentionKernel::Fused};
+std::atomic<CpuSplit> g_cpu_split{CpuSplit::Rays};
 }  // namespace
+
+void set_cpu_split(CpuSplit split) { g_cpu_split.store(split); }
+CpuSplit cpu_split() { return g_cpu_split.load(); }
 
 void set_attention_kernel(AttentionKernel kernel) { g_attention_kernel.store(kernel); }
 AttentionKernel attention_kernel() { return g_attention_kernel.load(); }
@@ -81,6 +91,7 @@ Precision apply_compute_config(const ComputeConfig& c, const torch::Device& devi
   Precision p;
   try {
     set_attention_kernel(parse_attention_kernel(c.attention));
+    set_cpu_split(parse_cpu_split(c.cpu_split));
     p = parse_precision(c.precision);
   } catch (const std::invalid_argument& e) {
     throw InputError(source, "compute", e.what());

@@ -4,7 +4,9 @@
 //    memory-efficient kernels on CUDA), "plain" = explicit softmax(Q K^T / sqrt(d) + mask) V;
 //  - the precision of the matrix products: "fp32", or "bf16" = CUDA autocast to bfloat16 with
 //    the weights, the loss and the optimiser kept in fp32.
-// Both are run-time switches so a benchmark can time every fast path against its reference in
+//  - how CPU threads share the work: "rays" = a slice of the rays per thread through the whole
+//    model (model/cpu_parallel.h), "ops" = threads only inside each op or product.
+// All are run-time switches so a benchmark can time every fast path against its reference in
 // one process.
 #include <torch/torch.h>
 
@@ -16,10 +18,12 @@ namespace ablenerf {
 
 enum class AttentionKernel { Fused, Plain };
 enum class Precision { Fp32, Bf16 };
+enum class CpuSplit { Rays, Ops };
 
 // Parse the config strings ("fused" | "plain", "fp32" | "bf16"); std::invalid_argument otherwise.
 AttentionKernel parse_attention_kernel(const std::string& name);
 Precision parse_precision(const std::string& name);
+CpuSplit parse_cpu_split(const std::string& name);  // "rays" | "ops"
 const char* to_string(AttentionKernel k);
 const char* to_string(Precision p);
 
@@ -31,6 +35,9 @@ bool fused_attention_compiled();
 // backend flags, so that a benchmark can compare kernels on one model.
 void set_attention_kernel(AttentionKernel kernel);
 AttentionKernel attention_kernel();
+// How CPU threads share the model's work (default: Rays). Process-wide, like the kernel switch.
+void set_cpu_split(CpuSplit split);
+CpuSplit cpu_split();
 // True when bf16 autocast can run on `device` (a CUDA device, LibTorch >= 2).
 bool bf16_autocast_available(const torch::Device& device);
 
@@ -49,7 +56,7 @@ class AutocastScope {
   bool previous_enabled_ = false;
 };
 
-// Applies a config's [compute] section for `device`: sets the process's attention kernel and
+// Applies a config's [compute] section for `device`: sets the process's attention kernel and CPU split, and
 // returns the precision to give the model (AbleNerf::set_precision). InputError naming
 // `source` and compute.precision when bf16 cannot run on the device.
 Precision apply_compute_config(const ComputeConfig& c, const torch::Device& device, const std::string& source);

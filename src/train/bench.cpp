@@ -13,6 +13,7 @@
 #include "model/compute.h"
 #include "model/ipe.h"
 #include "model/view_encoding.h"
+#include "train/grad_accumulation.h"
 
 // Device-side peak memory needs the CUDA caching allocator, which only CUDA builds of LibTorch
 // link; build with -DABLENERF_WITH_CUDA against such a LibTorch (>= 2) to report it.
@@ -187,19 +188,11 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     torch::optim::Adam adam(model->parameters(), torch::optim::AdamOptions(cfg.train.lr_init));
     model->train();
     const int64_t micro = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
+    const RayBatch batch{rays, target};
     m.train = time_it(d, o.warmup, o.steps, [&] {
       adam.zero_grad();
-      // Gradient accumulation as in the trainer: each micro-batch's loss is weighted by its share.
-      for (int64_t b = 0; b < o.train_rays; b += micro) {
-        const int64_t e = std::min(o.train_rays, b + micro);
-        const Rays mb{rays.origins.slice(0, b, e), rays.directions.slice(0, b, e), rays.radii.slice(0, b, e)};
-        const auto out = model->forward(mb, o.near, o.far);
-        const auto t = target.slice(0, b, e);
-        const double share = static_cast<double>(e - b) / static_cast<double>(o.train_rays);
-        const auto loss = share * (cfg.train.coarse_weight * torch::mse_loss(out.rgb_coarse, t) +
-                                   cfg.train.fine_weight * torch::mse_loss(out.rgb_fine, t));
-        loss.backward();
-      }
+      // The trainer's own step: micro-batches, CPU ray slices, the same loss.
+      accumulate_gradients(model, batch, micro, cfg.train, o.train_rays, o.near, o.far);
       adam.step();
     });
   }
@@ -208,7 +201,9 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     model->eval();
     m.render = time_it(d, o.warmup, o.steps, [&] {
       torch::InferenceMode guard;
-      const auto out = model->forward(rays, o.near, o.far);
+      ForwardOptions fo;
+      fo.coarse_colour = false;  // as the renderer: an image needs only the fine colour
+      const auto out = model->forward(rays, o.near, o.far, fo);
       (void)out;
     });
   }
@@ -279,6 +274,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
   j["precision"] = cfg.compute.precision;
   j["attention"] = cfg.compute.attention;
+  j["cpu_split"] = cfg.compute.cpu_split;
   j["matmul_peak"] = {{"n", o.matmul_size},
                       {"dtype", m.matmul_dtype},
                       {"flop_per_s", peak},

@@ -17,6 +17,7 @@
 #include "model/compute.h"
 #include "train/checkpoint.h"
 #include "train/distributed.h"
+#include "train/grad_accumulation.h"
 #include "train/lr_schedule.h"
 #include "train/ray_batch.h"
 #include "util/errors.h"
@@ -146,7 +147,6 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
 
   const int64_t local_rays = tc.rays_per_step * (rank + 1) / world - tc.rays_per_step * rank / world;
   const int64_t micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(local_rays, 1));
-  const double inv_global = 1.0 / static_cast<double>(tc.rays_per_step);
   Progress progress("train", tc.steps, 15.0);
   const double elapsed_before = state.elapsed_seconds;
   int64_t bad_in_a_row = 0, steps_this_run = 0;
@@ -190,19 +190,9 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
 
     RayBatch batch = sampler.next(tc.rays_per_step, rank, world);
     optim.zero_grad();
-    double step_loss = 0, step_mse_fine = 0;
-    for (int64_t b = 0; b < batch.size(); b += micro) {
-      RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
-      ModelOutput out = model->forward(mb.rays, config.data.near, config.data.far);
-      // Sums over rays and channels divided by 3*global batch: the micro-batches (and ranks) add up
-      // to the mean squared error of the whole global batch.
-      auto se_c = (out.rgb_coarse - mb.target).pow(2).sum() / 3.0;
-      auto se_f = (out.rgb_fine - mb.target).pow(2).sum() / 3.0;
-      auto loss = (tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv_global;
-      loss.backward();
-      step_loss += loss.item<double>();
-      step_mse_fine += se_f.item<double>() * inv_global;
-    }
+    const StepSums sums =
+        accumulate_gradients(model, batch, micro, tc, tc.rays_per_step, config.data.near, config.data.far);
+    double step_loss = sums.loss, step_mse_fine = sums.mse_fine;
     if (!single) {
       double stats[2] = {step_loss, step_mse_fine};
       opts.dist->all_reduce_gradients(model, stats, 2);

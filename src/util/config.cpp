@@ -60,6 +60,7 @@ void visit_fields(C& c, F&& f) {
   f("eval.ssim", &c.eval.ssim);
   f("compute.precision", &c.compute.precision);
   f("compute.attention", &c.compute.attention);
+  f("compute.cpu_split", &c.compute.cpu_split);
 }
 
 std::map<std::string, FieldRef> field_map(Config& c) {
@@ -215,6 +216,8 @@ void Config::validate() const {
        "must be \"fp32\" or \"bf16\"");
   need(compute.attention == "fused" || compute.attention == "plain", "compute.attention",
        "must be \"fused\" or \"plain\"");
+  need(compute.cpu_split == "rays" || compute.cpu_split == "ops", "compute.cpu_split",
+       "must be \"rays\" or \"ops\"");
 }
 
 std::vector<std::pair<std::string, std::string>> Config::items() const {

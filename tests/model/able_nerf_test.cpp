@@ -3,7 +3,12 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <algorithm>
+#include <tuple>
+
 #include "model/able_nerf.h"
+#include "model/compute.h"
+#include "model/cpu_parallel.h"
 #include "model/tonemap.h"
 #include "test_util.h"
 
@@ -149,6 +154,77 @@ TEST(AbleNerf, JitterOnlyInTrainingMode) {
   EXPECT_FALSE(torch::allclose(model->forward(rays, 2, 6, o1).fine_t, model->forward(rays, 2, 6, o2).fine_t));
   model->eval();
   EXPECT_TRUE(torch::equal(model->forward(rays, 2, 6, o1).fine_t, model->forward(rays, 2, 6, o2).fine_t));
+}
+
+// At least two CPU threads for the scope (LibTorch's count; the ray split takes the larger of it
+// and OpenBLAS's), so that a one-core machine still exercises the split.
+class TwoThreads {
+ public:
+  TwoThreads() : previous_(at::get_num_threads()) { at::set_num_threads(std::max(2, previous_)); }
+  ~TwoThreads() { at::set_num_threads(previous_); }
+
+ private:
+  int previous_;
+};
+
+void expect_same(const torch::Tensor& a, const torch::Tensor& b, double tol, const char* what) {
+  ASSERT_TRUE(a.defined() && b.defined()) << what;
+  ASSERT_EQ(a.sizes(), b.sizes()) << what;
+  EXPECT_LT((a - b).abs().max().item<double>(), tol) << what;
+}
+
+TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
+  // Without the coarse colour the last coarse layer computes the ray token's row alone and the
+  // coarse LE branch is skipped; everything a render uses must be unchanged (float64: exact up to
+  // summation order).
+  torch::manual_seed(5);
+  AbleNerf model(tiny());
+  model->to(torch::kDouble);
+  model->eval();
+  const Rays r = some_rays(6);
+  const Rays rays{r.origins.to(torch::kDouble), r.directions.to(torch::kDouble), r.radii.to(torch::kDouble)};
+  torch::NoGradGuard no_grad;
+  ForwardOptions full_opts;
+  full_opts.branches = true;
+  ForwardOptions render_opts = full_opts;
+  render_opts.coarse_colour = false;
+  const auto full = model->forward(rays, 2.0, 6.0, full_opts);
+  const auto render = model->forward(rays, 2.0, 6.0, render_opts);
+  expect_same(render.rgb_fine, full.rgb_fine, 1e-12, "rgb_fine");
+  expect_same(render.fine_weights, full.fine_weights, 1e-12, "fine_weights");
+  expect_same(render.coarse_weights, full.coarse_weights, 1e-12, "coarse_weights");
+  expect_same(render.fine_t, full.fine_t, 1e-12, "fine_t");
+  expect_same(render.ray_colour_fine, full.ray_colour_fine, 1e-12, "ray_colour_fine");
+  expect_same(render.le_colour_fine, full.le_colour_fine, 1e-12, "le_colour_fine");
+  EXPECT_FALSE(render.rgb_coarse.defined());
+  EXPECT_FALSE(render.le_colour_coarse.defined());
+  EXPECT_TRUE(full.rgb_coarse.defined());
+}
+
+TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
+  if (!blas_thread_control_available()) GTEST_SKIP() << "no OpenBLAS thread control: always serial";
+  const TwoThreads threads;
+  torch::manual_seed(6);
+  AbleNerf model(tiny());
+  model->eval();
+  const int64_t b = 40;
+  ASSERT_GE(cpu_workers(b, 8), 2);
+  const Rays rays = some_rays(b);
+  torch::NoGradGuard no_grad;
+  ForwardOptions opts;
+  opts.branches = true;
+  set_cpu_split(CpuSplit::Ops);
+  const auto one = model->forward(rays, 2.0, 6.0, opts);
+  set_cpu_split(CpuSplit::Rays);
+  const auto split = model->forward(rays, 2.0, 6.0, opts);
+  for (const auto& [a, c, what] : {std::make_tuple(one.rgb_fine, split.rgb_fine, "rgb_fine"),
+                                   std::make_tuple(one.rgb_coarse, split.rgb_coarse, "rgb_coarse"),
+                                   std::make_tuple(one.fine_weights, split.fine_weights, "fine_weights"),
+                                   std::make_tuple(one.fine_t, split.fine_t, "fine_t"),
+                                   std::make_tuple(one.le_colour_fine, split.le_colour_fine, "le_colour_fine")})
+    expect_same(a, c, 1e-5, what);
+  // The rays keep their order: a permuted batch would differ by far more than the tolerance.
+  EXPECT_GT((split.rgb_fine - split.rgb_fine.flip(0)).abs().max().item<double>(), 1e-3);
 }
 
 }  // namespace

@@ -97,6 +97,25 @@ TEST(Attention, CrossBlockWithSharedQueriesMatchesReference) {
     EXPECT_TRUE(torch::allclose(out[r], ref_block(*blk, le[0], kv[r], torch::Tensor()), 1e-5, 1e-5)) << r;
 }
 
+TEST(Attention, FirstTokenPathEqualsRowZeroOfSelfAttention) {
+  // forward_first computes the ray token's row alone (rendering's last coarse layer); the mask's
+  // row 0 blocks nothing, so it must equal row 0 of the full masked self-attention, probe included.
+  torch::manual_seed(3);
+  TransformerBlock blk(kWidth, kHeads, kFF);
+  blk->to(torch::kDouble);
+  const int64_t b = 4, s = 9;
+  const auto x = torch::randn({b, s + 1, kWidth}, torch::kDouble);
+  RayQueryProbe full_probe, first_probe;
+  const auto full = blk->forward_self(x, ray_attention_mask(s, torch::kDouble), &full_probe);
+  const auto first = blk->forward_first(x, &first_probe);
+  ASSERT_EQ(first.sizes(), (std::vector<int64_t>{b, 1, kWidth}));
+  EXPECT_LT((first.select(1, 0) - full.select(1, 0)).abs().max().item<double>(), 1e-12);
+  EXPECT_LT((first_probe.q0 - full_probe.q0).abs().max().item<double>(), 1e-12);
+  EXPECT_LT((first_probe.k - full_probe.k).abs().max().item<double>(), 1e-12);
+  // And it is not row 1 (a test that could not tell the rows apart would pass either way).
+  EXPECT_GT((first.select(1, 0) - full.select(1, 1)).abs().max().item<double>(), 1e-3);
+}
+
 TEST(Attention, FartherVolumesNeverReachNearerOnes) {
   // One layer: the mask is per layer. From the second layer on, information from farther
   // volumes does reach nearer ones through the ray token (row 0 sees all, column 0 is visible

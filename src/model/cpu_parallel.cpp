@@ -1,0 +1,120 @@
+#include "model/cpu_parallel.h"
+
+#include <dlfcn.h>
+
+#include <algorithm>
+#include <exception>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace ablenerf {
+
+namespace {
+
+// OpenBLAS's runtime thread control, looked up at run time so that other BLAS builds (or a
+// LibTorch with MKL) simply skip it.
+using SetThreads = void (*)(int);
+using GetThreads = int (*)();
+
+struct BlasThreads {
+  SetThreads set = nullptr;
+  GetThreads get = nullptr;
+  BlasThreads() {
+    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
+    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
+    if (!set || !get) set = nullptr, get = nullptr;
+  }
+};
+
+const BlasThreads& blas_threads() {
+  static const BlasThreads b;
+  return b;
+}
+
+// Single-threaded BLAS for the scope (restores the previous count). OpenBLAS's count is
+// process-wide, so scopes must not overlap across threads: a parallel_slices call inside a worker
+// runs serially (cpu_workers returns 1 there).
+class SingleThreadedBlas {
+ public:
+  SingleThreadedBlas() {
+    const auto& b = blas_threads();
+    if (b.set) {
+      previous_ = b.get();
+      if (previous_ != 1) b.set(1);
+    }
+  }
+  ~SingleThreadedBlas() {
+    const auto& b = blas_threads();
+    if (b.set && previous_ > 1) b.set(previous_);
+  }
+  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
+  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
+
+ private:
+  int previous_ = 0;
+};
+
+// Set in the threads of a running parallel_slices: nested calls stay serial.
+thread_local bool t_in_worker = false;
+
+class WorkerScope {
+ public:
+  WorkerScope() : previous_(t_in_worker) { t_in_worker = true; }
+  ~WorkerScope() { t_in_worker = previous_; }
+  WorkerScope(const WorkerScope&) = delete;
+  WorkerScope& operator=(const WorkerScope&) = delete;
+
+ private:
+  bool previous_;
+};
+
+}  // namespace
+
+bool blas_thread_control_available() { return blas_threads().set != nullptr; }
+
+int64_t cpu_thread_budget() {
+  const auto& blas = blas_threads();
+  return std::max<int64_t>({1, at::get_num_threads(), blas.get ? blas.get() : 1});
+}
+
+int64_t cpu_workers(int64_t n, int64_t min_per_worker) {
+  if (!blas_thread_control_available() || t_in_worker) return 1;
+  return std::max<int64_t>(1, std::min(cpu_thread_budget(), n / std::max<int64_t>(1, min_per_worker)));
+}
+
+void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t, int64_t, int64_t)>& fn) {
+  workers = std::max<int64_t>(1, std::min(workers, n));
+  if (workers == 1) {
+    fn(0, 0, n);
+    return;
+  }
+  SingleThreadedBlas single;
+  const bool inference = c10::InferenceMode::is_enabled();
+  const bool grad = torch::GradMode::is_enabled();
+  std::mutex error_mutex;
+  std::exception_ptr error;
+  const auto run = [&](int64_t w) {
+    try {
+      const WorkerScope scope;
+      fn(w, n * w / workers, n * (w + 1) / workers);
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+    }
+  };
+  std::vector<std::thread> threads;
+  threads.reserve(static_cast<size_t>(workers - 1));
+  for (int64_t w = 1; w < workers; ++w)
+    threads.emplace_back([&, w] {
+      // Grad and inference modes are thread-local: mirror the caller's.
+      c10::InferenceMode inference_guard(inference);
+      torch::AutoGradMode grad_guard(grad);
+      run(w);
+    });
+  run(0);
+  for (auto& t : threads) t.join();
+  if (error) std::rethrow_exception(error);
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,37 @@
+#pragma once
+// Forward + backward of one training step, shared by the trainer and `ablenerf bench`.
+//
+// The step's rays run in micro-batches (bounded memory); on the CPU with compute.cpu_split =
+// "rays" each micro-batch is further cut into slices that run side by side on CPU threads
+// (model/cpu_parallel.h), each slice computing its own gradients, which are then added to the
+// parameters' .grad in slice order. The sum is deterministic for a given thread count; with one
+// thread (or cpu_split = "ops", or on a GPU) it is a plain loss.backward() per micro-batch.
+#include <torch/torch.h>
+
+#include "model/able_nerf.h"
+#include "train/ray_batch.h"
+#include "util/config.h"
+
+namespace ablenerf {
+
+struct LossTerms {
+  torch::Tensor loss;      // what is differentiated
+  torch::Tensor mse_fine;  // this slice's share of the step's fine-colour MSE (for reporting)
+};
+
+// The loss of some rays of a step of `global_rays` rays: (coarse_weight * SE_coarse + fine_weight *
+// SE_fine) / (3 * global_rays), SE = summed squared error over rays and channels, so that
+// micro-batches, threads and ranks add up to the weighted MSE of the whole global batch.
+LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays);
+
+struct StepSums {
+  double loss = 0;      // the step's loss (this process's share)
+  double mse_fine = 0;  // the step's fine-colour MSE (this process's share)
+};
+
+// Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add
+// into the parameters' .grad (zero them first). Returns the summed loss terms.
+StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
+                              int64_t global_rays, double near, double far);
+
+}  // namespace ablenerf

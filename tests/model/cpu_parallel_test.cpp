@@ -1,0 +1,109 @@
+// Ray-parallel CPU execution (model/cpu_parallel.h): slices cover the range once, errors come
+// back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's
+// thread count is single inside and restored after.
+#include <dlfcn.h>
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <atomic>
+#include <mutex>
+#include <set>
+#include <stdexcept>
+#include <thread>
+#include <vector>
+
+#include "model/cpu_parallel.h"
+
+namespace ablenerf {
+namespace {
+
+int openblas_threads() {
+  using Get = int (*)();
+  const auto get = reinterpret_cast<Get>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
+  return get ? get() : -1;
+}
+
+struct Slice {
+  int64_t w, lo, hi;
+  std::thread::id thread;
+};
+
+TEST(CpuParallel, SlicesCoverTheRangeOnceInOrder) {
+  for (const int64_t workers : {1, 2, 3, 5}) {
+    std::mutex m;
+    std::vector<Slice> seen;
+    parallel_slices(37, workers, [&](int64_t w, int64_t lo, int64_t hi) {
+      const std::lock_guard<std::mutex> lock(m);
+      seen.push_back({w, lo, hi, std::this_thread::get_id()});
+    });
+    ASSERT_EQ(static_cast<int64_t>(seen.size()), workers);
+    std::sort(seen.begin(), seen.end(), [](const Slice& a, const Slice& b) { return a.w < b.w; });
+    int64_t next = 0;
+    std::set<std::thread::id> threads;
+    for (int64_t i = 0; i < workers; ++i) {
+      EXPECT_EQ(seen[i].w, i);
+      EXPECT_EQ(seen[i].lo, next);
+      EXPECT_GE(seen[i].hi - seen[i].lo, 37 / workers);  // balanced: 7 or 8 for 5 workers
+      EXPECT_LE(seen[i].hi - seen[i].lo, 37 / workers + 1);
+      next = seen[i].hi;
+      threads.insert(seen[i].thread);
+    }
+    EXPECT_EQ(next, 37);
+    EXPECT_EQ(static_cast<int64_t>(threads.size()), workers);  // one thread per slice
+    EXPECT_EQ(seen[0].thread, std::this_thread::get_id());    // the caller takes slice 0
+  }
+}
+
+TEST(CpuParallel, MoreWorkersThanItemsUsesOnePerItem) {
+  std::atomic<int> calls{0};
+  parallel_slices(2, 8, [&](int64_t, int64_t lo, int64_t hi) {
+    EXPECT_EQ(hi - lo, 1);
+    ++calls;
+  });
+  EXPECT_EQ(calls.load(), 2);
+}
+
+TEST(CpuParallel, WorkerErrorsReachTheCallerAfterAllSlicesRan) {
+  std::atomic<int> finished{0};
+  EXPECT_THROW(parallel_slices(10, 3,
+                               [&](int64_t w, int64_t, int64_t) {
+                                 if (w == 2) throw std::runtime_error("slice 2 failed");
+                                 ++finished;
+                               }),
+               std::runtime_error);
+  EXPECT_EQ(finished.load(), 2);
+}
+
+TEST(CpuParallel, ModesMirroredNestingSerialBlasRestored) {
+  if (!blas_thread_control_available()) GTEST_SKIP() << "no OpenBLAS thread control in this build";
+  const int blas_before = openblas_threads();
+  for (const bool grad : {true, false}) {
+    torch::AutoGradMode mode(grad);
+    std::atomic<int> ok{0};
+    parallel_slices(64, 2, [&](int64_t, int64_t, int64_t) {
+      if (torch::GradMode::is_enabled() == grad && openblas_threads() == 1 && cpu_workers(1000, 1) == 1) ++ok;
+    });
+    EXPECT_EQ(ok.load(), 2) << "grad " << grad;
+  }
+  {
+    c10::InferenceMode inference;
+    std::atomic<int> ok{0};
+    parallel_slices(64, 2, [&](int64_t, int64_t, int64_t) { ok += c10::InferenceMode::is_enabled() ? 1 : 0; });
+    EXPECT_EQ(ok.load(), 2);
+  }
+  EXPECT_EQ(openblas_threads(), blas_before);
+}
+
+TEST(CpuParallel, WorkerCountFollowsTheBudgetAndTheMinimum) {
+  EXPECT_EQ(cpu_workers(0, 8), 1);
+  EXPECT_EQ(cpu_workers(15, 8), 1);  // two workers would get fewer than 8 each
+  if (blas_thread_control_available()) {
+    EXPECT_EQ(cpu_workers(1 << 20, 8), cpu_thread_budget());
+  } else {
+    EXPECT_EQ(cpu_workers(1 << 20, 8), 1);
+  }
+}
+
+}  // namespace
+}  // namespace ablenerf

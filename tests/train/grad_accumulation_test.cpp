@@ -1,0 +1,106 @@
+// One training step's forward + backward (train/grad_accumulation.h): the loss is the weighted
+// MSE of the whole batch, and the gradients of the ray-parallel CPU path equal those of one
+// loss.backward() over the whole batch (float64, so only summation order separates them).
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+
+#include "model/compute.h"
+#include "model/cpu_parallel.h"
+#include "train/grad_accumulation.h"
+
+namespace ablenerf {
+namespace {
+
+ModelConfig small_model() {
+  ModelConfig m;
+  m.width = 16;
+  m.heads = 2;
+  m.ff_ratio = 2;
+  m.coarse_layers = 1;
+  m.fine_layers = 2;
+  m.samples = 8;
+  m.ipe_degrees = 4;
+  m.le_count = 3;
+  m.le_layers = 1;
+  return m;
+}
+
+RayBatch some_batch(int64_t n) {
+  auto gen = at::detail::createCPUGenerator(17);
+  const auto o = torch::randn({n, 3}, gen, torch::kDouble) * 0.2 + torch::tensor({0.0, 0.0, 4.0}, torch::kDouble);
+  const auto d = torch::randn({n, 3}, gen, torch::kDouble) * 0.2 + torch::tensor({0.0, 0.0, -1.0}, torch::kDouble);
+  return {{o, d, torch::full({n, 1}, 5e-4, torch::kDouble)}, torch::rand({n, 3}, gen, torch::kDouble)};
+}
+
+// Reference: the whole batch in one forward, the loss written out, one backward.
+std::vector<torch::Tensor> reference_gradients(AbleNerf& model, const RayBatch& batch, const TrainConfig& tc,
+                                               double* loss) {
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const auto out = model->forward(batch.rays, 2.0, 6.0);
+  const auto mse_c = (out.rgb_coarse - batch.target).pow(2).mean();
+  const auto mse_f = (out.rgb_fine - batch.target).pow(2).mean();
+  const auto l = tc.coarse_weight * mse_c + tc.fine_weight * mse_f;
+  l.backward();
+  *loss = l.item<double>();
+  std::vector<torch::Tensor> g;
+  for (auto& p : model->parameters()) g.push_back(p.grad().clone());
+  return g;
+}
+
+TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
+  const int threads_before = at::get_num_threads();
+  at::set_num_threads(std::max(2, threads_before));  // make the ray split happen on any machine
+  torch::manual_seed(8);
+  AbleNerf model(small_model());
+  model->to(torch::kDouble);
+  model->train();
+  TrainConfig tc;
+  tc.coarse_weight = 0.3;  // unequal weights: a swapped coarse/fine term would show
+  tc.fine_weight = 1.0;
+  const int64_t n = 48;
+  const RayBatch batch = some_batch(n);
+  double ref_loss = 0;
+  const auto ref = reference_gradients(model, batch, tc, &ref_loss);
+
+  bool split_ran = false;
+  for (const CpuSplit mode : {CpuSplit::Ops, CpuSplit::Rays}) {
+    for (const int64_t micro : {n, int64_t{16}, int64_t{20}}) {
+      set_cpu_split(mode);
+      if (mode == CpuSplit::Rays && cpu_workers(micro, 8) > 1) split_ran = true;
+      for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+      const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
+      EXPECT_NEAR(s.loss, ref_loss, 1e-12) << micro;
+      const auto params = model->parameters();
+      for (size_t i = 0; i < params.size(); ++i) {
+        ASSERT_TRUE(params[i].grad().defined()) << i;
+        EXPECT_LT((params[i].grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>()))
+            << "parameter " << i << ", micro-batch " << micro << ", split " << (mode == CpuSplit::Rays);
+      }
+    }
+  }
+  set_cpu_split(CpuSplit::Rays);
+  at::set_num_threads(threads_before);
+  if (blas_thread_control_available()) EXPECT_TRUE(split_ran);
+  // The reference gradients are not trivially zero.
+  double total = 0;
+  for (const auto& g : ref) total += g.abs().sum().item<double>();
+  EXPECT_GT(total, 1e-6);
+}
+
+TEST(GradAccumulation, ReportedFineMseIsTheBatchMse) {
+  torch::manual_seed(9);
+  AbleNerf model(small_model());
+  model->to(torch::kDouble);
+  TrainConfig tc;
+  const RayBatch batch = some_batch(24);
+  const StepSums s = accumulate_gradients(model, batch, 10, tc, 24, 2.0, 6.0);
+  torch::NoGradGuard no_grad;
+  model->eval();  // no jitter in either mode (model.randomized is off)
+  const auto out = model->forward(batch.rays, 2.0, 6.0);
+  EXPECT_NEAR(s.mse_fine, (out.rgb_fine - batch.target).pow(2).mean().item<double>(), 1e-12);
+}
+
+}  // namespace
+}  // namespace ablenerf
