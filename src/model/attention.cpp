@@ -33,20 +33,27 @@ void MultiHeadAttentionImpl::reset_parameters() {
   out_proj->bias.zero_();
 }
 
+namespace {
+// The CPU kernel over packed projections (model/attention_core.h) serves "fused" on the CPU.
+bool use_packed(const torch::Tensor& x) {
+  return attention_kernel() == AttentionKernel::Fused && packed_attention_available(x);
+}
+}  // namespace
+
 torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                                                    RayQueryProbe* probe) {
   const int64_t b = x.size(0), l = x.size(1), dh = width_ / heads_;
-  const auto flat = x.reshape({-1, width_});
-  // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
-  const auto qkv = torch::addmm(in_proj_bias, flat, in_proj_weight.t())
-                       .view({b, l, 3, heads_, dh})
-                       .permute({2, 0, 3, 1, 4});
-  const auto q = qkv[0], k = qkv[1], v = qkv[2];
+  const auto packed = torch::addmm(in_proj_bias, x.reshape({-1, width_}), in_proj_weight.t()).view({b, l, 3 * width_});
   if (probe) {
-    probe->q0 = q.select(2, 0).detach();
-    probe->k = k.detach();
+    // (B,L,3,H,dh) views, no copy.
+    const auto heads = packed.view({b, l, 3, heads_, dh});
+    probe->q0 = heads.select(1, 0).select(1, 0).detach();            // (B,H,dh)
+    probe->k = heads.select(2, 1).permute({0, 2, 1, 3}).detach();    // (B,H,L,dh)
   }
-  return attend(q, k, v, mask);
+  if (use_packed(x)) return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
+  // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
+  const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
+  return attend(qkv[0], qkv[1], qkv[2], mask);
 }
 
 torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in,
@@ -54,24 +61,25 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const int64_t dh = width_ / heads_;
   const auto wq = in_proj_weight.slice(0, 0, width_), bq = in_proj_bias.slice(0, 0, width_);
   const auto wkv = in_proj_weight.slice(0, width_), bkv = in_proj_bias.slice(0, width_);
-  const auto q = torch::addmm(bq, q_in.reshape({-1, width_}), wq.t())
-                     .view({q_in.size(0), q_in.size(1), heads_, dh})
-                     .transpose(1, 2);
-  const auto kv = torch::addmm(bkv, kv_in.reshape({-1, width_}), wkv.t())
-                      .view({kv_in.size(0), kv_in.size(1), 2, heads_, dh})
-                      .permute({2, 0, 3, 1, 4});
+  const auto q = torch::addmm(bq, q_in.reshape({-1, width_}), wq.t()).view({q_in.size(0), q_in.size(1), width_});
+  const auto kv =
+      torch::addmm(bkv, kv_in.reshape({-1, width_}), wkv.t()).view({kv_in.size(0), kv_in.size(1), 2 * width_});
+  const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});
+  const auto q_heads = q.view({q_in.size(0), q_in.size(1), heads_, dh}).transpose(1, 2);
   if (probe) {
-    probe->q0 = q.select(2, 0).detach();
-    probe->k = kv[0].detach();
+    probe->q0 = q_heads.select(2, 0).detach();
+    probe->k = kv_heads[0].detach();
   }
-  return attend(q, kv[0], kv[1], torch::Tensor());
+  if (use_packed(q_in)) return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
+  return attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor());
 }
+
+double MultiHeadAttentionImpl::scale() const { return 1.0 / std::sqrt(static_cast<double>(width_ / heads_)); }
 
 torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const torch::Tensor& k,
                                              const torch::Tensor& v, const torch::Tensor& mask) {
-  const int64_t b = k.size(0), lq = q_in.size(2), lk = k.size(2), dh = width_ / heads_;
+  const int64_t b = k.size(0), lq = q_in.size(2), dh = width_ / heads_;
   const auto q = q_in.expand({b, heads_, lq, dh});
-  const double scale = 1.0 / std::sqrt(static_cast<double>(dh));
   torch::Tensor o;
 #if TORCH_VERSION_MAJOR >= 2
   if (attention_kernel() == AttentionKernel::Fused) {
@@ -83,18 +91,10 @@ torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const to
   }
 #endif
   if (!o.defined()) {
-    if (q.device().is_cpu() && q.scalar_type() == torch::kFloat && k.scalar_type() == torch::kFloat) {
-      // Many small products (one per ray and head), split across threads by attention_core; the
-      // shared (L,L) mask is broadcast, never copied per ray or head.
-      o = attention_core(q.reshape({b * heads_, lq, dh}), k.reshape({b * heads_, lk, dh}),
-                         v.reshape({b * heads_, lk, dh}), mask, scale)
-              .view({b, heads_, lq, dh});
-    } else {
-      // The reference: explicit scores, additive mask, softmax, weighted sum.
-      auto scores = torch::matmul(q, k.transpose(-2, -1)) * scale;
-      if (mask.defined()) scores = scores + mask;
-      o = torch::matmul(torch::softmax(scores, -1), v);
-    }
+    // The reference: explicit scores, additive mask, softmax, weighted sum.
+    auto scores = torch::matmul(q, k.transpose(-2, -1)) * scale();
+    if (mask.defined()) scores = scores + mask;
+    o = torch::matmul(torch::softmax(scores, -1), v);
   }
   return linear_tokens(out_proj, o.transpose(1, 2).reshape({b, lq, width_}));
 }

@@ -35,6 +35,7 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   torch::nn::Linear out_proj{nullptr};
 
  private:
+  double scale() const;  // 1/sqrt(head width)
   // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E) after the output projection.
   torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
                        const torch::Tensor& mask);

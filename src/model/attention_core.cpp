@@ -1,76 +1,250 @@
 #include "model/attention_core.h"
 
+#include <dlfcn.h>
+
 #include "model/cpu_parallel.h"
 
 namespace ablenerf {
 
 namespace {
 
-// Below this many matrices per thread the thread start-up costs more than it saves.
-constexpr int64_t kMinMatricesPerThread = 16;
+// Below this many (ray, head) products per thread the thread start-up costs more than it saves.
+constexpr int64_t kMinItemsPerThread = 16;
 
-// out[i] = a[i] @ b[i] for the whole batch, split into contiguous slices, one per thread. Grad
-// recording is off in the workers: autograd is handled by AttentionCoreFunction.
-void bmm_into(torch::Tensor& out, const torch::Tensor& a, const torch::Tensor& b) {
-  const int64_t n = a.size(0);
-  const int64_t workers = a.device().is_cpu() ? cpu_workers(n, kMinMatricesPerThread) : 1;
-  torch::NoGradGuard no_grad;
-  parallel_slices(n, workers, [&](int64_t, int64_t lo, int64_t hi) {
-    auto o = out.slice(0, lo, hi);
-    at::bmm_out(o, a.slice(0, lo, hi), b.slice(0, lo, hi));
+// CBLAS's enumerations (cblas.h).
+constexpr int kCblasRowMajor = 101, kCblasNoTrans = 111, kCblasTrans = 112;
+
+using Sgemm = void (*)(int, int, int, int, int, int, float, const float*, int, const float*, int, float, float*, int);
+using Dgemm = void (*)(int, int, int, int, int, int, double, const double*, int, const double*, int, double, double*,
+                       int);
+
+// The BLAS LibTorch itself loaded (OpenBLAS here), looked up at run time: nothing extra is linked
+// and builds whose BLAS exports no CBLAS (e.g. a static MKL) fall back to the reference path.
+struct Cblas {
+  Sgemm s = nullptr;
+  Dgemm d = nullptr;
+  Cblas() {
+    s = reinterpret_cast<Sgemm>(dlsym(RTLD_DEFAULT, "cblas_sgemm"));
+    d = reinterpret_cast<Dgemm>(dlsym(RTLD_DEFAULT, "cblas_dgemm"));
+  }
+};
+
+const Cblas& cblas() {
+  static const Cblas c;
+  return c;
+}
+
+// Row-major C = alpha * op(A) op(B) + beta * C.
+void gemm(bool ta, bool tb, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
+          int64_t ldb, float beta, float* c, int64_t ldc) {
+  cblas().s(kCblasRowMajor, ta ? kCblasTrans : kCblasNoTrans, tb ? kCblasTrans : kCblasNoTrans, int(m), int(n), int(k),
+            alpha, a, int(lda), b, int(ldb), beta, c, int(ldc));
+}
+void gemm(bool ta, bool tb, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+          const double* b, int64_t ldb, double beta, double* c, int64_t ldc) {
+  cblas().d(kCblasRowMajor, ta ? kCblasTrans : kCblasNoTrans, tb ? kCblasTrans : kCblasNoTrans, int(m), int(n), int(k),
+            alpha, a, int(lda), b, int(ldb), beta, c, int(ldc));
+}
+
+// Where one operand's heads live: the (lq or lk) x dh matrix of ray b, head h starts at
+// base + b * batch + h * dh, with `row` elements between consecutive tokens.
+template <class T>
+struct Operand {
+  T* base;
+  int64_t batch, row;
+  T* at(int64_t b, int64_t h, int64_t dh) const { return base + b * batch + h * dh; }
+};
+
+// The layout of one call: B rays, H heads of width dh, lq queries, lk keys; and its operands.
+template <class T>
+struct Problem {
+  int64_t b, heads, dh, lq, lk;
+  Operand<const T> q, k, v;
+  torch::Tensor mask;  // (lq, lk) or undefined
+  double scale;
+  int64_t items() const { return b * heads; }
+};
+
+// Operands of a packed tensor x (B', L, C): columns [offset, offset + E) of every token; a batch
+// of one is broadcast (batch stride 0).
+template <class T>
+Operand<const T> operand(const torch::Tensor& x, int64_t offset) {
+  return {x.data_ptr<T>() + offset, x.size(0) == 1 ? 0 : x.size(1) * x.size(2), x.size(2)};
+}
+
+// Probabilities of items [lo, hi) into p (hi - lo, lq, lk) and their weighted values into out.
+template <class T>
+void forward_items(const Problem<T>& pr, int64_t lo, int64_t hi, torch::Tensor p, const Operand<T>& out) {
+  auto scores = torch::empty_like(p);
+  T* s = scores.data_ptr<T>();
+  const int64_t plane = pr.lq * pr.lk;
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    gemm(false, true, pr.lq, pr.lk, pr.dh, T(pr.scale), pr.q.at(b, h, pr.dh), pr.q.row, pr.k.at(b, h, pr.dh),
+         pr.k.row, T(0), s + (it - lo) * plane, pr.lk);
+  }
+  if (pr.mask.defined()) scores.add_(pr.mask);
+  at::_softmax_out(p, scores, -1, false);
+  const T* pp = p.data_ptr<T>();
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    gemm(false, false, pr.lq, pr.dh, pr.lk, T(1), pp + (it - lo) * plane, pr.lk, pr.v.at(b, h, pr.dh), pr.v.row,
+         T(0), out.at(b, h, pr.dh), out.row);
+  }
+}
+
+// The forward of every item; `keep` = the (B*H, lq, lk) probabilities to save for backward, or
+// undefined when nothing will be differentiated (then each thread uses a scratch of its own).
+template <class T>
+torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& options, torch::Tensor keep) {
+  auto out = torch::empty({pr.b, pr.lq, pr.heads * pr.dh}, options);
+  const Operand<T> o{out.template data_ptr<T>(), pr.lq * pr.heads * pr.dh, pr.heads * pr.dh};
+  const SingleThreadedBlas single;  // also when serial: OpenBLAS's pool costs more than it saves here
+  parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
+    auto p = keep.defined() ? keep.slice(0, lo, hi) : torch::empty({hi - lo, pr.lq, pr.lk}, options);
+    forward_items(pr, lo, hi, p, o);
   });
+  return out;
 }
 
-torch::Tensor forward_probabilities(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& mask,
-                                    double scale) {
-  auto scores = batched_matmul(q, k.transpose(1, 2));
-  scores.mul_(scale);
-  if (mask.defined() && mask.numel() > 0) scores.add_(mask);
-  return torch::softmax(scores, -1);
+// Gradients of items [lo, hi): dq, dk, dv operands receive the products (every element written).
+template <class T>
+void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::Tensor& p_all,
+                    const Operand<const T>& go, const Operand<T>& dq, const Operand<T>& dk, const Operand<T>& dv) {
+  const auto p = p_all.slice(0, lo, hi);
+  auto dp = torch::empty_like(p);
+  const int64_t plane = pr.lq * pr.lk;
+  const T* pp = p.data_ptr<T>();
+  T* dpp = dp.data_ptr<T>();
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    // dP = dO V^T;  dV = P^T dO.
+    gemm(false, true, pr.lq, pr.lk, pr.dh, T(1), go.at(b, h, pr.dh), go.row, pr.v.at(b, h, pr.dh), pr.v.row, T(0),
+         dpp + (it - lo) * plane, pr.lk);
+    gemm(true, false, pr.lk, pr.dh, pr.lq, T(1), pp + (it - lo) * plane, pr.lk, go.at(b, h, pr.dh), go.row, T(0),
+         dv.at(b, h, pr.dh), dv.row);
+  }
+  // Softmax backward: dS = P * (dP - rowsum(dP * P)); the scale multiplies dQ and dK below.
+  const auto ds = ((dp - (dp * p).sum(-1, /*keepdim=*/true)) * p).contiguous();
+  const T* dsp = ds.data_ptr<T>();
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    // dQ = s dS K;  dK = s dS^T Q.
+    gemm(false, false, pr.lq, pr.dh, pr.lk, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.k.at(b, h, pr.dh),
+         pr.k.row, T(0), dq.at(b, h, pr.dh), dq.row);
+    gemm(true, false, pr.lk, pr.dh, pr.lq, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.q.at(b, h, pr.dh),
+         pr.q.row, T(0), dk.at(b, h, pr.dh), dk.row);
+  }
 }
 
-class AttentionCoreFunction : public torch::autograd::Function<AttentionCoreFunction> {
+// q_src: (Bq, Lq, C) holding Q at columns [0, E); kv_src: (B, Lk, C') holding K at column
+// k_offset and V at v_offset (for self-attention kv_src is q_src: offsets E and 2E).
+template <class T>
+Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_offset, int64_t v_offset,
+                        int64_t heads, int64_t width, const torch::Tensor& mask, double scale) {
+  Problem<T> pr{kv_src.size(0), heads, width / heads, q_src.size(1), kv_src.size(1),
+                operand<T>(q_src, 0), operand<T>(kv_src, k_offset), operand<T>(kv_src, v_offset),
+                mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(), scale};
+  return pr;
+}
+
+// Autograd node over the packed tensors, so that the gradient lands in the packed layout directly
+// (no per-head copies, no zero-filled slices summed together).
+class PackedAttentionFunction : public torch::autograd::Function<PackedAttentionFunction> {
  public:
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q, const torch::Tensor& k,
-                               const torch::Tensor& v, const torch::Tensor& mask, double scale) {
-    const auto p = forward_probabilities(q, k, mask, scale);
-    ctx->save_for_backward({q, k, v, p});
+  // kv_src empty = self-attention (K and V inside q_src).
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
+                               const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads, int64_t width,
+                               double scale) {
+    const bool self = kv_src.numel() == 0;
+    const auto& kv = self ? q_src : kv_src;
+    auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
+    torch::Tensor out;
+    AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
+      const auto pr = make_problem<scalar_t>(q_src, kv, self ? width : 0, self ? 2 * width : width, heads, width,
+                                             mask, scale);
+      out = forward_all(pr, q_src.options(), p);
+    });
+    ctx->save_for_backward({q_src, kv_src, mask, p});
+    ctx->saved_data["heads"] = heads;
+    ctx->saved_data["width"] = width;
     ctx->saved_data["scale"] = scale;
-    return batched_matmul(p, v);
+    return out;
   }
 
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
                                                  torch::autograd::variable_list grads) {
     const auto saved = ctx->get_saved_variables();
-    const auto &q = saved[0], &k = saved[1], &v = saved[2], &p = saved[3];
+    const auto &q_src = saved[0], &kv_src = saved[1], &mask = saved[2], &p = saved[3];
+    const int64_t heads = ctx->saved_data["heads"].toInt(), width = ctx->saved_data["width"].toInt();
     const double scale = ctx->saved_data["scale"].toDouble();
+    const bool self = kv_src.numel() == 0;
+    const auto& kv = self ? q_src : kv_src;
+    const int64_t b = kv.size(0);
     const auto go = grads[0].contiguous();
-    const auto dv = batched_matmul(p.transpose(1, 2), go);
-    const auto dp = batched_matmul(go, v.transpose(1, 2));
-    // Softmax backward: dS = P * (dP - rowsum(dP * P)); the scale then multiplies dQ and dK.
-    auto ds = dp - (dp * p).sum(-1, /*keepdim=*/true);
-    ds.mul_(p);
-    const auto dq = batched_matmul(ds, k).mul_(scale);
-    const auto dk = batched_matmul(ds.transpose(1, 2), q).mul_(scale);
-    return {dq, dk, dv, torch::Tensor(), torch::Tensor()};
+    // Self: one (B, L, 3E) gradient. Cross: dQ per ray (summed afterwards when the queries are
+    // shared by the batch) and one (B, Lk, 2E) gradient for K and V.
+    auto d_kv = torch::empty({b, kv.size(1), kv.size(2)}, kv.options());
+    auto d_q = self ? d_kv : torch::empty({b, q_src.size(1), width}, q_src.options());
+    AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention_backward", [&] {
+      const auto pr = make_problem<scalar_t>(q_src, kv, self ? width : 0, self ? 2 * width : width, heads, width,
+                                             mask, scale);
+      const Operand<const scalar_t> g{go.data_ptr<scalar_t>(), go.size(1) * go.size(2), go.size(2)};
+      const auto out_operand = [](torch::Tensor& x, int64_t offset) {
+        return Operand<scalar_t>{x.data_ptr<scalar_t>() + offset, x.size(1) * x.size(2), x.size(2)};
+      };
+      const auto dq = out_operand(d_q, 0);
+      const auto dk = out_operand(d_kv, self ? width : 0), dv = out_operand(d_kv, self ? 2 * width : width);
+      const SingleThreadedBlas single;
+      parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread),
+                      [&](int64_t, int64_t lo, int64_t hi) { backward_items(pr, lo, hi, p, g, dq, dk, dv); });
+    });
+    if (self) return {d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+    if (q_src.size(0) == 1 && b != 1) d_q = d_q.sum(0, /*keepdim=*/true);
+    return {d_q, d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
   }
 };
 
-}  // namespace
-
-torch::Tensor batched_matmul(const torch::Tensor& a, const torch::Tensor& b) {
-  auto out = torch::empty({a.size(0), a.size(1), b.size(2)}, a.options());
-  bmm_into(out, a, b);
+torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
+                  int64_t width, double scale) {
+  const bool self = !kv_src.defined();
+  TORCH_CHECK(width % heads == 0, "packed attention: width ", width, " is not divisible by ", heads, " heads");
+  const auto q = q_src.contiguous();
+  const auto kv = self ? torch::Tensor() : kv_src.contiguous();
+  const auto m = mask.defined() ? mask.to(q.scalar_type()).contiguous() : torch::Tensor();
+  const bool needs_graph = torch::GradMode::is_enabled() && (q.requires_grad() || (kv.defined() && kv.requires_grad()));
+  if (needs_graph)
+    return PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
+                                          m.defined() ? m : torch::empty({0}, q.options()), heads, width, scale);
+  torch::Tensor out;
+  AT_DISPATCH_FLOATING_TYPES(q.scalar_type(), "packed_attention_inference", [&] {
+    const auto& kvt = self ? q : kv;
+    const auto pr = make_problem<scalar_t>(q, kvt, self ? width : 0, self ? 2 * width : width, heads, width, m, scale);
+    out = forward_all(pr, q.options(), torch::Tensor());
+  });
   return out;
 }
 
-torch::Tensor attention_core(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
-                             const torch::Tensor& mask, double scale) {
-  const bool needs_graph =
-      torch::GradMode::is_enabled() && (q.requires_grad() || k.requires_grad() || v.requires_grad());
-  if (!needs_graph) return batched_matmul(forward_probabilities(q, k, mask, scale), v);
-  // Autograd functions cannot take undefined tensors: "no mask" travels as an empty tensor.
-  return AttentionCoreFunction::apply(q, k, v, mask.defined() ? mask : torch::empty({0}, q.options()), scale);
+}  // namespace
+
+bool packed_attention_available(const torch::Tensor& x) {
+  if (!x.device().is_cpu()) return false;
+  if (x.scalar_type() == torch::kFloat) return cblas().s != nullptr;
+  if (x.scalar_type() == torch::kDouble) return cblas().d != nullptr;
+  return false;
+}
+
+torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale) {
+  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ",
+              qkv.sizes());
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale);
+}
+
+torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale) {
+  TORCH_CHECK(q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
+              "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ",
+              kv.sizes());
+  return run(q, kv, torch::Tensor(), heads, q.size(2), scale);
 }
 
 }  // namespace ablenerf

@@ -1,24 +1,28 @@
 #pragma once
-// The scaled dot-product core of attention, softmax(Q K^T * scale + mask) V, over a batch of
-// many small matrices (one per ray and head: 97 x 64 at the blender preset).
+// The scaled dot-product core of multi-head attention, softmax(Q K^T * scale + mask) V, on the
+// CPU, read straight from the packed projections that nn.MultiheadAttention-style layers produce:
+//   self-attention:  qkv (B, L, 3E) = [Q | K | V] per token, heads side by side inside each E;
+//   cross-attention: q (Bq, Lq, E) with Bq == B or 1 (queries shared by the batch), kv (B, Lk, 2E).
+// The result is (B, Lq, E) with the heads already concatenated, ready for the output projection.
 //
-// Why not plain bmm: LibTorch 1.13's CPU bmm loops over the batch and hands every small
-// product to the BLAS, whose own thread pool (OpenBLAS-pthreads: 2 threads here) then
-// synchronises once per 1 MFLOP product. Profiling the blender forward showed those products
-// taking ~70% of the wall time while being ~8% of the FLOPs. Here the batch is split across
-// CPU threads instead, each running single-threaded BLAS products, and a custom autograd
-// function gives the backward the same treatment. The mathematics are unchanged (same
-// products, same softmax); only the summation order inside the BLAS may differ.
+// Why: the model runs one small product per ray and head (97 x 64 x 97 at the blender preset).
+// Through LibTorch 1.13 that means copying Q, K and V into per-head layouts, a batched matmul
+// that dispatches every small product separately, and a copy back; OpenBLAS's own thread pool
+// then synchronises inside every one of them. Here each product is one direct BLAS call on
+// strided operands (no copies), with single-threaded BLAS, the batch split across CPU threads
+// (model/cpu_parallel.h), and a hand-written backward doing the same. The mathematics are those
+// of the reference formula; only the summation order inside the BLAS may differ.
 #include <torch/torch.h>
 
 namespace ablenerf {
 
-// q: (N,Lq,dh), k, v: (N,Lk,dh), mask: additive (Lq,Lk) broadcast over N, or undefined.
-// Returns (N,Lq,dh). Differentiable in q, k and v.
-torch::Tensor attention_core(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
-                             const torch::Tensor& mask, double scale);
+// True when these kernels can run on x: a CPU float32/float64 tensor and a BLAS providing
+// cblas_sgemm / cblas_dgemm in the process (found at run time).
+bool packed_attention_available(const torch::Tensor& x);
 
-// out = a @ b for (N,m,k) x (N,k,n), batch split across CPU threads (plain bmm elsewhere).
-torch::Tensor batched_matmul(const torch::Tensor& a, const torch::Tensor& b);
+// mask: additive (Lq, Lk), broadcast over rays and heads, or undefined. Differentiable.
+torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
+                                    double scale);
+torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale);
 
 }  // namespace ablenerf

@@ -32,29 +32,6 @@ const BlasThreads& blas_threads() {
   return b;
 }
 
-// Single-threaded BLAS for the scope (restores the previous count). OpenBLAS's count is
-// process-wide, so scopes must not overlap across threads: a parallel_slices call inside a worker
-// runs serially (cpu_workers returns 1 there).
-class SingleThreadedBlas {
- public:
-  SingleThreadedBlas() {
-    const auto& b = blas_threads();
-    if (b.set) {
-      previous_ = b.get();
-      if (previous_ != 1) b.set(1);
-    }
-  }
-  ~SingleThreadedBlas() {
-    const auto& b = blas_threads();
-    if (b.set && previous_ > 1) b.set(previous_);
-  }
-  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
-  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
-
- private:
-  int previous_ = 0;
-};
-
 // Set in the threads of a running parallel_slices: nested calls stay serial.
 thread_local bool t_in_worker = false;
 
@@ -70,6 +47,19 @@ class WorkerScope {
 };
 
 }  // namespace
+
+SingleThreadedBlas::SingleThreadedBlas() {
+  const auto& b = blas_threads();
+  if (b.set) {
+    previous_ = b.get();
+    if (previous_ != 1) b.set(1);
+  }
+}
+
+SingleThreadedBlas::~SingleThreadedBlas() {
+  const auto& b = blas_threads();
+  if (b.set && previous_ > 1) b.set(previous_);
+}
 
 bool blas_thread_control_available() { return blas_threads().set != nullptr; }
 

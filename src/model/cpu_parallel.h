@@ -24,6 +24,20 @@ int64_t cpu_workers(int64_t n, int64_t min_per_worker);
 // True when OpenBLAS's thread control was found (other BLAS builds: always run serially).
 bool blas_thread_control_available();
 
+// Single-threaded BLAS for the scope (restores the previous count; nothing without OpenBLAS's
+// thread control). OpenBLAS's count is process-wide: take it on the thread that starts the work
+// (parallel_slices does); inside a worker the count is already one and the scope changes nothing.
+class SingleThreadedBlas {
+ public:
+  SingleThreadedBlas();
+  ~SingleThreadedBlas();
+  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
+  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
+
+ private:
+  int previous_ = 0;
+};
+
 // Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
 // thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the
 // caller's grad mode and inference mode. The first exception thrown by any slice is rethrown

@@ -1,53 +1,114 @@
-// attention_core (threaded small products + hand-written backward) against the plain autograd
-// formula softmax(Q K^T * scale + mask) V: same values and same gradients to float tolerance.
+// The CPU attention kernels over packed projections (model/attention_core.h) against the plain
+// per-head autograd formula softmax(Q K^T * scale + mask) V: same values and same gradients, in
+// float64 to 1e-10 and in float32 to float tolerance, for self-attention with the causal mask
+// and for cross-attention with per-ray and with shared (batch-1) queries.
 #include <gtest/gtest.h>
+
+#include <algorithm>
 
 #include "model/ab_transformer.h"
 #include "model/attention_core.h"
+#include "model/cpu_parallel.h"
 
 namespace ablenerf {
 namespace {
 
-constexpr int64_t kBatch = 48;  // enough matrices to be split across threads
-constexpr int64_t kTokens = 7, kHeadDim = 5;
+constexpr int64_t kBatch = 24, kHeads = 3, kHeadDim = 4, kWidth = kHeads * kHeadDim;  // 72 products
+constexpr int64_t kTokens = 7;
 constexpr double kScale = 0.4;
 
-torch::Tensor reference(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
-                        const torch::Tensor& mask) {
-  auto s = torch::matmul(q, k.transpose(1, 2)) * kScale;
-  if (mask.defined()) s = s + mask;
-  return torch::matmul(torch::softmax(s, -1), v);
+// At least two CPU threads, so the products are split across threads on any machine.
+class TwoThreads {
+ public:
+  TwoThreads() : previous_(at::get_num_threads()) { at::set_num_threads(std::max(2, previous_)); }
+  ~TwoThreads() { at::set_num_threads(previous_); }
+
+ private:
+  int previous_;
+};
+
+// Heads of a packed (B, L, C) tensor at columns [offset, offset + E): (B, H, L, dh).
+torch::Tensor heads_of(const torch::Tensor& x, int64_t offset) {
+  return x.narrow(2, offset, kWidth).reshape({x.size(0), x.size(1), kHeads, kHeadDim}).transpose(1, 2);
 }
 
-void compare(const torch::Tensor& mask, int64_t lq) {
-  torch::manual_seed(1);
-  const auto q0 = torch::randn({kBatch, lq, kHeadDim}, torch::kFloat64);
-  const auto k0 = torch::randn({kBatch, kTokens, kHeadDim}, torch::kFloat64);
-  const auto v0 = torch::randn({kBatch, kTokens, kHeadDim}, torch::kFloat64);
-  const auto upstream = torch::randn({kBatch, lq, kHeadDim}, torch::kFloat64);
+torch::Tensor reference(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
+                        const torch::Tensor& mask) {
+  const auto q = heads_of(q_src, 0), k = heads_of(kv_src, k_off), v = heads_of(kv_src, v_off);
+  auto s = torch::matmul(q, k.transpose(-2, -1)) * kScale;
+  if (mask.defined()) s = s + mask;
+  const auto o = torch::matmul(torch::softmax(s, -1), v);  // (B, H, Lq, dh)
+  return o.transpose(1, 2).reshape({kv_src.size(0), q_src.size(1), kWidth});
+}
+
+struct Case {
+  torch::Tensor q, kv;  // kv undefined = self-attention (q holds Q, K, V)
+  torch::Tensor mask;
+};
+
+// Values and gradients of the kernel and of the reference for the same upstream gradient.
+void compare(const Case& c, double tol) {
+  const bool self = !c.kv.defined();
   std::vector<torch::Tensor> got, want;
   for (auto* out : {&got, &want}) {
-    auto q = q0.clone().requires_grad_(), k = k0.clone().requires_grad_(), v = v0.clone().requires_grad_();
-    const auto o = out == &got ? attention_core(q, k, v, mask, kScale) : reference(q, k, v, mask);
+    auto q = c.q.clone().requires_grad_();
+    auto kv = self ? torch::Tensor() : c.kv.clone().requires_grad_();
+    torch::Tensor o;
+    if (out == &got) {
+      o = self ? packed_self_attention(q, kHeads, c.mask, kScale) : packed_cross_attention(q, kv, kHeads, kScale);
+    } else {
+      o = self ? reference(q, q, kWidth, 2 * kWidth, c.mask) : reference(q, kv, 0, kWidth, c.mask);
+    }
+    auto gen = at::detail::createCPUGenerator(3);
+    const auto upstream = torch::randn(o.sizes(), gen, o.options());
     (o * upstream).sum().backward();
-    *out = {o.detach(), q.grad(), k.grad(), v.grad()};
+    *out = {o.detach(), q.grad()};
+    if (!self) out->push_back(kv.grad());
   }
-  for (size_t i = 0; i < got.size(); ++i) EXPECT_TRUE(torch::allclose(got[i], want[i], 1e-10, 1e-12)) << i;
+  ASSERT_EQ(got.size(), want.size());
+  for (size_t i = 0; i < got.size(); ++i) {
+    ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
+    EXPECT_LT((got[i] - want[i]).abs().max().item<double>(), tol) << "output/gradient " << i;
+  }
 }
 
-TEST(AttentionCore, MaskedSelfAttentionMatchesAutograd) {
-  compare(ray_attention_mask(kTokens - 1, torch::TensorOptions().dtype(torch::kFloat64)), kTokens);
+torch::Tensor rnd(std::vector<int64_t> sizes, torch::ScalarType t, uint64_t seed) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  return torch::randn(sizes, gen, torch::kDouble).to(t);
 }
 
-TEST(AttentionCore, UnmaskedCrossAttentionMatchesAutograd) { compare(torch::Tensor(), 3); }
+TEST(AttentionCore, MaskedSelfAttentionMatchesReference) {
+  if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
+  const TwoThreads threads;
+  const auto mask = ray_attention_mask(kTokens - 1, torch::TensorOptions().dtype(torch::kDouble));
+  compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 1), {}, mask}, 1e-10);
+  compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 2), {}, {}}, 1e-10);  // bidirectional
+  compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 3), {}, mask.to(torch::kFloat)}, 1e-4);
+}
+
+TEST(AttentionCore, CrossAttentionMatchesReference) {
+  if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
+  const TwoThreads threads;
+  // Per-ray queries, and queries shared by the batch (their gradient sums over rays).
+  compare({rnd({kBatch, 3, kWidth}, torch::kDouble, 4), rnd({kBatch, kTokens, 2 * kWidth}, torch::kDouble, 5), {}},
+          1e-10);
+  compare({rnd({1, 5, kWidth}, torch::kDouble, 6), rnd({kBatch, kTokens, 2 * kWidth}, torch::kDouble, 7), {}}, 1e-10);
+  compare({rnd({1, 5, kWidth}, torch::kFloat, 8), rnd({kBatch, kTokens, 2 * kWidth}, torch::kFloat, 9), {}}, 1e-4);
+}
 
 TEST(AttentionCore, InferenceModeGivesTheSameValues) {
-  torch::manual_seed(2);
-  const auto q = torch::randn({kBatch, kTokens, kHeadDim}), k = torch::randn({kBatch, kTokens, kHeadDim});
-  const auto v = torch::randn({kBatch, kTokens, kHeadDim});
-  const auto want = reference(q, k, v, torch::Tensor());
+  if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
+  const TwoThreads threads;
+  const auto qkv = rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 10);
+  const auto mask = ray_attention_mask(kTokens - 1);
+  const auto want = reference(qkv, qkv, kWidth, 2 * kWidth, mask);
   c10::InferenceMode guard;
-  EXPECT_TRUE(torch::allclose(attention_core(q, k, v, torch::Tensor(), kScale), want, 1e-5, 1e-6));
+  EXPECT_LT((packed_self_attention(qkv, kHeads, mask, kScale) - want).abs().max().item<double>(), 1e-5);
+}
+
+TEST(AttentionCore, AvailableOnlyForCpuFloatingPoint) {
+  EXPECT_FALSE(packed_attention_available(torch::zeros({1}, torch::kInt)));
+  EXPECT_FALSE(packed_attention_available(torch::zeros({1}, torch::kHalf)));
 }
 
 }  // namespace
