@@ -5,11 +5,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 run=${1:-runs/demo}
-scripts/setup.sh build   # before the thread setting below: nproc follows OMP_NUM_THREADS
-# One thread unless told otherwise: the demo model's tensors are small, and on the 2-core reference
-# machine two OpenMP threads (spin-waiting between ops) ran at ~0.6x the speed of one
-# (docs/BENCHMARKS.md, "Demo-scene training").
-export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+scripts/setup.sh build
+# Every core: training and rendering split each batch of rays across the CPU threads
+# (compute.cpu_split = "rays"); on the 2-core reference machine that trained the demo model
+# 1.75-2.1x faster than one thread (docs/BENCHMARKS.md, "Demo-scene training").
 bin=build/ablenerf
 data=data/demo
 if [ ! -f "$data/transforms_train.json" ]; then

@@ -35,8 +35,9 @@ int remove_entry(const char* path, const struct stat*, int, struct FTW*) { retur
 }  // namespace
 
 TempDir::~TempDir() {
-  // POSIX nftw, children first, links not followed. Not std::filesystem::remove_all: linked with
-  // PyTorch 2.11's LibTorch (pip wheel) and g++ 13, remove_all crashed inside libstdc++.
+  // POSIX nftw, children first, links not followed. Not std::filesystem::remove_all: on the GPU
+  // machine (PyTorch 2.11's LibTorch, g++ 13) tests crashed when a temporary folder was removed at
+  // their end (no backtrace was taken; docs/GPU.md), and this avoids the libstdc++ call.
   if (!path_.empty()) ::nftw(path_.c_str(), remove_entry, 16, FTW_DEPTH | FTW_PHYS);
 }
 

@@ -1,7 +1,8 @@
 #pragma once
 // How the model's arithmetic runs, without changing what it computes (issue 5's fast paths):
-//  - the attention kernel: "fused" = scaled_dot_product_attention (LibTorch >= 2: flash /
-//    memory-efficient kernels on CUDA), "plain" = explicit softmax(Q K^T / sqrt(d) + mask) V;
+//  - the attention kernel: "fused" = on the CPU the direct-BLAS kernel over the packed projections
+//    (model/attention_core.h), elsewhere scaled_dot_product_attention (LibTorch >= 2: flash /
+//    memory-efficient kernels on CUDA); "plain" = explicit softmax(Q K^T / sqrt(d) + mask) V;
 //  - the precision of the matrix products: "fp32", or "bf16" = CUDA autocast to bfloat16 with
 //    the weights, the loss and the optimiser kept in fp32.
 //  - how CPU threads share the work: "rays" = a slice of the rays per thread through the whole

@@ -62,7 +62,7 @@ struct EvalConfig {
 // How the arithmetic runs (model/compute.h); never changes what is computed beyond rounding.
 struct ComputeConfig {
   std::string precision = "fp32";  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
-  std::string attention = "fused"; // "fused" (SDPA where LibTorch >= 2) | "plain" (explicit softmax)
+  std::string attention = "fused"; // "fused" (CPU: packed BLAS kernel; CUDA: SDPA, LibTorch >= 2) | "plain" (explicit softmax)
   // CPU threads: "rays" = each thread runs a slice of the rays through the whole model with
   // single-threaded BLAS; "ops" = one ray batch, threads only inside the libraries' ops.
   std::string cpu_split = "rays";

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "eval/run_folder.h"
+#include "model/cpu_parallel.h"
 #include "train/checkpoint.h"
 #include "train/trainer.h"
 #include "train_fixture.h"
@@ -133,6 +134,29 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
   o.resume = true;
   o.data_dir.clear();  // taken from run.json
   ASSERT_EQ(train(c, o), TrainResult::Finished);
+  expect_same_weights(t / "straight", t / "pieces", 0.0);
+}
+
+TEST(Trainer, ResumeEqualsUninterruptedWithTheRaySplit) {
+  // Two CPU threads: every 16-ray micro-batch runs as two slices with their own gradients, summed
+  // in slice order, so the result depends on the thread count but not on thread timing.
+  const int before = torch::get_num_threads();
+  torch::set_num_threads(2);
+  if (cpu_workers(16, 8) < 2) {
+    torch::set_num_threads(before);
+    GTEST_SKIP() << "no OpenBLAS thread control: no ray split";
+  }
+  test::TempDir t;
+  const Config c = test::tiny_config();  // 32 rays per step in micro-batches of 16
+  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
+  TrainOptions o = options(t / "pieces");
+  o.max_steps_this_run = 7;
+  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
+  o.max_steps_this_run = -1;
+  o.resume = true;
+  o.data_dir.clear();
+  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  torch::set_num_threads(before);
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
 
