@@ -1,5 +1,7 @@
 #include "test_util.h"
 
+#include <ATen/Parallel.h>
+
 #include <ftw.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -77,5 +79,8 @@ void write_file(const std::string& path, const std::string& text) {
   out << text;
   if (!out) throw std::runtime_error("cannot write " + path);
 }
+
+IntraOpThreads::IntraOpThreads(int threads) : previous_(at::get_num_threads()) { at::set_num_threads(threads); }
+IntraOpThreads::~IntraOpThreads() { at::set_num_threads(previous_); }
 
 }  // namespace ablenerf::test

@@ -38,4 +38,17 @@ CommandResult run_cli(const std::string& args);
 // Writes a text file (creating parent folders).
 void write_file(const std::string& path, const std::string& text);
 
+// LibTorch's intra-op thread count set to `threads` for the scope, restored afterwards. The CPU
+// ray split takes the larger of this count and OpenBLAS's, so 2 makes it split on any machine.
+class IntraOpThreads {
+ public:
+  explicit IntraOpThreads(int threads);
+  ~IntraOpThreads();
+  IntraOpThreads(const IntraOpThreads&) = delete;
+  IntraOpThreads& operator=(const IntraOpThreads&) = delete;
+
+ private:
+  int previous_;
+};
+
 }  // namespace ablenerf::test

@@ -137,13 +137,20 @@ void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::T
   }
 }
 
-// q_src: (Bq, Lq, C) holding Q at columns [0, E); kv_src: (B, Lk, C') holding K at column
-// k_offset and V at v_offset (for self-attention kv_src is q_src: offsets E and 2E).
+// Columns of K and V in the tensor holding them: [Q | K | V] for self-attention, [K | V] otherwise.
+struct KvColumns {
+  int64_t k, v;
+};
+KvColumns kv_columns(bool self, int64_t width) { return self ? KvColumns{width, 2 * width} : KvColumns{0, width}; }
+
+// q_src: (Bq, Lq, C) holding Q at columns [0, E); kv: (B, Lk, C') holding K and V (for
+// self-attention kv is q_src).
 template <class T>
-Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_offset, int64_t v_offset,
-                        int64_t heads, int64_t width, const torch::Tensor& mask, double scale) {
-  Problem<T> pr{kv_src.size(0), heads, width / heads, q_src.size(1), kv_src.size(1),
-                operand<T>(q_src, 0), operand<T>(kv_src, k_offset), operand<T>(kv_src, v_offset),
+Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, bool self, int64_t heads, int64_t width,
+                        const torch::Tensor& mask, double scale) {
+  const KvColumns c = kv_columns(self, width);
+  Problem<T> pr{kv.size(0), heads, width / heads, q_src.size(1), kv.size(1),
+                operand<T>(q_src, 0), operand<T>(kv, c.k), operand<T>(kv, c.v),
                 mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(), scale};
   return pr;
 }
@@ -161,8 +168,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
     torch::Tensor out;
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
-      const auto pr = make_problem<scalar_t>(q_src, kv, self ? width : 0, self ? 2 * width : width, heads, width,
-                                             mask, scale);
+      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale);
       out = forward_all(pr, q_src.options(), p);
     });
     ctx->save_for_backward({q_src, kv_src, mask, p});
@@ -187,14 +193,14 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     auto d_kv = torch::empty({b, kv.size(1), kv.size(2)}, kv.options());
     auto d_q = self ? d_kv : torch::empty({b, q_src.size(1), width}, q_src.options());
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention_backward", [&] {
-      const auto pr = make_problem<scalar_t>(q_src, kv, self ? width : 0, self ? 2 * width : width, heads, width,
-                                             mask, scale);
+      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale);
       const Operand<const scalar_t> g{go.data_ptr<scalar_t>(), go.size(1) * go.size(2), go.size(2)};
       const auto out_operand = [](torch::Tensor& x, int64_t offset) {
         return Operand<scalar_t>{x.data_ptr<scalar_t>() + offset, x.size(1) * x.size(2), x.size(2)};
       };
       const auto dq = out_operand(d_q, 0);
-      const auto dk = out_operand(d_kv, self ? width : 0), dv = out_operand(d_kv, self ? 2 * width : width);
+      const KvColumns c = kv_columns(self, width);
+      const auto dk = out_operand(d_kv, c.k), dv = out_operand(d_kv, c.v);
       const SingleThreadedBlas single;
       parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread),
                       [&](int64_t, int64_t lo, int64_t hi) { backward_items(pr, lo, hi, p, g, dq, dk, dv); });
@@ -219,7 +225,7 @@ torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const
   torch::Tensor out;
   AT_DISPATCH_FLOATING_TYPES(q.scalar_type(), "packed_attention_inference", [&] {
     const auto& kvt = self ? q : kv;
-    const auto pr = make_problem<scalar_t>(q, kvt, self ? width : 0, self ? 2 * width : width, heads, width, m, scale);
+    const auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale);
     out = forward_all(pr, q.options(), torch::Tensor());
   });
   return out;

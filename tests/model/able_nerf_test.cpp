@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
-#include <algorithm>
 #include <tuple>
 
 #include "model/able_nerf.h"
@@ -156,17 +155,6 @@ TEST(AbleNerf, JitterOnlyInTrainingMode) {
   EXPECT_TRUE(torch::equal(model->forward(rays, 2, 6, o1).fine_t, model->forward(rays, 2, 6, o2).fine_t));
 }
 
-// At least two CPU threads for the scope (LibTorch's count; the ray split takes the larger of it
-// and OpenBLAS's), so that a one-core machine still exercises the split.
-class TwoThreads {
- public:
-  TwoThreads() : previous_(at::get_num_threads()) { at::set_num_threads(std::max(2, previous_)); }
-  ~TwoThreads() { at::set_num_threads(previous_); }
-
- private:
-  int previous_;
-};
-
 void expect_same(const torch::Tensor& a, const torch::Tensor& b, double tol, const char* what) {
   ASSERT_TRUE(a.defined() && b.defined()) << what;
   ASSERT_EQ(a.sizes(), b.sizes()) << what;
@@ -203,7 +191,7 @@ TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
 
 TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
   if (!blas_thread_control_available()) GTEST_SKIP() << "no OpenBLAS thread control: always serial";
-  const TwoThreads threads;
+  const test::IntraOpThreads threads(2);
   torch::manual_seed(6);
   AbleNerf model(tiny());
   model->eval();

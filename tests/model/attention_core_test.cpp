@@ -4,11 +4,10 @@
 // and for cross-attention with per-ray and with shared (batch-1) queries.
 #include <gtest/gtest.h>
 
-#include <algorithm>
-
 #include "model/ab_transformer.h"
 #include "model/attention_core.h"
 #include "model/cpu_parallel.h"
+#include "test_util.h"
 
 namespace ablenerf {
 namespace {
@@ -16,16 +15,6 @@ namespace {
 constexpr int64_t kBatch = 24, kHeads = 3, kHeadDim = 4, kWidth = kHeads * kHeadDim;  // 72 products
 constexpr int64_t kTokens = 7;
 constexpr double kScale = 0.4;
-
-// At least two CPU threads, so the products are split across threads on any machine.
-class TwoThreads {
- public:
-  TwoThreads() : previous_(at::get_num_threads()) { at::set_num_threads(std::max(2, previous_)); }
-  ~TwoThreads() { at::set_num_threads(previous_); }
-
- private:
-  int previous_;
-};
 
 // Heads of a packed (B, L, C) tensor at columns [offset, offset + E): (B, H, L, dh).
 torch::Tensor heads_of(const torch::Tensor& x, int64_t offset) {
@@ -79,7 +68,7 @@ torch::Tensor rnd(std::vector<int64_t> sizes, torch::ScalarType t, uint64_t seed
 
 TEST(AttentionCore, MaskedSelfAttentionMatchesReference) {
   if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
-  const TwoThreads threads;
+  const test::IntraOpThreads threads(2);  // the products split across threads on any machine
   const auto mask = ray_attention_mask(kTokens - 1, torch::TensorOptions().dtype(torch::kDouble));
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 1), {}, mask}, 1e-10);
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 2), {}, {}}, 1e-10);  // bidirectional
@@ -88,7 +77,7 @@ TEST(AttentionCore, MaskedSelfAttentionMatchesReference) {
 
 TEST(AttentionCore, CrossAttentionMatchesReference) {
   if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
-  const TwoThreads threads;
+  const test::IntraOpThreads threads(2);  // the products split across threads on any machine
   // Per-ray queries, and queries shared by the batch (their gradient sums over rays).
   compare({rnd({kBatch, 3, kWidth}, torch::kDouble, 4), rnd({kBatch, kTokens, 2 * kWidth}, torch::kDouble, 5), {}},
           1e-10);
@@ -98,7 +87,7 @@ TEST(AttentionCore, CrossAttentionMatchesReference) {
 
 TEST(AttentionCore, InferenceModeGivesTheSameValues) {
   if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
-  const TwoThreads threads;
+  const test::IntraOpThreads threads(2);  // the products split across threads on any machine
   const auto qkv = rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 10);
   const auto mask = ray_attention_mask(kTokens - 1);
   const auto want = reference(qkv, qkv, kWidth, 2 * kWidth, mask);

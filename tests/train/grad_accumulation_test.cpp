@@ -4,10 +4,9 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
-#include <algorithm>
-
 #include "model/compute.h"
 #include "model/cpu_parallel.h"
+#include "test_util.h"
 #include "train/grad_accumulation.h"
 
 namespace ablenerf {
@@ -50,8 +49,7 @@ std::vector<torch::Tensor> reference_gradients(AbleNerf& model, const RayBatch& 
 }
 
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
-  const int threads_before = at::get_num_threads();
-  at::set_num_threads(std::max(2, threads_before));  // make the ray split happen on any machine
+  const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
   AbleNerf model(small_model());
   model->to(torch::kDouble);
@@ -81,7 +79,6 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
     }
   }
   set_cpu_split(CpuSplit::Rays);
-  at::set_num_threads(threads_before);
   if (blas_thread_control_available()) EXPECT_TRUE(split_ran);
   // The reference gradients are not trivially zero.
   double total = 0;

@@ -49,12 +49,6 @@ TrainOptions options(const std::string& out) {
   return o;
 }
 
-struct SingleThread {
-  int before = torch::get_num_threads();
-  SingleThread() { torch::set_num_threads(1); }
-  ~SingleThread() { torch::set_num_threads(before); }
-};
-
 }  // namespace
 
 TEST(Trainer, LossFallsAndRunFolderIsComplete) {
@@ -123,7 +117,7 @@ TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
 }
 
 TEST(Trainer, ResumeEqualsUninterrupted) {
-  SingleThread st;
+  const test::IntraOpThreads threads(1);
   test::TempDir t;
   const Config c = test::tiny_config();  // 12 steps, checkpoint every 5
   ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
@@ -140,12 +134,8 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
 TEST(Trainer, ResumeEqualsUninterruptedWithTheRaySplit) {
   // Two CPU threads: every 16-ray micro-batch runs as two slices with their own gradients, summed
   // in slice order, so the result depends on the thread count but not on thread timing.
-  const int before = torch::get_num_threads();
-  torch::set_num_threads(2);
-  if (cpu_workers(16, 8) < 2) {
-    torch::set_num_threads(before);
-    GTEST_SKIP() << "no OpenBLAS thread control: no ray split";
-  }
+  const test::IntraOpThreads threads(2);
+  if (cpu_workers(16, 8) < 2) GTEST_SKIP() << "no OpenBLAS thread control: no ray split";
   test::TempDir t;
   const Config c = test::tiny_config();  // 32 rays per step in micro-batches of 16
   ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
@@ -156,13 +146,12 @@ TEST(Trainer, ResumeEqualsUninterruptedWithTheRaySplit) {
   o.resume = true;
   o.data_dir.clear();
   ASSERT_EQ(train(c, o), TrainResult::Finished);
-  torch::set_num_threads(before);
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
 
 TEST(Trainer, ResumeEqualsUninterruptedWithStratifiedJitter) {
   // model.randomized draws from LibTorch's global stream, which the checkpoint carries too.
-  SingleThread st;
+  const test::IntraOpThreads threads(1);
   test::TempDir t;
   Config c = test::tiny_config();
   c.set("model.randomized=true");
