@@ -5,8 +5,13 @@
 //
 // Two implementations, one per input type:
 //  * fp32: CUDA cores, every thread computing 4 x 4 blocks of each product from shared memory;
-//  * bf16: tensor cores (WMMA 16 x 16 x 16, bf16 -> fp32) on tiles padded to 16 rows, one warp
-//    per 16-row strip of the scores, so that the softmax needs no block-wide barrier.
+//  * bf16: tensor cores (WMMA 16 x 16 x 16, bf16 -> fp32) on tiles padded to 16 rows. Forward:
+//    one warp per 16-row strip of the scores, so that the softmax needs no block-wide barrier.
+//    Backward: one warp per 16-key strip recomputes P and dS tile by tile from the saved
+//    log-sum-exp and accumulates dK and dV in registers, keeping only dS in shared memory (104 KB
+//    at L = 97: two blocks per SM); then one warp per 16-row strip forms dQ from dS.
+// Loads are cp.async copies, all of a block's in flight together (one at a time per thread made
+// the kernels wait on memory latency).
 #include <cuda_bf16.h>
 #include <math_constants.h>
 #include <mma.h>
