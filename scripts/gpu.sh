@@ -7,7 +7,12 @@
 #   env        versions: GPU, driver, PyTorch, compiler, where nccl.h and gloo headers are
 #   build      configure + build build-cuda (Release, every target but Google Benchmark)
 #   test       ctest in build-cuda (the CPU test suites, built against the CUDA LibTorch)
-#   bench      ablenerf bench on the GPU at the blender preset, bf16 + fused vs fp32 + plain
+#   gputest    the ctest label gpu (kernels against their references, graph vs eager steps)
+#   bench      ablenerf bench on the GPU at the blender preset: 1024- and 8192-ray steps, bf16 + fused
+#              + CUDA graph vs fp32 + plain + eager
+#   peerbench  the authors' release on the same GPU (../shared/tools/peer, carried in .carry/peer)
+#   peertrain  the release's own recipe on lego for $BUDGET seconds (default 300), PSNR on test views 0-5
+#   lego5      ablenerf on lego for $BUDGET seconds with configs/budget.toml, PSNR on test views 0-5
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
@@ -61,24 +66,71 @@ stage_test() {
   return $rc
 }
 
-stage_bench() {
-  # Training: 8192 rays per step in two micro-batches of 4096; rendering: 16384-ray chunks.
-  $bin bench --config configs/blender.toml --device cuda --rays 8192 --micro-batch 4096 --render-rays 16384 \
-    --steps 5 --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused --compare \
-    > "$OUT/bench_blender_h100.json" 2> "$OUT/bench.err"
+stage_gputest() {
+  (cd build-cuda && ctest -L gpu --output-on-failure --timeout 600) > "$OUT/ctest_gpu.log" 2>&1
   local rc=$?
-  cp "$OUT/bench_blender_h100.json" /tmp/bench.json
-  python3 - "$OUT/bench_blender_h100.json" <<'PY' || tail -5 "$OUT/bench.err"
+  grep -E "tests passed|tests failed|Failed|Passed|SKIPPED|FAILED" "$OUT/ctest_gpu.log" | tail -15
+  return $rc
+}
+
+# One bench JSON per step size: 1024-ray steps (the release's per-GPU batch) and 8192-ray steps
+# (the paper's global batch, micro-batches of 4096), rendering in 16384-ray chunks.
+stage_bench() {
+  local rc=0 rays micro
+  for rays in 1024 8192; do
+    micro=$((rays < 4096 ? rays : 4096))
+    $bin bench --config configs/blender.toml --device cuda --rays $rays --micro-batch $micro --render-rays 16384 \
+      --steps ${BENCH_STEPS:-20} --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused \
+      --compare > "$OUT/bench_$rays.json" 2> "$OUT/bench_$rays.err" || { rc=1; tail -5 "$OUT/bench_$rays.err"; continue; }
+    python3 - "$OUT/bench_$rays.json" <<'PY'
 import json, sys
 j = json.load(open(sys.argv[1]))
 for k in ("reference", "fast"):
     r = j[k]
-    print(f"{k:9s} {r['precision']} {r['attention']}: train {r['train']['rays_per_s']:.0f} rays/s, "
-          f"render {r['render']['rays_per_s']:.0f} rays/s = {r['render']['seconds_per_image']:.2f} s/800x800, "
-          f"peak {r['peak_memory_bytes']/2**30:.1f} GiB, matmul {r['matmul_peak']['flop_per_s']/1e12:.0f} TFLOP/s "
-          f"({r['matmul_peak']['dtype']}), train at {100*r['train']['fraction_of_matmul_peak']:.1f}% of it")
+    print(f"{k:9s} {r['precision']} {r['attention']} graph={r.get('cuda_graph')}: train {r['train']['rays']:.0f}-ray steps "
+          f"{r['train']['rays_per_s']:.0f} rays/s (host {1e3*r['train']['cpu_s_median']:.1f} ms/step, "
+          f"wall {1e3*r['train']['wall_s_median']:.1f} ms/step), render {r['render']['rays_per_s']:.0f} rays/s = "
+          f"{r['render']['seconds_per_image']:.2f} s/800x800, peak {r['peak_memory_bytes']/2**30:.1f} GiB, "
+          f"matmul {r['matmul_peak']['flop_per_s']/1e12:.0f} TFLOP/s ({r['matmul_peak']['dtype']}), "
+          f"train at {100*r['train']['fraction_of_matmul_peak']:.1f}% of it")
 print("speedup", j["speedup"])
 PY
+  done
+  return $rc
+}
+
+stage_peerbench() {
+  local rc=0 rays micro
+  for rays in 1024 8192; do
+    micro=$((rays < 4096 ? rays : 4096))
+    python3 .carry/peer/release_gpu_bench.py .carry/release --rays $rays --micro $micro --variants tf32,bf16 \
+      > "$OUT/peer_bench_$rays.jsonl" 2> "$OUT/peer_bench_$rays.err" || { rc=1; tail -5 "$OUT/peer_bench_$rays.err"; }
+    cat "$OUT/peer_bench_$rays.jsonl"
+  done
+  return $rc
+}
+
+stage_peertrain() {
+  python3 .carry/peer/release_gpu_train.py .carry/release "$lego" --seconds "${BUDGET:-300}" --rays 1024 \
+    --test-views 6 --precision tf32 > "$OUT/peer_train.json" 2> "$OUT/peer_train.err"
+  local rc=$?
+  cat "$OUT/peer_train.json"; [ $rc -eq 0 ] || tail -5 "$OUT/peer_train.err"
+  return $rc
+}
+
+# ablenerf's budget recipe on lego for the same wall-clock budget, then PSNR on test views 0-5.
+stage_lego5() {
+  local run=/tmp/lego5 t0=$SECONDS
+  rm -rf "$run"
+  $bin train --data "$lego" --config configs/budget.toml --out "$run" --device cuda \
+    --set train.time_budget_s="${BUDGET:-300}" --set train.eval_views=2 > "$OUT/lego5_train.log" 2>&1
+  local rc=$?
+  echo "lego5: train rc $rc, $((SECONDS - t0)) s wall (data loading included)"
+  tail -c 400 "$OUT/lego5_train.log"; echo
+  $bin eval --run "$run" --split test --max-images 6 > "$OUT/lego5_eval.log" 2>&1 || { tail -5 "$OUT/lego5_eval.log"; return 1; }
+  grep '^eval' "$OUT/lego5_eval.log"
+  cp "$run/log.jsonl" "$OUT/lego5_log.jsonl"
+  cp "$run/eval/test/metrics.json" "$OUT/lego5_metrics.json"
   return $rc
 }
 

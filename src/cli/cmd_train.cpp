@@ -58,8 +58,6 @@ void setup(CLI::App& app) {
     // A group whenever a launcher set WORLD_SIZE (torchrun does so for one process too, so a
     // one-process launch runs the same collective code path as a larger one).
     if (env.world_size > 1 || env.launched) {
-      // Ranks would stop at different steps and leave the others waiting in an all-reduce.
-      if (a->time_limit > 0) throw InputError("train", "--time-limit", "not supported with several processes");
       dist = Distributed::join(env, a->backend, a->dist_timeout);
       o.dist = dist.get();
     }

@@ -5,6 +5,9 @@
 
 namespace ablenerf {
 
+// Colour channels of a pixel, a ray's target and every colour output.
+constexpr int64_t kRgbChannels = 3;
+
 // Pinhole intrinsics in pixels. Blender scenes: fx = fy = 0.5 W / tan(0.5 camera_angle_x),
 // cx = W/2, cy = H/2.
 struct Intrinsics {

@@ -12,6 +12,8 @@ namespace ablenerf {
 // Identical images (MSE == 0) give +infinity (std::numeric_limits<double>::infinity()),
 // always; callers that serialise to JSON must handle it (JSON has no infinity).
 double psnr(const torch::Tensor& img, const torch::Tensor& ref);
+// The same from a mean squared error (MSE == 0 gives +infinity).
+double psnr_from_mse(double mse);
 
 // Mean squared error over every pixel and channel (float64).
 double mse(const torch::Tensor& img, const torch::Tensor& ref);

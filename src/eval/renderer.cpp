@@ -30,14 +30,16 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
   TORCH_CHECK(c2w.dim() == 2 && c2w.size(0) >= 3 && c2w.size(1) == 4, "render_image: c2w must be (3,4) or (4,4)");
   torch::NoGradGuard no_grad;
   const int64_t h = k.height, w = k.width, n = h * w;
-  const auto cpu = torch::TensorOptions().dtype(torch::kFloat);
+  // Results gather on the rendering device and come to the host once, at the end: a copy per
+  // chunk would make the host wait for every chunk before queueing the next.
+  const auto f32 = torch::TensorOptions().dtype(torch::kFloat).device(device);
   RenderResult out;
-  out.rgb = torch::empty({n, 3}, cpu);
-  out.depth_mean = torch::empty({n}, cpu);
-  out.depth_argmax = torch::empty({n}, cpu);
+  out.rgb = torch::empty({n, 3}, f32);
+  out.depth_mean = torch::empty({n}, f32);
+  out.depth_argmax = torch::empty({n}, f32);
   if (opts.branches) {
-    out.ray_colour = torch::empty({n, 3}, cpu);
-    out.le_colour = torch::empty({n, 3}, cpu);
+    out.ray_colour = torch::empty({n, 3}, f32);
+    out.le_colour = torch::empty({n, 3}, f32);
   }
   const auto pose = c2w.slice(0, 0, 3).to(device, torch::kFloat).unsqueeze(0);  // (1,3,4)
   const auto long_opts = torch::TensorOptions().dtype(torch::kLong).device(device);
@@ -64,12 +66,12 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
     }
     if (progress) progress(end, n);
   }
-  out.rgb = out.rgb.view({h, w, 3});
-  out.depth_mean = out.depth_mean.view({h, w});
-  out.depth_argmax = out.depth_argmax.view({h, w});
+  out.rgb = out.rgb.view({h, w, 3}).cpu();
+  out.depth_mean = out.depth_mean.view({h, w}).cpu();
+  out.depth_argmax = out.depth_argmax.view({h, w}).cpu();
   if (opts.branches) {
-    out.ray_colour = out.ray_colour.view({h, w, 3});
-    out.le_colour = out.le_colour.view({h, w, 3});
+    out.ray_colour = out.ray_colour.view({h, w, 3}).cpu();
+    out.le_colour = out.le_colour.view({h, w, 3}).cpu();
   }
   return out;
 }

@@ -54,9 +54,7 @@ AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
   load_weights(model, run.weights_path());
   model->to(device);
   // A run trained in bf16 on a GPU still renders on a CPU: there, in fp32.
-  ComputeConfig compute = run.config.compute;
-  if (compute.precision == "bf16" && !bf16_autocast_available(device)) compute.precision = "fp32";
-  model->set_precision(apply_compute_config(compute, device, run.path("config.toml")));
+  model->set_compute(Compute::from_config(run.config.compute, device, run.path("config.toml"), /*bf16_falls_back=*/true));
   model->eval();
   return model;
 }

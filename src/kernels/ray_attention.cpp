@@ -175,4 +175,14 @@ RayAttentionResult ray_attention_reference(const torch::Tensor& qkv, int64_t hea
   return {out, row0};
 }
 
+bool ray_attention_supports(int64_t tokens, int64_t head_width) {
+#ifdef ABLENERF_CUDA_KERNELS
+  return head_width == kernels::kRayAttentionHeadDim && tokens >= 1 && tokens <= kernels::kRayAttentionMaxTokens;
+#else
+  (void)tokens;
+  (void)head_width;
+  return false;
+#endif
+}
+
 }  // namespace ablenerf

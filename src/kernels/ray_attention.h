@@ -26,6 +26,10 @@ struct RayAttentionResult {
 
 RayAttentionResult ray_attention(const torch::Tensor& qkv, int64_t heads, bool masked);
 
+// True when ray_attention takes this shape (tokens per ray, head width) in this build: CUDA
+// kernels compiled in, dh = 64, 1 <= L <= 128.
+bool ray_attention_supports(int64_t tokens, int64_t head_width);
+
 RayAttentionResult ray_attention_reference(const torch::Tensor& qkv, int64_t heads, bool masked);
 
 }  // namespace ablenerf

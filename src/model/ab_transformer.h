@@ -21,7 +21,6 @@ class ABTransformerImpl : public torch::nn::Module {
   // is only the ray token, (B,1,E): the last layer then computes that row alone.
   torch::Tensor forward(const torch::Tensor& tokens, const torch::Tensor& mask,
                         RayQueryProbe* probe = nullptr, bool ray_token_only = false);
-  int64_t layers() const { return static_cast<int64_t>(blocks_.size()); }
   TransformerBlock& block(int64_t i) { return blocks_.at(static_cast<size_t>(i)); }
 
  private:

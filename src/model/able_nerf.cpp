@@ -14,8 +14,8 @@ namespace ablenerf {
 namespace {
 // Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
 constexpr uint64_t kLeNoiseSeed = 4;
-// Fewest rays per CPU thread in a ray-parallel forward (below, thread start-up dominates).
-constexpr int64_t kMinRaysPerWorker = 8;
+static_assert(sizeof(ModelOutput) == sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
+              "every ModelOutput field must be listed in ModelOutput::kFields");
 
 // Row-wise concatenation of the outputs of consecutive ray slices (undefined fields stay so).
 ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
@@ -27,10 +27,7 @@ ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
     return torch::cat(xs, 0);
   };
   ModelOutput out;
-  for (auto field : {&ModelOutput::rgb_coarse, &ModelOutput::rgb_fine, &ModelOutput::coarse_weights,
-                     &ModelOutput::fine_weights, &ModelOutput::fine_t, &ModelOutput::ray_colour_coarse,
-                     &ModelOutput::le_colour_coarse, &ModelOutput::ray_colour_fine, &ModelOutput::le_colour_fine})
-    out.*field = cat(field);
+  for (auto field : ModelOutput::kFields) out.*field = cat(field);
   return out;
 }
 }  // namespace
@@ -54,6 +51,17 @@ AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg) : cfg_(cfg) {
     le_head_fine_ = register_module("le_head_fine", LEColourHead(e, view_width));
   }
   if (cfg.mask) mask_ = register_buffer("ray_mask", ray_attention_mask(cfg.samples));
+}
+
+void AbleNerfImpl::set_compute(const Compute& c) {
+  compute_ = c;
+  for (const auto& m : modules(/*include_self=*/false))
+    if (auto* attn = m->as<MultiHeadAttentionImpl>()) attn->set_kernel(c.attention);
+}
+
+int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const {
+  if (!ray_token_.device().is_cpu() || compute_.cpu_split != CpuSplit::Rays || draws_randomness) return 1;
+  return ray_workers(rays);
 }
 
 int64_t AbleNerfImpl::parameter_count() const {
@@ -102,9 +110,7 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
   // Ray-parallel on the CPU when nothing is recorded for autograd and no random stream is drawn
   // (a generator's draws would depend on the split); rays never interact inside the model.
   const bool draws_randomness = opts.generator != nullptr || (cfg_.randomized && is_training());
-  const bool split = ray_token_.device().is_cpu() && cpu_split() == CpuSplit::Rays &&
-                     !torch::GradMode::is_enabled() && !draws_randomness;
-  const int64_t workers = split ? cpu_workers(in.size(), kMinRaysPerWorker) : 1;
+  const int64_t workers = torch::GradMode::is_enabled() ? 1 : cpu_ray_workers(in.size(), draws_randomness);
   if (workers == 1) return forward_serial(in, near, far, opts);
   std::vector<ModelOutput> parts(static_cast<size_t>(workers));
   parallel_slices(in.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
@@ -118,7 +124,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
   const int64_t b = rays.size();
   const bool jitter = cfg_.randomized && is_training();
-  const AutocastScope autocast(precision_, ray_token_.device());
+  const AutocastScope autocast(compute_.precision, ray_token_.device());
 
   torch::Tensor le, view, view_code;
   if (has_le()) {

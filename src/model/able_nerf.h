@@ -40,6 +40,13 @@ struct ModelOutput {
   // With ForwardOptions::branches: linear colours before tone mapping (LE colours are zeros
   // when the model has no LE).
   torch::Tensor ray_colour_coarse, le_colour_coarse, ray_colour_fine, le_colour_fine;
+
+  // Every field, for code that treats them alike (joining the outputs of ray slices). A field
+  // added above without being listed here fails the static_assert in able_nerf.cpp.
+  static constexpr torch::Tensor ModelOutput::*kFields[] = {
+      &ModelOutput::rgb_coarse,        &ModelOutput::rgb_fine,         &ModelOutput::coarse_weights,
+      &ModelOutput::fine_weights,      &ModelOutput::fine_t,           &ModelOutput::ray_colour_coarse,
+      &ModelOutput::le_colour_coarse,  &ModelOutput::ray_colour_fine,  &ModelOutput::le_colour_fine};
 };
 
 class AbleNerfImpl : public torch::nn::Module {
@@ -53,9 +60,13 @@ class AbleNerfImpl : public torch::nn::Module {
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }
   bool has_le() const { return cfg_.le_count > 0; }
-  // Precision of the matrix products in forward (model/compute.h); outputs are always fp32.
-  void set_precision(Precision p) { precision_ = p; }
-  Precision precision() const { return precision_; }
+  // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
+  // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
+  void set_compute(const Compute& c);
+  const Compute& compute() const { return compute_; }
+  // CPU threads a batch of `rays` runs on with this model's ray split: 1 off the CPU, with
+  // cpu_split = ops, or when the work draws random numbers (the draws would depend on the split).
+  int64_t cpu_ray_workers(int64_t rays, bool draws_randomness) const;
 
  private:
   struct Pass {
@@ -69,7 +80,7 @@ class AbleNerfImpl : public torch::nn::Module {
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;
-  Precision precision_ = Precision::Fp32;
+  Compute compute_;
   torch::Tensor ray_token_;  // (1,1,E) initial ray token
   torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
   VolumeEmbedding volume_embedding_{nullptr};

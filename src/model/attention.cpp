@@ -4,9 +4,13 @@
 
 #include <cmath>
 
+#include "model/ab_transformer.h"
 #include "model/attention_core.h"
-#include "model/compute.h"
-#include "model/volume_embedding.h"
+#include "model/linear_tokens.h"
+
+#ifdef ABLENERF_CUDA_KERNELS
+#include "kernels/ray_attention.h"
+#endif
 
 namespace ablenerf {
 
@@ -33,24 +37,38 @@ void MultiHeadAttentionImpl::reset_parameters() {
   out_proj->bias.zero_();
 }
 
-namespace {
-// The CPU kernel over packed projections (model/attention_core.h) serves "fused" on the CPU.
-bool use_packed(const torch::Tensor& x) {
-  return attention_kernel() == AttentionKernel::Fused && packed_attention_available(x);
+bool MultiHeadAttentionImpl::is_ray_mask(const torch::Tensor& mask) {
+  if (!mask.defined()) return false;
+  if (mask.data_ptr() == ray_mask_seen_) return true;
+  if (mask.dim() != 2 || mask.size(0) != mask.size(1)) return false;
+  // A synchronising comparison, once per mask tensor (the model holds one).
+  const auto cpu = mask.detach().to(torch::kCPU, torch::kFloat);
+  if (!torch::equal(cpu, ray_attention_mask(mask.size(0) - 1))) return false;
+  ray_mask_seen_ = mask.data_ptr();
+  return true;
 }
-}  // namespace
 
 torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                                                    RayQueryProbe* probe) {
   const int64_t b = x.size(0), l = x.size(1), dh = width_ / heads_;
   const auto packed = torch::addmm(in_proj_bias, x.reshape({-1, width_}), in_proj_weight.t()).view({b, l, 3 * width_});
+#ifdef ABLENERF_CUDA_KERNELS
+  // The project's fused kernel for rays of up to 128 tokens with 64-wide heads, under the ray
+  // mask or none; it also returns the ray token's attention row the resampler needs.
+  if (kernel_ == AttentionKernel::Fused && x.is_cuda() && ray_attention_supports(l, dh) &&
+      (!mask.defined() || is_ray_mask(mask))) {
+    const RayAttentionResult r = ray_attention(packed, heads_, mask.defined());
+    if (probe) probe->row0 = r.row0;
+    return linear_tokens(out_proj, r.out);
+  }
+#endif
   if (probe) {
     // (B,L,3,H,dh) views, no copy.
     const auto heads = packed.view({b, l, 3, heads_, dh});
     probe->q0 = heads.select(1, 0).select(1, 0).detach();            // (B,H,dh)
     probe->k = heads.select(2, 1).permute({0, 2, 1, 3}).detach();    // (B,H,L,dh)
   }
-  if (use_packed(x)) return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(x)) return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
   // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
   const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
   return attend(qkv[0], qkv[1], qkv[2], mask);
@@ -70,7 +88,7 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
     probe->q0 = q_heads.select(2, 0).detach();
     probe->k = kv_heads[0].detach();
   }
-  if (use_packed(q_in)) return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in)) return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
   return attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor());
 }
 
@@ -82,7 +100,7 @@ torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const to
   const auto q = q_in.expand({b, heads_, lq, dh});
   torch::Tensor o;
 #if TORCH_VERSION_MAJOR >= 2
-  if (attention_kernel() == AttentionKernel::Fused) {
+  if (kernel_ == AttentionKernel::Fused) {
     // Fused kernels (flash / memory-efficient on CUDA); the shared (L,L) mask broadcasts over rays
     // and heads. Queries shared by the batch (LE cross-attention) are materialised: the kernels
     // want a real batch stride.

@@ -7,6 +7,8 @@
 // mask expanded to B x heads copies.
 #include <torch/torch.h>
 
+#include "util/config.h"
+
 namespace ablenerf {
 
 // What the resampler needs from one self-attention layer: the ray token's (row 0) query and
@@ -15,6 +17,9 @@ namespace ablenerf {
 struct RayQueryProbe {
   torch::Tensor q0;  // (B,H,dh)
   torch::Tensor k;   // (B,H,L,dh)
+  // Or, from a kernel that computes it anyway (kernels/ray_attention.h), the row itself:
+  // (B,H,L) fp32 softmax probabilities of the ray token over every token, detached.
+  torch::Tensor row0;
 };
 
 class MultiHeadAttentionImpl : public torch::nn::Module {
@@ -28,7 +33,9 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   // Fills `probe` (q0 = the first query) when given.
   torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
   void reset_parameters();
-  int64_t heads() const { return heads_; }
+  // Which attention kernel this layer runs (model/compute.h); set by AbleNerf::set_compute.
+  void set_kernel(AttentionKernel kernel) { kernel_ = kernel; }
+  AttentionKernel kernel() const { return kernel_; }
 
   torch::Tensor in_proj_weight;  // (3E,E): rows [0,E) Q, [E,2E) K, [2E,3E) V
   torch::Tensor in_proj_bias;    // (3E)
@@ -39,7 +46,12 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E) after the output projection.
   torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
                        const torch::Tensor& mask);
+  // True when `mask` is the ray mask of kernels/ray_attention.h (checked once per mask tensor).
+  bool is_ray_mask(const torch::Tensor& mask);
+
   int64_t width_, heads_;
+  AttentionKernel kernel_ = AttentionKernel::Fused;
+  const void* ray_mask_seen_ = nullptr;  // the last mask found to be the ray mask
 };
 TORCH_MODULE(MultiHeadAttention);
 

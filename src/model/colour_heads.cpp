@@ -2,16 +2,17 @@
 
 #include <cmath>
 
+#include "data/rays.h"
+
 namespace ablenerf {
 
 namespace {
-constexpr int64_t kRgb = 3;
 const double kRayColourBias = std::log(3.0);  // sigmoid(-ln 3) = 0.25
 constexpr double kLEColourScale = 0.5;        // LE colour lives in (0, 0.5)
 }  // namespace
 
 RayColourHeadImpl::RayColourHeadImpl(int64_t width) {
-  linear = register_module("linear", torch::nn::Linear(width, kRgb));
+  linear = register_module("linear", torch::nn::Linear(width, kRgbChannels));
 }
 
 torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) {
@@ -20,7 +21,7 @@ torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) {
 
 LEColourHeadImpl::LEColourHeadImpl(int64_t width, int64_t view_width) {
   hidden = register_module("hidden", torch::nn::Linear(width + view_width, width));
-  out = register_module("out", torch::nn::Linear(width, kRgb));
+  out = register_module("out", torch::nn::Linear(width, kRgbChannels));
 }
 
 torch::Tensor LEColourHeadImpl::forward(const torch::Tensor& decoded, const torch::Tensor& view_code) {

@@ -12,6 +12,9 @@ namespace ablenerf {
 
 namespace {
 
+// Fewest rays per CPU thread in a ray split (below, thread start-up dominates).
+constexpr int64_t kMinRaysPerWorker = 8;
+
 // OpenBLAS's runtime thread control, looked up at run time so that other BLAS builds (or a
 // LibTorch with MKL) simply skip it.
 using SetThreads = void (*)(int);
@@ -60,6 +63,8 @@ SingleThreadedBlas::~SingleThreadedBlas() {
   const auto& b = blas_threads();
   if (b.set && previous_ > 1) b.set(previous_);
 }
+
+int64_t ray_workers(int64_t rays) { return cpu_workers(rays, kMinRaysPerWorker); }
 
 bool blas_thread_control_available() { return blas_threads().set != nullptr; }
 

@@ -21,6 +21,11 @@ int64_t cpu_thread_budget();
 // always 1 inside a worker of parallel_slices (no nesting) or without OpenBLAS's thread control.
 int64_t cpu_workers(int64_t n, int64_t min_per_worker);
 
+// Workers for a batch of `rays` rays split across CPU threads: the one rule for every ray split
+// (rendering forward and training slices); each worker gets at least a handful of rays, below which
+// thread start-up dominates.
+int64_t ray_workers(int64_t rays);
+
 // True when OpenBLAS's thread control was found (other BLAS builds: always run serially).
 bool blas_thread_control_available();
 

@@ -31,6 +31,7 @@ torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t 
 
 torch::Tensor ray_token_attention(const RayQueryProbe& probe) {
   torch::NoGradGuard no_grad;
+  if (probe.row0.defined()) return probe.row0.mean(1).slice(1, 1);
   const double scale = 1.0 / std::sqrt(static_cast<double>(probe.k.size(-1)));
   // (B,H,L,dh) x (B,H,dh,1) -> (B,H,L): the ray token is unmasked, so no mask is needed.
   const auto scores = torch::matmul(probe.k, probe.q0.unsqueeze(-1)).squeeze(-1) * scale;

@@ -1,15 +1,8 @@
 #include "model/volume_embedding.h"
 
-namespace ablenerf {
+#include "model/linear_tokens.h"
 
-torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x) {
-  auto sizes = x.sizes().vec();
-  const auto flat = x.reshape({-1, sizes.back()});
-  const auto& w = layer->weight;
-  auto y = layer->bias.defined() ? torch::addmm(layer->bias, flat, w.t()) : flat.mm(w.t());
-  sizes.back() = w.size(0);
-  return y.view(sizes);
-}
+namespace ablenerf {
 
 VolumeEmbeddingImpl::VolumeEmbeddingImpl(int64_t in_features, int64_t width) {
   for (int i = 0; i < kLayers; ++i) {

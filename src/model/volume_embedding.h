@@ -5,9 +5,6 @@
 
 namespace ablenerf {
 
-// x (..., in) -> (..., out) through a Linear applied as one 2-D GEMM with fused bias
-// (a 3-D input would otherwise go through matmul + a separate bias add).
-torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x);
 
 class VolumeEmbeddingImpl : public torch::nn::Module {
  public:

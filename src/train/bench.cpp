@@ -13,7 +13,7 @@
 #include "model/compute.h"
 #include "model/ipe.h"
 #include "model/view_encoding.h"
-#include "train/grad_accumulation.h"
+#include "train/trainer.h"
 
 // Device-side peak memory needs the CUDA caching allocator, which only CUDA builds of LibTorch
 // link; build with -DABLENERF_WITH_CUDA against such a LibTorch (>= 2) to report it.
@@ -32,13 +32,15 @@ constexpr double kFlopPerMac = 2.0;
 // needs only the other operand's gradient.
 constexpr double kBackwardBothOperands = 2.0;
 constexpr double kBackwardOneOperand = 1.0;
-constexpr int64_t kRgb = 3;
+constexpr int64_t kRgb = kRgbChannels;
 constexpr int64_t kQkv = 3, kKv = 2;
 constexpr int64_t kVolumeEmbeddingHiddenLayers = 3;  // 4 Linear layers: in->E, then 3 x E->E
-// Blender's pixel footprint: radius = 2/sqrt(12) / focal, focal ~1111 px at 800x800.
-constexpr float kBlenderRayRadius = 5.196e-4f;
 constexpr double kCameraDistance = 4.0;
 constexpr double kDirectionJitter = 0.1;
+// The in-memory training split of the benchmark: a few Blender-like views (800x800, focal of
+// lego's 0.6911 rad field of view), random colours.
+constexpr int64_t kBenchViews = 4;
+constexpr double kBlenderFocal = 1111.111;
 constexpr int64_t kBytesPerKiB = 1024;
 
 // Accumulates products with their backward multiplier.
@@ -156,12 +158,46 @@ Timing time_it(const torch::Device& d, int64_t warmup, int64_t reps, Fn&& fn) {
   return t;
 }
 
-// Blender-like rays: cameras on a radius-4 shell looking roughly at the origin.
+// A camera-to-world pose (3,4) at `eye` looking at the origin, +y up (OpenGL axes).
+torch::Tensor look_at_origin(const torch::Tensor& eye) {
+  const auto f = torch::nn::functional::normalize(-eye, torch::nn::functional::NormalizeFuncOptions().dim(0));
+  auto up = torch::tensor({0.0f, 1.0f, 0.0f});
+  const auto r = torch::nn::functional::normalize(torch::cross(f, up, 0), torch::nn::functional::NormalizeFuncOptions().dim(0));
+  const auto u = torch::cross(r, f, 0);
+  return torch::stack({r, u, -f, eye}, 1);  // columns: right, up, back (-forward), position
+}
+
+// Blender-like training views: cameras on a radius-4 shell looking at the origin.
+Split bench_split(int64_t side, uint64_t seed) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  Split s;
+  s.name = "train";
+  std::vector<torch::Tensor> poses;
+  for (int64_t i = 0; i < kBenchViews; ++i) {
+    auto eye = torch::nn::functional::normalize(torch::randn({3}, gen), torch::nn::functional::NormalizeFuncOptions().dim(0));
+    poses.push_back(look_at_origin(eye * kCameraDistance));
+  }
+  s.c2w = torch::stack(poses);
+  s.images = torch::rand({kBenchViews, side, side, kRgb}, gen);
+  return s;
+}
+
+Intrinsics bench_intrinsics(int64_t side) {
+  Intrinsics k;
+  k.width = k.height = static_cast<int>(side);
+  k.fx = k.fy = kBlenderFocal * static_cast<double>(side) / 800.0;
+  k.cx = k.cy = 0.5 * static_cast<double>(side);
+  return k;
+}
+
+// Blender-like rays for the inference timing: cameras on a radius-4 shell looking roughly at
+// the origin, with the footprint of a pixel of an 800x800 Blender view.
 Rays bench_rays(int64_t n, uint64_t seed, const torch::Device& d) {
   auto gen = at::detail::createCPUGenerator(seed);
   const auto o = torch::nn::functional::normalize(torch::randn({n, 3}, gen)) * kCameraDistance;
   const auto dir = -o / kCameraDistance + kDirectionJitter * torch::randn({n, 3}, gen);
-  return {o.to(d), dir.to(d), torch::full({n, 1}, kBlenderRayRadius).to(d)};
+  const auto radius = static_cast<float>(pixel_radius(bench_intrinsics(800)));
+  return {o.to(d), dir.to(d), torch::full({n, 1}, radius).to(d)};
 }
 
 }  // namespace
@@ -171,31 +207,31 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   m.threads = at::get_num_threads();
   const auto& d = o.device;
   const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
-
-  torch::manual_seed(static_cast<uint64_t>(o.seed));
-  AbleNerf model(cfg.model);
-  model->to(d);
-  const Precision precision = apply_compute_config(cfg.compute, d, cfg.source);
-  model->set_precision(precision);
-  m.parameters = model->parameter_count();
+  const Precision precision = cfg.compute.precision;
 #ifdef ABLENERF_CUDA_MEMORY_STATS
   if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
 #endif
 
-  {
-    const auto rays = bench_rays(o.train_rays, o.seed, d);
-    const auto target = torch::full({o.train_rays, kRgb}, 0.5f, torch::TensorOptions().device(d));
-    torch::optim::Adam adam(model->parameters(), torch::optim::AdamOptions(cfg.train.lr_init));
-    model->train();
-    const int64_t micro = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
-    const RayBatch batch{rays, target};
-    m.train = time_it(d, o.warmup, o.steps, [&] {
-      adam.zero_grad();
-      // The trainer's own step: micro-batches, CPU ray slices, the same loss.
-      accumulate_gradients(model, batch, micro, cfg.train, o.train_rays, o.near, o.far);
-      adam.step();
-    });
-  }
+  // The trainer's own step (Trainer::step) on an in-memory split: the same rays, micro-batches,
+  // loss, optimiser and (on CUDA) CUDA graph as `ablenerf train`.
+  Config c = cfg;
+  c.train.rays_per_step = o.train_rays;
+  c.train.micro_batch = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
+  c.train.seed = static_cast<int64_t>(o.seed);
+  c.train.time_budget_s = 0;
+  TrainOptions to;
+  to.device = d;
+  to.quiet = true;
+  Trainer trainer(c, to);
+  trainer.setup(bench_split(o.image_side, o.seed), bench_intrinsics(o.image_side));
+  AbleNerf& model = trainer.model();
+  m.parameters = model->parameter_count();
+  m.device_step = trainer.device_form();
+  // Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
+  for (int64_t i = 0; i < o.warmup || (m.device_step && c.train.graph && !trainer.graph_captured()); ++i) trainer.step();
+  m.graph = trainer.graph_captured();
+  m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
+  trainer.flush();
   {
     const auto rays = bench_rays(render_rays, o.seed + 1, d);
     model->eval();
@@ -272,9 +308,11 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["flops_per_ray"] = {{"forward", f.forward},
                         {"train", f.train()},
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
-  j["precision"] = cfg.compute.precision;
-  j["attention"] = cfg.compute.attention;
-  j["cpu_split"] = cfg.compute.cpu_split;
+  j["precision"] = name_of(cfg.compute.precision);
+  j["attention"] = name_of(cfg.compute.attention);
+  j["cpu_split"] = name_of(cfg.compute.cpu_split);
+  j["device_step"] = m.device_step;
+  j["cuda_graph"] = m.graph;
   j["matmul_peak"] = {{"n", o.matmul_size},
                       {"dtype", m.matmul_dtype},
                       {"flop_per_s", peak},
@@ -282,7 +320,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
                       {"cpu_s_median", m.matmul.cpu_median()},
                       {"wall_s", m.matmul.wall_s}};
   j["train"] = timing_json(m.train, static_cast<double>(o.train_rays), f.train(), peak);
-  j["train"]["includes"] = "forward + backward + Adam step";
+  j["train"]["includes"] = "Trainer::step: ray draw + forward + backward + Adam step";
   j["train"]["micro_batch"] = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
   auto render = timing_json(m.render, render_rays, f.forward, peak);
   render["includes"] = "inference forward (InferenceMode), one chunk per repetition";

@@ -51,6 +51,8 @@ struct BenchMeasurements {
   int64_t threads = 1;            // intra-op threads used
   int64_t parameters = 0;
   std::string matmul_dtype;       // dtype of the peak-measuring product ("fp32" | "bf16")
+  bool device_step = false;       // the trainer ran its device form (CUDA, one process)
+  bool graph = false;             // ... captured as a CUDA graph
 };
 
 // Median of a non-empty list (mean of the middle two for an even count).

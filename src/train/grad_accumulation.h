@@ -6,6 +6,8 @@
 // (model/cpu_parallel.h), each slice computing its own gradients, which are then added to the
 // parameters' .grad in slice order. The sum is deterministic for a given thread count; with one
 // thread (or cpu_split = "ops", or on a GPU) it is a plain loss.backward() per micro-batch.
+// Nothing here synchronises with the device (the sums are returned as device tensors), so on a
+// GPU the whole function can be captured in a CUDA graph.
 #include <torch/torch.h>
 
 #include "model/able_nerf.h"
@@ -25,8 +27,8 @@ struct LossTerms {
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays);
 
 struct StepSums {
-  double loss = 0;      // the step's loss (this process's share)
-  double mse_fine = 0;  // the step's fine-colour MSE (this process's share)
+  torch::Tensor loss;      // the step's loss (this process's share), 0-d, in the parameters' dtype and on their device, detached
+  torch::Tensor mse_fine;  // the step's fine-colour MSE (this process's share), likewise
 };
 
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add

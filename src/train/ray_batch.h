@@ -34,8 +34,6 @@ class RaySampler {
   torch::Tensor rng_state() const;
   void set_rng_state(const torch::Tensor& state);
 
-  int64_t pixel_count() const { return pixels_; }
-
  private:
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
   Intrinsics k_;

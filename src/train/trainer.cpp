@@ -1,21 +1,22 @@
 #include "train/trainer.h"
 
 #include <atomic>
-#include <cmath>
+#include <chrono>
 #include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
-#include "data/dataset.h"
 #include "data/load_options.h"
 #include "eval/metrics.h"
 #include "eval/renderer.h"
 #include "eval/run_folder.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
+#include "train/adam.h"
 #include "train/checkpoint.h"
+#include "train/cuda_step.h"
 #include "train/distributed.h"
 #include "train/grad_accumulation.h"
 #include "train/lr_schedule.h"
@@ -34,7 +35,12 @@ std::atomic<bool> g_interrupt{false};
 
 void on_signal(int) { g_interrupt.store(true); }
 
-double mse_to_psnr(double mse) { return -10.0 * std::log10(std::max(mse, 1e-12)); }
+// Eager steps on the capture stream before the CUDA graph is captured.
+constexpr int64_t kGraphWarmupSteps = 3;
+// Seconds between progress lines when stderr is not a terminal.
+constexpr double kProgressIntervalS = 15.0;
+// Seconds over which the rays/s figure of the progress line is averaged.
+constexpr double kRateWindowS = 0.5;
 
 // Appends one JSON line to the run's log (opened per write, so a crash loses at most the line).
 void log_line(const std::string& path, const nlohmann::json& j) {
@@ -42,30 +48,6 @@ void log_line(const std::string& path, const nlohmann::json& j) {
   out << j.dump() << "\n";
   out.close();
   if (!out) throw InputError(path, "", "cannot append to the log (disk full or no permission?)");
-}
-
-// Mean PSNR of the fine colour on the first `views` images of the held-out split.
-double held_out_psnr(AbleNerf& model, const Split& split, const Intrinsics& k, const Config& c, int64_t views,
-                     const torch::Device& device) {
-  const bool was_training = model->is_training();
-  model->eval();
-  double sum = 0;
-  const int64_t n = std::min<int64_t>(views, split.size());
-  for (int64_t i = 0; i < n; ++i) {
-    RenderResult r = render_image(model, split.c2w[i], k, c.data.near, c.data.far, c.eval.chunk, {}, device);
-    sum += psnr(r.rgb.cpu(), split.images[i]);
-  }
-  if (was_training) model->train();
-  return n > 0 ? sum / static_cast<double>(n) : NAN;
-}
-
-// True when every gradient is finite.
-bool gradients_finite(AbleNerf& model) {
-  std::vector<torch::Tensor> norms;
-  for (const auto& p : model->parameters())
-    if (p.grad().defined()) norms.push_back(p.grad().abs().max());
-  if (norms.empty()) return true;
-  return torch::stack(norms).isfinite().all().item<bool>();
 }
 
 // A kill -9 during an atomic write leaves its temporary file (NAME.tmpPID_N) behind; the real file
@@ -86,181 +68,370 @@ void install_interrupt_handlers() {
   std::signal(SIGTERM, on_signal);
 }
 
-TrainResult train(const Config& config, const TrainOptions& opts) {
-  const bool single = opts.dist == nullptr;
-  const int rank = single ? 0 : opts.dist->rank();
-  const int world = single ? 1 : opts.dist->world_size();
-  const bool leader = rank == 0;
-  const TrainConfig& tc = config.train;
-
-  // Run folder: new, or the one being resumed (whose config must match).
-  RunFolder run;
-  const bool have_ckpt = fs::exists(fs::path(opts.out_dir) / "checkpoint.pt");
-  if (opts.resume && have_ckpt) {
-    run = RunFolder::open(opts.out_dir);
-    if (!opts.data_dir.empty()) run.data_dir = opts.data_dir;
-  } else {
-    if (!opts.resume && have_ckpt)
-      throw InputError(opts.out_dir, "checkpoint.pt",
-                       "the run folder already holds a run (use --resume to continue it, or another --out)");
-    if (opts.data_dir.empty()) throw InputError("train", "--data", "required");
-    if (leader) run = RunFolder::create(opts.out_dir, config, opts.data_dir);
-    else run.dir = opts.out_dir, run.config = config, run.data_dir = opts.data_dir;
-  }
-  if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "missing: give --data");
-  if (leader) remove_stale_temporaries(run.dir);
-
-  // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
-  std::vector<std::string> want{"train"};
-  const auto present = available_splits(run.data_dir);
-  std::string held_out;
-  for (const char* s : {"val", "test"})
-    if (held_out.empty() && std::find(present.begin(), present.end(), s) != present.end()) held_out = s;
-  if (tc.eval_every > 0 && leader && !held_out.empty()) want.push_back(held_out);
-  const Dataset ds = Dataset::load(run.data_dir, load_options_for(config, want));
-  if (!ds.has("train")) throw InputError(run.data_dir, "transforms_train.json", "the dataset has no train split");
-
-  torch::manual_seed(static_cast<uint64_t>(tc.seed));
-  AbleNerf model(config.model);
-  model->to(opts.device);
-  model->set_precision(apply_compute_config(config.compute, opts.device, config.source));
-  model->train();
-  torch::optim::Adam optim(model->parameters(),
-                           torch::optim::AdamOptions(tc.lr_init).betas({0.9, 0.999}).eps(1e-8).weight_decay(0));
-  RaySampler sampler(ds.split("train"), ds.intrinsics, opts.device, static_cast<uint64_t>(tc.seed));
-  const LrSchedule schedule(tc);
-
+struct Trainer::State {
+  int rank = 0, world = 1;
+  bool leader = true;
+  RunFolder run;            // empty dir: no run folder (bench)
+  std::optional<Dataset> ds;
+  std::string held_out;     // split for the periodic PSNR ("" = none)
+  AbleNerf model{nullptr};
+  std::unique_ptr<Adam> adam;
+  std::unique_ptr<RaySampler> sampler;
+  std::optional<LrSchedule> schedule;
   TrainState state;
-  if (opts.resume && have_ckpt) {
-    state = load_checkpoint(run.checkpoint_path(), config, model, optim);
-    sampler.set_rng_state(state.rng_state);
-    if (leader) std::cerr << "train: resumed " << run.checkpoint_path() << " at step " << state.step << "\n";
-  }
-  if (!single) opts.dist->broadcast_parameters(model);  // every rank starts from rank 0's weights
-
-  auto save = [&]() {
-    if (!leader) return;
-    state.rng_state = sampler.rng_state();
-    save_weights(model, run.weights_path());
-    save_checkpoint(run.checkpoint_path(), config, model, optim, state);
-  };
-
-  const int64_t local_rays = tc.rays_per_step * (rank + 1) / world - tc.rays_per_step * rank / world;
-  const int64_t micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(local_rays, 1));
-  Progress progress("train", tc.steps, 15.0);
-  const double elapsed_before = state.elapsed_seconds;
+  int64_t local_rays = 0, micro = 0;
+  // Device form.
+  std::unique_ptr<CudaStep> cuda;
+  torch::Tensor indices_dev;  // this step's ray indices on the device (the graph's input)
+  torch::Tensor figures_dev;  // [loss, mse_fine, found_inf] of the step (the graph's output)
+  double pending_lr = NAN;    // lr of the step whose figures are in flight
+  StepReport last;
+  // Time: seconds trained before this invocation, the clock of this one, the agreed elapsed.
+  double elapsed_before = 0;
+  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  double agreed_elapsed = 0;
+  // Hooks' bookkeeping.
   int64_t bad_in_a_row = 0, steps_this_run = 0;
   double loss_acc = 0, mse_fine_acc = 0;
   int64_t acc_steps = 0, rays_since_log = 0;
-  auto log_clock = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::time_point rate_clock = std::chrono::steady_clock::now();
   double rays_per_s = 0;
+  std::optional<Progress> progress;
 
-  if (!single && tc.time_budget_s > 0)
-    throw InputError(config.source, "train.time_budget_s",
-                     "not supported with several processes (ranks would disagree on the schedule)");
-  // Where the schedule stands: the step, or with a time budget the share of it already spent if
-  // that is further along (elapsed time counts across resumes).
-  const auto schedule_step = [&]() -> int64_t {
-    if (tc.time_budget_s <= 0) return state.step;
-    const double spent = (elapsed_before + progress.elapsed_seconds()) / tc.time_budget_s;
-    return std::max<int64_t>(state.step, static_cast<int64_t>(spent * static_cast<double>(tc.steps)));
+  double local_elapsed() const {
+    return elapsed_before + std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+};
+
+Trainer::Trainer(Config config, TrainOptions opts)
+    : config_(std::move(config)), opts_(std::move(opts)), s_(std::make_unique<State>()) {
+  s_->rank = opts_.dist ? opts_.dist->rank() : 0;
+  s_->world = opts_.dist ? opts_.dist->world_size() : 1;
+  s_->leader = s_->rank == 0;
+}
+
+Trainer::~Trainer() = default;
+
+AbleNerf& Trainer::model() { return s_->model; }
+int64_t Trainer::steps_done() const { return s_->state.step; }
+bool Trainer::device_form() const { return s_->cuda != nullptr; }
+bool Trainer::graph_captured() const { return s_->cuda && s_->cuda->captured(); }
+
+void Trainer::setup() {
+  auto& s = *s_;
+  // Run folder: new, or the one being resumed (whose config must match).
+  const bool have_ckpt = fs::exists(fs::path(opts_.out_dir) / "checkpoint.pt");
+  if (opts_.resume && have_ckpt) {
+    s.run = RunFolder::open(opts_.out_dir);
+    if (!opts_.data_dir.empty()) s.run.data_dir = opts_.data_dir;
+  } else {
+    if (!opts_.resume && have_ckpt)
+      throw InputError(opts_.out_dir, "checkpoint.pt",
+                       "the run folder already holds a run (use --resume to continue it, or another --out)");
+    if (opts_.data_dir.empty()) throw InputError("train", "--data", "required");
+    if (s.leader) {
+      s.run = RunFolder::create(opts_.out_dir, config_, opts_.data_dir);
+    } else {
+      s.run.dir = opts_.out_dir, s.run.config = config_, s.run.data_dir = opts_.data_dir;
+    }
+  }
+  if (s.run.data_dir.empty()) throw InputError(s.run.path("run.json"), "data", "missing: give --data");
+  if (s.leader) remove_stale_temporaries(s.run.dir);
+
+  // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
+  std::vector<std::string> want{"train"};
+  const auto present = available_splits(s.run.data_dir);
+  for (const char* name : {"val", "test"})
+    if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
+  if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
+  s.ds = Dataset::load(s.run.data_dir, load_options_for(config_, want));
+  if (!s.ds->has("train")) throw InputError(s.run.data_dir, "transforms_train.json", "the dataset has no train split");
+  if (!s.ds->has(s.held_out)) s.held_out.clear();
+
+  build(s.ds->split("train"), s.ds->intrinsics);
+  if (opts_.resume && have_ckpt) {
+    s.state = load_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim());
+    s.adam->from_checkpoint();
+    s.sampler->set_rng_state(s.state.rng_state);
+    s.elapsed_before = s.state.elapsed_seconds;
+    s.agreed_elapsed = s.elapsed_before;
+    if (s.leader) std::cerr << "train: resumed " << s.run.checkpoint_path() << " at step " << s.state.step << "\n";
+  }
+  if (opts_.dist) {
+    opts_.dist->broadcast_parameters(s.model);  // every rank starts from rank 0's weights
+    if (s.leader && !opts_.quiet) std::cerr << "train: data-parallel over a c10d group of " << s.world << " process(es)\n";
+  }
+}
+
+void Trainer::setup(const Split& train, const Intrinsics& k) { build(train, k); }
+
+void Trainer::build(const Split& train, const Intrinsics& k) {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  torch::manual_seed(static_cast<uint64_t>(tc.seed));
+  s.model = AbleNerf(config_.model);
+  s.model->to(opts_.device);
+  s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
+  s.model->train();
+  const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
+  s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form);
+  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed));
+  s.schedule.emplace(tc);
+  s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
+  s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
+  if (device_form) {
+    s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
+    const auto dev = torch::TensorOptions().device(opts_.device);
+    s.indices_dev = torch::zeros({s.local_rays}, dev.dtype(torch::kLong));
+    s.figures_dev = torch::zeros({3}, dev.dtype(torch::kFloat));
+  }
+  s.start = std::chrono::steady_clock::now();
+}
+
+// Where the schedule stands in [0, 1]: the share of steps done or, with a time budget, the share
+// of it already spent if that is further along (elapsed time counts across resumes).
+double Trainer::schedule_fraction() const {
+  const TrainConfig& tc = config_.train;
+  const double by_steps = tc.steps > 0 ? static_cast<double>(s_->state.step) / static_cast<double>(tc.steps) : 1.0;
+  if (tc.time_budget_s <= 0) return by_steps;
+  return std::max(by_steps, s_->agreed_elapsed / tc.time_budget_s);
+}
+
+int64_t Trainer::schedule_step() const {
+  const auto by_time = static_cast<int64_t>(schedule_fraction() * static_cast<double>(config_.train.steps));
+  return std::max<int64_t>(s_->state.step, by_time);
+}
+
+StepReport Trainer::step() {
+  auto& s = *s_;
+  if (!s.model) throw std::logic_error("Trainer::step before setup");
+  // The elapsed time the schedule follows: with several processes the group's mean, agreed in the
+  // step's all-reduce (host form), so that every rank takes the same decisions.
+  if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
+  const double lr = (*s.schedule)(schedule_step());
+  const TrainConfig& tc = config_.train;
+  // Every rank draws the same global batch from one identically seeded stream and keeps its slice.
+  const auto all = s.sampler->draw(tc.rays_per_step);
+  const int64_t begin = tc.rays_per_step * s.rank / s.world;
+  const auto indices = all.slice(0, begin, begin + s.local_rays);
+  StepReport r = s.cuda ? device_step(indices, lr) : host_step(indices, lr);
+  s.state.step++;
+  s.state.elapsed_seconds = s.local_elapsed();
+  return r;
+}
+
+StepReport Trainer::host_step(const torch::Tensor& indices, double lr) {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  s.adam->set_lr(lr);
+  s.adam->clear_grads();
+  const RayBatch batch = s.sampler->gather(indices);
+  const StepSums sums =
+      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, config_.data.near, config_.data.far);
+  StepReport r;
+  r.step = s.state.step + 1;
+  r.lr = lr;
+  r.loss = sums.loss.item<double>();
+  r.mse_fine = sums.mse_fine.item<double>();
+  if (opts_.dist) {
+    double stats[3] = {r.loss, r.mse_fine, s.local_elapsed() / static_cast<double>(s.world)};
+    opts_.dist->all_reduce_gradients(s.model, stats, 3);
+    r.loss = stats[0];
+    r.mse_fine = stats[1];
+    s.agreed_elapsed = stats[2];
+  }
+  r.finite = s.adam->step_host(r.loss);
+  if (!r.finite) s.adam->clear_grads();
+  s.last = r;
+  return r;
+}
+
+// The device work of one step, in stream order and without a host synchronisation: what the
+// CUDA graph captures.
+void Trainer::device_body() {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  const RayBatch batch = s.sampler->gather(s.indices_dev);
+  StepSums sums;
+  {
+    // One autocast scope around every micro-batch: each weight is cast to bf16 once per step.
+    const AutocastScope autocast(s.model->compute().precision, opts_.device);
+    sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, config_.data.near, config_.data.far);
+  }
+  s.adam->step_device(sums.loss);
+  torch::NoGradGuard no_grad;
+  s.figures_dev.copy_(torch::cat({sums.loss.reshape({1}).to(torch::kFloat), sums.mse_fine.reshape({1}).to(torch::kFloat),
+                                  s.adam->found_inf()}));
+}
+
+StepReport Trainer::device_step(const torch::Tensor& indices, double lr) {
+  auto& s = *s_;
+  s.cuda->upload(indices, s.indices_dev);
+  s.adam->set_lr(lr);
+  s.cuda->run([this] { device_body(); }, [this] { s_->adam->clear_grads(); });
+  // The previous step's figures (their copy was queued after that step), then this step's.
+  StepReport r;
+  if (auto f = s.cuda->take()) {
+    r.step = s.state.step;  // the previous step, 1-based
+    r.loss = (*f)[0];
+    r.mse_fine = (*f)[1];
+    r.finite = (*f)[2] == 0.0;
+    r.lr = s.pending_lr;
+    s.last = r;
+  }
+  s.cuda->queue(s.figures_dev);
+  s.pending_lr = lr;
+  return r;
+}
+
+StepReport Trainer::flush() {
+  auto& s = *s_;
+  if (!s.cuda) return s.last;
+  if (auto f = s.cuda->drain()) {
+    StepReport r;
+    r.step = s.state.step;
+    r.loss = (*f)[0];
+    r.mse_fine = (*f)[1];
+    r.finite = (*f)[2] == 0.0;
+    r.lr = s.pending_lr;
+    s.last = r;
+  }
+  return s.last;
+}
+
+void Trainer::save() {
+  auto& s = *s_;
+  if (!s.leader || s.run.dir.empty()) return;
+  flush();
+  s.adam->to_checkpoint();
+  s.state.rng_state = s.sampler->rng_state();
+  save_weights(s.model, s.run.weights_path());
+  save_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim(), s.state);
+}
+
+void Trainer::check_divergence(const StepReport& r) {
+  auto& s = *s_;
+  if (r.step < 0) return;
+  if (r.finite) {
+    s.bad_in_a_row = 0;
+    return;
+  }
+  ++s.bad_in_a_row;
+  if (s.leader)
+    std::cerr << "\ntrain: step " << r.step << ": non-finite loss or gradient, step skipped (" << s.bad_in_a_row
+              << " in a row)\n";
+  if (s.bad_in_a_row >= config_.train.max_bad_steps)
+    throw TrainingDiverged("training diverged: " + std::to_string(s.bad_in_a_row) +
+                           " consecutive non-finite steps at step " + std::to_string(r.step) + "; the last checkpoint (" +
+                           s.run.checkpoint_path() + ") is intact. Lower train.lr_init or check the data.");
+}
+
+void Trainer::log_step(const StepReport& r) {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  if (!s.leader || r.step < 0 || !r.finite) return;
+  s.loss_acc += r.loss;
+  s.mse_fine_acc += r.mse_fine;
+  s.acc_steps++;
+  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - s.rate_clock).count();
+  if (secs > kRateWindowS) {
+    s.rays_per_s = static_cast<double>(s.rays_since_log) / secs;
+    s.rays_since_log = 0;
+    s.rate_clock = std::chrono::steady_clock::now();
+  }
+  if (!opts_.quiet && s.progress) {
+    char fields[160];
+    std::snprintf(fields, sizeof fields, "loss %.5f psnr %.2f lr %.2e %.0f rays/s", r.loss, psnr_from_mse(r.mse_fine),
+                  r.lr, s.rays_per_s);
+    s.progress->update(s.state.step, fields, false, schedule_fraction());
+  }
+  if (r.step % tc.log_every == 0 || r.step == tc.steps) {
+    log_line(s.run.log_path(), {{"type", "train"},
+                                {"step", r.step},
+                                {"loss", s.loss_acc / static_cast<double>(s.acc_steps)},
+                                {"psnr", psnr_from_mse(s.mse_fine_acc / static_cast<double>(s.acc_steps))},
+                                {"lr", r.lr},
+                                {"rays_per_s", s.rays_per_s},
+                                {"elapsed_s", s.state.elapsed_seconds}});
+    s.loss_acc = s.mse_fine_acc = 0;
+    s.acc_steps = 0;
+  }
+}
+
+// Mean PSNR of the fine colour on the first train.eval_views images of the held-out split.
+void Trainer::held_out_check() {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  if (!s.leader || tc.eval_every <= 0 || s.held_out.empty()) return;
+  if (s.state.step % tc.eval_every != 0 && s.state.step != tc.steps) return;
+  flush();
+  const Split& split = s.ds->split(s.held_out);
+  s.model->eval();
+  double sum = 0;
+  const int64_t n = std::min<int64_t>(tc.eval_views, split.size());
+  for (int64_t i = 0; i < n; ++i) {
+    RenderResult img = render_image(s.model, split.c2w[i], s.ds->intrinsics, config_.data.near, config_.data.far,
+                                    config_.eval.chunk, {}, opts_.device);
+    sum += psnr(img.rgb.cpu(), split.images[i]);
+  }
+  s.model->train();
+  const double p = n > 0 ? sum / static_cast<double>(n) : NAN;
+  log_line(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
+                              {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
+  if (!opts_.quiet) std::cerr << "\ntrain: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB\n";
+}
+
+TrainResult Trainer::run() {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  s.progress.emplace("train", tc.steps, kProgressIntervalS);
+  const auto this_run_seconds = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - s.start).count();
   };
-
-  while (state.step < tc.steps) {
-    if (schedule_step() >= tc.steps) {
-      if (leader && !opts.quiet)
-        std::cerr << "\ntrain: time budget of " << tc.time_budget_s << " s spent at step " << state.step << "\n";
+  while (s.state.step < tc.steps) {
+    if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
+    if (tc.time_budget_s > 0 && schedule_fraction() >= 1.0) {
+      if (s.leader && !opts_.quiet)
+        std::cerr << "\ntrain: time budget of " << tc.time_budget_s << " s spent at step " << s.state.step << "\n";
       break;
     }
     if (g_interrupt.load()) {
       save();
-      if (leader) std::cerr << "\ntrain: interrupted; checkpoint saved at step " << state.step << "\n";
+      if (s.leader) std::cerr << "\ntrain: interrupted; checkpoint saved at step " << s.state.step << "\n";
       return TrainResult::Interrupted;
     }
-    const bool step_limit = opts.max_steps_this_run >= 0 && steps_this_run >= opts.max_steps_this_run;
-    const bool time_limit = opts.time_limit_s > 0 && progress.elapsed_seconds() >= opts.time_limit_s;
+    const bool step_limit = opts_.max_steps_this_run >= 0 && s.steps_this_run >= opts_.max_steps_this_run;
+    // With several processes the agreed clock decides, so every rank stops at the same step.
+    const double limit_clock = opts_.dist ? s.agreed_elapsed - s.elapsed_before : this_run_seconds();
+    const bool time_limit = opts_.time_limit_s > 0 && limit_clock >= opts_.time_limit_s;
     if (step_limit || time_limit) {
       save();
-      if (time_limit && leader && !opts.quiet)
-        std::cerr << "\ntrain: time limit reached at step " << state.step << "; checkpoint saved (--resume continues)\n";
+      if (time_limit && s.leader && !opts_.quiet)
+        std::cerr << "\ntrain: time limit reached at step " << s.state.step << "; checkpoint saved (--resume continues)\n";
       return TrainResult::StoppedEarly;
     }
-    const double lr = schedule(schedule_step());
-    for (auto& g : optim.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
-
-    RayBatch batch = sampler.next(tc.rays_per_step, rank, world);
-    optim.zero_grad();
-    const StepSums sums =
-        accumulate_gradients(model, batch, micro, tc, tc.rays_per_step, config.data.near, config.data.far);
-    double step_loss = sums.loss, step_mse_fine = sums.mse_fine;
-    if (!single) {
-      double stats[2] = {step_loss, step_mse_fine};
-      opts.dist->all_reduce_gradients(model, stats, 2);
-      step_loss = stats[0];
-      step_mse_fine = stats[1];
-    }
-    const bool finite = std::isfinite(step_loss) && gradients_finite(model);
-    if (!finite) {
-      ++bad_in_a_row;
-      optim.zero_grad();
-      if (leader)
-        std::cerr << "\ntrain: step " << state.step << ": non-finite loss or gradient, step skipped (" << bad_in_a_row
-                  << " in a row)\n";
-      if (bad_in_a_row >= tc.max_bad_steps)
-        throw TrainingDiverged("training diverged: " + std::to_string(bad_in_a_row) +
-                               " consecutive non-finite steps at step " + std::to_string(state.step) +
-                               "; the last checkpoint (" + run.checkpoint_path() +
-                               ") is intact. Lower train.lr_init or check the data.");
-      state.step++;  // keep the schedule and the ray stream aligned with an uninterrupted run
-      continue;
-    }
-    bad_in_a_row = 0;
-    optim.step();
-    state.step++;
-    steps_this_run++;
-    loss_acc += step_loss;
-    mse_fine_acc += step_mse_fine;
-    acc_steps++;
-    rays_since_log += tc.rays_per_step;
-
-    const double now_elapsed = elapsed_before + progress.elapsed_seconds();
-    state.elapsed_seconds = now_elapsed;
-    if (leader) {
-      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - log_clock).count();
-      if (secs > 0.5) {
-        rays_per_s = static_cast<double>(rays_since_log) / secs;
-        rays_since_log = 0;
-        log_clock = std::chrono::steady_clock::now();
-      }
-      char fields[160];
-      std::snprintf(fields, sizeof fields, "loss %.5f psnr %.2f lr %.2e %.0f rays/s", step_loss,
-                    mse_to_psnr(step_mse_fine), lr, rays_per_s);
-      if (!opts.quiet) progress.update(state.step, fields);
-      if (state.step % tc.log_every == 0 || state.step == tc.steps) {
-        nlohmann::json j{{"type", "train"},
-                         {"step", state.step},
-                         {"loss", loss_acc / static_cast<double>(acc_steps)},
-                         {"psnr", mse_to_psnr(mse_fine_acc / static_cast<double>(acc_steps))},
-                         {"lr", lr},
-                         {"rays_per_s", rays_per_s},
-                         {"elapsed_s", now_elapsed}};
-        log_line(run.log_path(), j);
-        loss_acc = mse_fine_acc = 0;
-        acc_steps = 0;
-      }
-      if (tc.eval_every > 0 && !held_out.empty() && (state.step % tc.eval_every == 0 || state.step == tc.steps)) {
-        const double p = held_out_psnr(model, ds.split(held_out), ds.intrinsics, config, tc.eval_views, opts.device);
-        log_line(run.log_path(), {{"type", "eval"}, {"step", state.step}, {"psnr", p}, {"views", tc.eval_views},
-                                  {"split", held_out}, {"elapsed_s", now_elapsed}});
-        if (!opts.quiet) std::cerr << (progress.elapsed_seconds() > 0 ? "\n" : "") << "train: step " << state.step
-                                   << " held-out " << held_out << " PSNR " << p << " dB\n";
-      }
-    }
-    if (tc.ckpt_every > 0 && state.step % tc.ckpt_every == 0 && state.step < tc.steps) save();
+    const StepReport r = step();
+    s.steps_this_run++;
+    s.rays_since_log += tc.rays_per_step;
+    check_divergence(r);
+    log_step(r);
+    held_out_check();
+    if (tc.ckpt_every > 0 && s.state.step % tc.ckpt_every == 0 && s.state.step < tc.steps) save();
+  }
+  const StepReport last = flush();
+  if (s.cuda) {
+    check_divergence(last);
+    log_step(last);
   }
   save();
-  if (leader && !opts.quiet) progress.finish("done");
+  if (s.leader && !opts_.quiet) s.progress->finish("done");
   return TrainResult::Finished;
+}
+
+TrainResult train(const Config& config, const TrainOptions& opts) {
+  Trainer t(config, opts);
+  t.setup();
+  return t.run();
 }
 
 }  // namespace ablenerf

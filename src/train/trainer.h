@@ -1,10 +1,27 @@
 #pragma once
-// `ablenerf train`: the training loop of spec section 8 on one process or a data-parallel group.
+// `ablenerf train`: the training loop of spec section 8 on one process or a data-parallel group,
+// as a class of small steps (setup, step, and the hooks of run()).
+//
+// One optimiser step (Trainer::step) is the one training-step implementation of the project:
+// the CLI's training loop and `ablenerf bench` both call it. It has two forms over the same work:
+//  - host form (the CPU, or several processes): draw rays, forward and backward over
+//    micro-batches, all-reduce gradients between processes, a finite check, the Adam update;
+//    the step's loss is known when step() returns;
+//  - device form (one CUDA process, LibTorch >= 2): the same work queued on the GPU without any
+//    host synchronisation (ray indices drawn on the host and uploaded asynchronously, the rays
+//    gathered on the device, the finite check and a fused Adam on the device), captured once as a
+//    CUDA graph and replayed (train.graph = true), or run eagerly; the step's figures are read one
+//    step late.
 #include <torch/torch.h>
 
+#include <cmath>
 #include <cstdint>
+#include <memory>
+#include <optional>
 #include <string>
 
+#include "data/dataset.h"
+#include "model/able_nerf.h"
 #include "util/config.h"
 
 namespace ablenerf {
@@ -26,7 +43,7 @@ struct TrainOptions {
   Distributed* dist = nullptr;  // null = one process
 };
 
-// The outcome of a call to train().
+// The outcome of a call to Trainer::run().
 enum class TrainResult { Finished, Interrupted, StoppedEarly };
 
 // Thrown when too many consecutive steps had a non-finite loss or gradient: the run stops and
@@ -39,6 +56,66 @@ class TrainingDiverged : public std::runtime_error {
 // Exit code of the CLI for TrainingDiverged.
 constexpr int kExitDiverged = 3;
 
+// What a step reports. In the device form the figures are those of the previous step (read one
+// step late): `step` says which step they belong to, -1 when there is none yet.
+struct StepReport {
+  int64_t step = -1;  // 1-based index of the optimiser step these figures belong to
+  double loss = NAN;
+  double mse_fine = NAN;
+  bool finite = true;  // false: the update of that step was skipped
+  double lr = NAN;
+};
+
+class Trainer {
+ public:
+  Trainer(Config config, TrainOptions opts);
+  ~Trainer();
+  Trainer(const Trainer&) = delete;
+  Trainer& operator=(const Trainer&) = delete;
+
+  // Opens or creates the run folder, loads the data, builds the model and optimiser, resumes
+  // from the checkpoint with opts.resume.
+  void setup();
+  // The same on an in-memory training split, with no run folder (nothing is read or written):
+  // what `ablenerf bench` measures.
+  void setup(const Split& train, const Intrinsics& k);
+
+  // One optimiser step on one global batch: draw rays, forward, loss, backward over micro-batches,
+  // all-reduce (several processes), finite check, update. No logging and no I/O.
+  StepReport step();
+  // Waits for the device work in flight and returns the figures of the last step (device form;
+  // the host form returns the last report again).
+  StepReport flush();
+
+  // Steps until the schedule (or its time budget) is done, with the hooks: progress and log
+  // lines, held-out PSNR, checkpoints, time limits, Ctrl-C. Returns how it ended.
+  TrainResult run();
+
+  AbleNerf& model();
+  int64_t steps_done() const;
+  bool device_form() const;
+  bool graph_captured() const;
+
+ private:
+  struct State;
+  void build(const Split& train, const Intrinsics& k);
+  double schedule_fraction() const;
+  int64_t schedule_step() const;
+  StepReport host_step(const torch::Tensor& indices, double lr);
+  StepReport device_step(const torch::Tensor& indices, double lr);
+  void device_body();
+  // Hooks of run().
+  void save();
+  void log_step(const StepReport& r);
+  void held_out_check();
+  void check_divergence(const StepReport& r);
+
+  Config config_;
+  TrainOptions opts_;
+  std::unique_ptr<State> s_;
+};
+
+// Trainer(config, opts), setup(), run().
 TrainResult train(const Config& config, const TrainOptions& opts);
 
 // Installs SIGINT/SIGTERM handlers that ask the training loop to checkpoint and stop.

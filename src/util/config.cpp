@@ -15,9 +15,37 @@
 
 namespace ablenerf {
 
+template <>
+const std::vector<std::pair<AttentionKernel, const char*>>& enum_names<AttentionKernel>() {
+  static const std::vector<std::pair<AttentionKernel, const char*>> t{{AttentionKernel::Fused, "fused"},
+                                                                       {AttentionKernel::Plain, "plain"}};
+  return t;
+}
+template <>
+const std::vector<std::pair<Precision, const char*>>& enum_names<Precision>() {
+  static const std::vector<std::pair<Precision, const char*>> t{{Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}};
+  return t;
+}
+template <>
+const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>() {
+  static const std::vector<std::pair<CpuSplit, const char*>> t{{CpuSplit::Rays, "rays"}, {CpuSplit::Ops, "ops"}};
+  return t;
+}
+
 namespace {
 
-using FieldRef = std::variant<int*, int64_t*, double*, bool*, std::string*>;
+using FieldRef =
+    std::variant<int*, int64_t*, double*, bool*, std::string*, AttentionKernel*, Precision*, CpuSplit*>;
+
+// "must be \"a\" or \"b\"" from an enum's name table.
+template <class E>
+std::string allowed_names() {
+  std::string s;
+  const auto& t = enum_names<E>();
+  for (size_t i = 0; i < t.size(); ++i)
+    s += std::string(i == 0 ? "" : (i + 1 == t.size() ? " or " : ", ")) + "\"" + t[i].second + "\"";
+  return "must be " + s;
+}
 
 // The schema: every key of the config, once.
 template <typename C, typename F>
@@ -56,6 +84,7 @@ void visit_fields(C& c, F&& f) {
   f("train.ckpt_every", &c.train.ckpt_every);
   f("train.max_bad_steps", &c.train.max_bad_steps);
   f("train.time_budget_s", &c.train.time_budget_s);
+  f("train.graph", &c.train.graph);
   f("eval.chunk", &c.eval.chunk);
   f("eval.ssim", &c.eval.ssim);
   f("compute.precision", &c.compute.precision);
@@ -85,6 +114,7 @@ std::string value_string(const FieldRef& ref) {
         if constexpr (std::is_same_v<T, bool>) return *p ? "true" : "false";
         else if constexpr (std::is_same_v<T, double>) return format_double(*p);
         else if constexpr (std::is_same_v<T, std::string>) return "\"" + *p + "\"";
+        else if constexpr (std::is_enum_v<T>) return std::string("\"") + name_of(*p) + "\"";
         else return std::to_string(*p);
       },
       ref);
@@ -102,6 +132,10 @@ void set_from_node(const FieldRef& ref, const toml::node& node, const std::strin
         } else if constexpr (std::is_same_v<T, std::string>) {
           if (!node.is_string()) throw InputError(file, key, "expected a string");
           *p = node.as_string()->get();
+        } else if constexpr (std::is_enum_v<T>) {
+          const auto v = node.is_string() ? enum_from_name<T>(node.as_string()->get()) : std::nullopt;
+          if (!v) throw InputError(file, key, allowed_names<T>());
+          *p = *v;
         } else if constexpr (std::is_same_v<T, double>) {
           if (node.is_floating_point()) *p = node.as_floating_point()->get();
           else if (node.is_integer()) *p = static_cast<double>(node.as_integer()->get());
@@ -162,7 +196,9 @@ void Config::set(const std::string& assignment) {
   auto it = fields.find(key);
   if (it == fields.end()) throw InputError("--set", key, "unknown key");
   // Strings may be given bare (--set data.background=black).
-  const bool is_string = std::holds_alternative<std::string*>(it->second);
+  const bool is_string = std::visit(
+      [](auto* p) { using T = std::remove_pointer_t<decltype(p)>; return std::is_same_v<T, std::string> || std::is_enum_v<T>; },
+      it->second);
   std::string doc = "v = " + ((is_string && (value.empty() || value[0] != '"')) ? "\"" + value + "\"" : value);
   toml::table tbl;
   try {
@@ -212,12 +248,6 @@ void Config::validate() const {
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
   need(eval.ssim == "standard" || eval.ssim == "release", "eval.ssim",
        "must be \"standard\" or \"release\"");
-  need(compute.precision == "fp32" || compute.precision == "bf16", "compute.precision",
-       "must be \"fp32\" or \"bf16\"");
-  need(compute.attention == "fused" || compute.attention == "plain", "compute.attention",
-       "must be \"fused\" or \"plain\"");
-  need(compute.cpu_split == "rays" || compute.cpu_split == "ops", "compute.cpu_split",
-       "must be \"rays\" or \"ops\"");
 }
 
 std::vector<std::pair<std::string, std::string>> Config::items() const {

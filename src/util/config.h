@@ -3,10 +3,39 @@
 // visitor in config.cpp), is read from TOML, can be overridden as `--set section.key=value`,
 // and is written back as the run's resolved config. Unknown keys are errors.
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace ablenerf {
+
+// How the model's arithmetic runs (model/compute.h). Never changes what is computed beyond rounding.
+enum class AttentionKernel { Fused, Plain };
+enum class Precision { Fp32, Bf16 };
+enum class CpuSplit { Rays, Ops };
+
+// The names of an enum's values, one table per enum (config files, --set, logs, bench reports).
+template <class E>
+const std::vector<std::pair<E, const char*>>& enum_names();
+template <>
+const std::vector<std::pair<AttentionKernel, const char*>>& enum_names<AttentionKernel>();
+template <>
+const std::vector<std::pair<Precision, const char*>>& enum_names<Precision>();
+template <>
+const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>();
+template <class E>
+const char* name_of(E value) {
+  for (const auto& [v, n] : enum_names<E>())
+    if (v == value) return n;
+  return "?";
+}
+template <class E>
+std::optional<E> enum_from_name(const std::string& name) {
+  for (const auto& [v, n] : enum_names<E>())
+    if (name == n) return v;
+  return std::nullopt;
+}
 
 struct ModelConfig {
   int width = 192;           // token width d
@@ -50,8 +79,12 @@ struct TrainConfig {
   int64_t max_bad_steps = 5;     // consecutive non-finite losses before the run stops
   // Wall-clock budget in seconds (0 = none). With one, the learning-rate schedule advances by
   // whichever is further along, steps or time, and training ends when either runs out, so a run
-  // finishes in its budget on a slow machine with its schedule complete. Single process only.
+  // finishes in its budget on a slow machine with its schedule complete. With several processes
+  // the ranks agree on the elapsed time (the mean over the group, every step).
   double time_budget_s = 0;
+  // On CUDA (one process, LibTorch >= 2): capture the training step as one CUDA graph and replay
+  // it (false: the same device step, run eagerly). Ignored elsewhere.
+  bool graph = true;
 };
 
 struct EvalConfig {
@@ -61,11 +94,13 @@ struct EvalConfig {
 
 // How the arithmetic runs (model/compute.h); never changes what is computed beyond rounding.
 struct ComputeConfig {
-  std::string precision = "fp32";  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
-  std::string attention = "fused"; // "fused" (CPU: packed BLAS kernel; CUDA: SDPA, LibTorch >= 2) | "plain" (explicit softmax)
+  Precision precision = Precision::Fp32;  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
+  // "fused" (CPU: packed BLAS kernel; CUDA: the project's ray-attention kernel where it applies,
+  // else SDPA) | "plain" (explicit softmax)
+  AttentionKernel attention = AttentionKernel::Fused;
   // CPU threads: "rays" = each thread runs a slice of the rays through the whole model with
   // single-threaded BLAS; "ops" = one ray batch, threads only inside the libraries' ops.
-  std::string cpu_split = "rays";
+  CpuSplit cpu_split = CpuSplit::Rays;
 };
 
 struct Config {

@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -30,8 +31,9 @@ std::string Progress::format_duration(double s) {
   return buf;
 }
 
-void Progress::update(int64_t done, const std::string& fields, bool force) {
+void Progress::update(int64_t done, const std::string& fields, bool force, double fraction) {
   if (start_done_ < 0) start_done_ = done;  // a resumed run starts counting from where it is
+  if (fraction >= 0 && start_fraction_ < 0) start_fraction_ = fraction;
   const auto now = std::chrono::steady_clock::now();
   const double since = std::chrono::duration<double>(now - last_print_).count();
   const double interval = tty_ ? 0.25 : min_interval_;
@@ -39,8 +41,14 @@ void Progress::update(int64_t done, const std::string& fields, bool force) {
   last_print_ = now;
   const double el = elapsed_seconds();
   const double rate = el > 0 ? static_cast<double>(done - start_done_) / el : 0.0;
-  const double eta = rate > 0 ? static_cast<double>(total_ - done) / rate : NAN;
-  const double pct = total_ > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total_) : 100.0;
+  double eta = rate > 0 ? static_cast<double>(total_ - done) / rate : NAN;
+  double pct = total_ > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total_) : 100.0;
+  if (fraction >= 0) {
+    const double f = std::min(fraction, 1.0);
+    const double frate = el > 0 ? (f - start_fraction_) / el : 0.0;
+    pct = 100.0 * f;
+    eta = frate > 0 ? (1.0 - f) / frate : NAN;
+  }
   std::fprintf(stderr, "%s%s %lld/%lld (%.1f%%) %s elapsed %s ETA %s%s", tty_ ? "\r\033[K" : "", label_.c_str(),
                static_cast<long long>(done), static_cast<long long>(total_), pct, fields.c_str(),
                format_duration(el).c_str(), format_duration(eta).c_str(), tty_ ? "" : "\n");

@@ -201,9 +201,11 @@ TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
   torch::NoGradGuard no_grad;
   ForwardOptions opts;
   opts.branches = true;
-  set_cpu_split(CpuSplit::Ops);
+  Compute ops;
+  ops.cpu_split = CpuSplit::Ops;
+  model->set_compute(ops);
   const auto one = model->forward(rays, 2.0, 6.0, opts);
-  set_cpu_split(CpuSplit::Rays);
+  model->set_compute(Compute{});
   const auto split = model->forward(rays, 2.0, 6.0, opts);
   for (const auto& [a, c, what] : {std::make_tuple(one.rgb_fine, split.rgb_fine, "rgb_fine"),
                                    std::make_tuple(one.rgb_coarse, split.rgb_coarse, "rgb_coarse"),

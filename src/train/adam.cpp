@@ -1,0 +1,137 @@
+#include "train/adam.h"
+
+#include <torch/version.h>
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+
+namespace ablenerf {
+
+namespace {
+constexpr double kBeta1 = 0.9, kBeta2 = 0.999, kEps = 1e-8, kWeightDecay = 0.0;
+#if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
+constexpr bool kDeviceFormCompiled = true;
+#else
+constexpr bool kDeviceFormCompiled = false;
+#endif
+// The key torch::optim keeps a parameter's state under (a string in LibTorch 1.x, a pointer in 2.x).
+template <class Map>
+typename Map::key_type state_key(const Map&, const torch::Tensor& p) {
+  if constexpr (std::is_same_v<typename Map::key_type, std::string>) {
+    std::ostringstream os;  // what LibTorch 1.x writes: the TensorImpl's address
+    os << p.unsafeGetTensorImpl();
+    return os.str();
+  } else {
+    return static_cast<typename Map::key_type>(p.unsafeGetTensorImpl());
+  }
+}
+
+template <class Map>
+torch::optim::AdamParamState& adam_state(Map& state, const torch::Tensor& p) {
+  return static_cast<torch::optim::AdamParamState&>(*state.at(state_key(state, p)));
+}
+
+}  // namespace
+
+bool Adam::device_form_available(const torch::Device& device) { return kDeviceFormCompiled && device.is_cuda(); }
+
+Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form)
+    : params_(std::move(params)),
+      optim_(params_, torch::optim::AdamOptions(lr).betas({kBeta1, kBeta2}).eps(kEps).weight_decay(kWeightDecay)),
+      device_form_(device_form) {
+  if (!device_form_) return;
+  if (params_.empty() || !device_form_available(params_.front().device()))
+    throw std::invalid_argument("the device form of Adam needs CUDA parameters and a CUDA LibTorch >= 2");
+  const auto dev = params_.front().device();
+  const auto f32 = torch::TensorOptions().dtype(torch::kFloat).device(dev);
+  step_ = torch::zeros({}, f32);
+  lr_ = torch::full({}, lr, f32);
+  found_inf_ = torch::zeros({1}, f32);
+  // The per-parameter state torch::optim::Adam would create on its first step, created now so
+  // that the kernel and checkpoints share the same tensors.
+  for (auto& p : params_) {
+    auto st = std::make_unique<torch::optim::AdamParamState>();
+    st->step(0);
+    st->exp_avg(torch::zeros_like(p, torch::MemoryFormat::Preserve));
+    st->exp_avg_sq(torch::zeros_like(p, torch::MemoryFormat::Preserve));
+    optim_.state()[state_key(optim_.state(), p)] = std::move(st);
+  }
+  bind_state();
+}
+
+void Adam::bind_state() {
+  exp_avg_.clear();
+  exp_avg_sq_.clear();
+  int64_t step = 0;
+  for (auto& p : params_) {
+    auto& st = adam_state(optim_.state(), p);
+    exp_avg_.push_back(st.exp_avg());
+    exp_avg_sq_.push_back(st.exp_avg_sq());
+    step = st.step();
+  }
+  torch::NoGradGuard no_grad;
+  step_.fill_(static_cast<double>(step));
+}
+
+void Adam::set_lr(double lr) {
+  if (device_form_) {
+    lr_.fill_(lr);
+    return;
+  }
+  for (auto& g : optim_.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).lr(lr);
+}
+
+void Adam::clear_grads() {
+  for (auto& p : params_) p.mutable_grad() = torch::Tensor();
+}
+
+bool Adam::step_host(double loss) {
+  if (!std::isfinite(loss)) return false;
+  std::vector<torch::Tensor> norms;
+  for (const auto& p : params_)
+    if (p.grad().defined()) norms.push_back(p.grad().abs().max());
+  if (!norms.empty() && !torch::stack(norms).isfinite().all().item<bool>()) return false;
+  optim_.step();
+  return true;
+}
+
+void Adam::step_device(const torch::Tensor& loss) {
+#if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
+  torch::NoGradGuard no_grad;
+  std::vector<torch::Tensor> params, grads, exp_avg, exp_avg_sq;
+  for (size_t i = 0; i < params_.size(); ++i) {
+    if (!params_[i].grad().defined()) continue;  // an unused parameter keeps its state
+    params.push_back(params_[i]);
+    grads.push_back(params_[i].grad());
+    exp_avg.push_back(exp_avg_[i]);
+    exp_avg_sq.push_back(exp_avg_sq_[i]);
+  }
+  // found_inf = 1 when the loss or any gradient is not finite (inv_scale 1 leaves them as they are).
+  found_inf_.copy_((~torch::isfinite(loss.detach().to(torch::kFloat))).to(torch::kFloat).reshape({1}));
+  at::_amp_foreach_non_finite_check_and_unscale_(grads, found_inf_, torch::ones({}, found_inf_.options()));
+  // The kernel reads the step count after it is advanced, and does not advance it itself; a
+  // skipped step leaves it where it was.
+  step_.add_(1.0 - found_inf_.squeeze(0));
+  const std::vector<torch::Tensor> steps(params.size(), step_);
+  at::_fused_adam_(params, grads, exp_avg, exp_avg_sq, /*max_exp_avg_sqs=*/{}, steps, lr_, kBeta1, kBeta2,
+                   kWeightDecay, kEps, /*amsgrad=*/false, /*maximize=*/false, /*grad_scale=*/std::nullopt, found_inf_);
+#else
+  (void)loss;
+  throw std::logic_error("Adam::step_device: not compiled in (needs a CUDA LibTorch >= 2)");
+#endif
+}
+
+void Adam::to_checkpoint() {
+  if (!device_form_) return;
+  const auto step = static_cast<int64_t>(std::llround(step_.item<double>()));
+  for (auto& p : params_) adam_state(optim_.state(), p).step(step);
+}
+
+void Adam::from_checkpoint() {
+  if (device_form_) bind_state();
+}
+
+}  // namespace ablenerf

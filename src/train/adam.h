@@ -1,0 +1,58 @@
+#pragma once
+// The optimiser of a training step: Adam with betas (0.9, 0.999), eps 1e-8, no weight decay
+// (spec 8), in one of two forms over one state:
+//  - host form (any device, any LibTorch): torch::optim::Adam; the learning rate and step count
+//    live on the host, and a step whose loss or gradients are not finite is skipped by a check
+//    that synchronises with the device;
+//  - device form (CUDA, LibTorch >= 2): one multi-tensor kernel (at::_fused_adam_) that reads the
+//    learning rate and the step count from device memory, after an on-device finite check
+//    (found_inf) that makes the kernel skip the update and leaves the step count alone. Nothing
+//    in it synchronises with the host, so it can run inside a CUDA graph.
+// Checkpoints always save and load the torch::optim::Adam (optim()); the device form copies its
+// step count there before a save (to_checkpoint) and rebinds its state after a load
+// (from_checkpoint), so a resumed run continues exactly.
+#include <torch/torch.h>
+
+#include <memory>
+#include <vector>
+
+namespace ablenerf {
+
+class Adam {
+ public:
+  Adam(std::vector<torch::Tensor> params, double lr, bool device_form);
+
+  // True when the device form is available here (CUDA parameters, LibTorch >= 2 with CUDA).
+  static bool device_form_available(const torch::Device& device);
+
+  bool device_form() const { return device_form_; }
+  torch::optim::Adam& optim() { return optim_; }
+
+  void set_lr(double lr);      // host form: the options; device form: an asynchronous fill
+  void clear_grads();          // every .grad undefined (the next backward writes fresh buffers)
+
+  // Host form: when `loss` and every gradient are finite, updates and returns true; otherwise
+  // returns false without updating (the caller clears the gradients).
+  bool step_host(double loss);
+
+  // Device form: sets found_inf() to 1 when `loss` or a gradient is not finite, else 0, then
+  // updates unless it is 1. Capturable.
+  void step_device(const torch::Tensor& loss);
+  const torch::Tensor& found_inf() const { return found_inf_; }
+
+  void to_checkpoint();    // device form: the step count into optim()'s per-parameter state
+  void from_checkpoint();  // device form: rebind the state tensors optim() holds after a load
+
+ private:
+  void bind_state();
+
+  std::vector<torch::Tensor> params_;
+  torch::optim::Adam optim_;
+  bool device_form_;
+  // Device form: the state the kernel updates (the same tensors optim_ holds), one step count
+  // shared by every parameter, the learning rate and the finite flag, all on the device.
+  std::vector<torch::Tensor> exp_avg_, exp_avg_sq_;
+  torch::Tensor step_, lr_, found_inf_;
+};
+
+}  // namespace ablenerf

@@ -1,0 +1,110 @@
+// The device form of the training step on a GPU (skipped without CUDA): a CUDA graph replaying
+// the step gives the weights of the same step run eagerly; the device Adam skips a non-finite
+// step without touching weights or its step count; a resumed device-form run ends with the
+// weights of an uninterrupted one.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include "train/adam.h"
+#include "train/trainer.h"
+#include "train_fixture.h"
+
+using namespace ablenerf;
+
+namespace {
+
+bool have_gpu() { return torch::cuda::is_available() && Adam::device_form_available(torch::Device(torch::kCUDA, 0)); }
+
+TrainOptions gpu_options(const std::string& out) {
+  TrainOptions o;
+  o.data_dir = test::tiny_dataset();
+  o.out_dir = out;
+  o.quiet = true;
+  o.device = torch::Device(torch::kCUDA, 0);
+  return o;
+}
+
+double max_weight_difference(AbleNerf& a, AbleNerf& b) {
+  double worst = 0;
+  const auto pa = a->parameters(), pb = b->parameters();
+  for (size_t i = 0; i < pa.size(); ++i) worst = std::max(worst, (pa[i] - pb[i]).abs().max().item<double>());
+  return worst;
+}
+
+}  // namespace
+
+TEST(TrainerGpu, GraphEqualsEager) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  Config c = test::tiny_config();
+  c.set("train.steps=12");
+  test::TempDir t;
+  Config eager_cfg = c, graph_cfg = c;
+  eager_cfg.set("train.graph=false");
+  graph_cfg.set("train.graph=true");
+  Trainer eager(eager_cfg, gpu_options(t / "eager"));
+  Trainer graph(graph_cfg, gpu_options(t / "graph"));
+  eager.setup();
+  graph.setup();
+  ASSERT_TRUE(eager.device_form());
+  ASSERT_TRUE(graph.device_form());
+  for (int i = 0; i < 12; ++i) {
+    eager.step();
+    graph.step();
+  }
+  const StepReport re = eager.flush(), rg = graph.flush();
+  EXPECT_TRUE(graph.graph_captured());
+  EXPECT_FALSE(eager.graph_captured());
+  EXPECT_EQ(re.step, 12);
+  EXPECT_EQ(rg.step, 12);
+  EXPECT_NEAR(re.loss, rg.loss, 1e-5 * std::abs(re.loss));
+  EXPECT_LT(max_weight_difference(eager.model(), graph.model()), 1e-5);
+  // And the weights did move.
+  torch::manual_seed(static_cast<uint64_t>(c.train.seed));
+  AbleNerf init(c.model);
+  init->to(torch::Device(torch::kCUDA, 0));
+  EXPECT_GT(max_weight_difference(init, graph.model()), 1e-4);
+}
+
+TEST(TrainerGpu, DeviceAdamSkipsNonFiniteSteps) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  const auto dev = torch::TensorOptions().device(torch::kCUDA, 0);
+  auto w = torch::ones({4}, dev).requires_grad_(true);
+  Adam adam({w}, 0.1, /*device_form=*/true);
+  w.mutable_grad() = torch::tensor({1.f, -1.f, 2.f, 0.5f}, dev);
+  adam.step_device(torch::zeros({}, dev));
+  EXPECT_EQ(adam.found_inf().item<float>(), 0.f);
+  // First Adam step: each weight moves by lr against the sign of its gradient.
+  EXPECT_TRUE(torch::allclose(w.detach().cpu(), torch::tensor({0.9f, 1.1f, 0.9f, 0.9f}), 0, 1e-6));
+  const auto after_one = w.detach().clone();
+  w.mutable_grad() = torch::tensor({1.f, NAN, 2.f, 0.5f}, dev);
+  adam.step_device(torch::zeros({}, dev));
+  EXPECT_EQ(adam.found_inf().item<float>(), 1.f);
+  EXPECT_TRUE(torch::equal(w.detach(), after_one));
+  w.mutable_grad() = torch::tensor({1.f, 1.f, 1.f, 1.f}, dev);
+  adam.step_device(torch::full({}, INFINITY, dev));  // a non-finite loss alone skips too
+  EXPECT_EQ(adam.found_inf().item<float>(), 1.f);
+  EXPECT_TRUE(torch::equal(w.detach(), after_one));
+  adam.to_checkpoint();
+  const auto& st = adam.optim().state();
+  ASSERT_EQ(st.size(), 1u);
+  EXPECT_EQ(static_cast<torch::optim::AdamParamState&>(*st.begin()->second).step(), 1);  // skips not counted
+}
+
+TEST(TrainerGpu, ResumeEqualsUninterrupted) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  test::TempDir t;
+  const Config c = test::tiny_config();  // 12 steps, checkpoint every 5
+  ASSERT_EQ(train(c, gpu_options(t / "straight")), TrainResult::Finished);
+  TrainOptions o = gpu_options(t / "pieces");
+  o.max_steps_this_run = 7;
+  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
+  o.max_steps_this_run = -1;
+  o.resume = true;
+  o.data_dir.clear();
+  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
+  for (const auto& kv : a) {
+    const auto ta = kv.value().toTensor(), tb = b.at(kv.key()).toTensor();
+    EXPECT_LT((ta - tb).abs().max().item<double>(), 1e-5) << kv.key().toStringRef();
+  }
+}
