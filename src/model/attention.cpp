@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "model/attention_core.h"
+#include "kernels/packed_attention.h"
 #include "model/compute.h"
 #include "model/volume_embedding.h"
 

@@ -1,0 +1,47 @@
+#pragma once
+// Ray-parallel CPU execution: a batch of rays is cut into contiguous slices, one per CPU
+// thread, and each thread runs its slice with single-threaded BLAS.
+//
+// Why: on a few cores, LibTorch (one intra-op thread by default here) runs every element-wise op
+// on one core while OpenBLAS's own pool synchronises inside each product. Rays are independent
+// through the whole model, so running whole slices side by side keeps every core busy in every
+// op and lets each product run without synchronisation. The mathematics are unchanged; only the
+// summation order inside products may differ.
+#include <torch/torch.h>
+
+#include <functional>
+
+namespace ablenerf {
+
+// Threads the user allows for CPU work: LibTorch's intra-op count or OpenBLAS's (which follows
+// OPENBLAS_NUM_THREADS / OMP_NUM_THREADS), whichever is larger.
+int64_t cpu_thread_budget();
+
+// Workers for n items when each should get at least min_per_worker: in [1, cpu_thread_budget()];
+// always 1 inside a worker of parallel_slices (no nesting) or without OpenBLAS's thread control.
+int64_t cpu_workers(int64_t n, int64_t min_per_worker);
+
+// True when OpenBLAS's thread control was found (other BLAS builds: always run serially).
+bool blas_thread_control_available();
+
+// Single-threaded BLAS for the scope (restores the previous count; nothing without OpenBLAS's
+// thread control). OpenBLAS's count is process-wide: take it on the thread that starts the work
+// (parallel_slices does); inside a worker the count is already one and the scope changes nothing.
+class SingleThreadedBlas {
+ public:
+  SingleThreadedBlas();
+  ~SingleThreadedBlas();
+  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
+  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
+
+ private:
+  int previous_ = 0;
+};
+
+// Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
+// thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the
+// caller's grad mode and inference mode. The first exception thrown by any slice is rethrown
+// after every thread has finished. W == 1 calls fn(0, 0, n) directly, BLAS untouched.
+void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn);
+
+}  // namespace ablenerf
