@@ -52,7 +52,10 @@ stage_build() {
     -DZLIB_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libz.so" -DZLIB_INCLUDE_DIR="$root/usr/include" \
     > "$OUT/cmake.log" 2>&1 || { tail -40 "$OUT/cmake.log"; return 1; }
   grep -E "c10d|nccl|Gloo|CUDA" "$OUT/cmake.log" | head
-  cmake --build build-cuda -j "$(nproc)" -- $([ ${#gen[@]} -gt 0 ] && echo -k 0 || echo -k) > "$OUT/build.log" 2>&1
+  # BUILD_TARGETS (e.g. "ablenerf test_gpu") builds only those; default: everything.
+  local targets=()
+  for t in ${BUILD_TARGETS:-}; do targets+=(--target "$t"); done
+  cmake --build build-cuda -j "$(nproc)" "${targets[@]}" -- $([ ${#gen[@]} -gt 0 ] && echo -k 0 || echo -k) > "$OUT/build.log" 2>&1
   local rc=$?
   echo "build rc $rc in $((SECONDS - t0)) s"
   [ $rc -eq 0 ] || grep -E "error|Error" "$OUT/build.log" | head -40

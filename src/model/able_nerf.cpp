@@ -2,7 +2,7 @@
 
 #include <ATen/CPUGeneratorImpl.h>
 
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 #include "model/frustum.h"
 #include "model/ipe.h"
 #include "model/resampler.h"

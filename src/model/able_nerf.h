@@ -54,7 +54,7 @@ class AbleNerfImpl : public torch::nn::Module {
   explicit AbleNerfImpl(const ModelConfig& cfg);
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
   // training mode. On the CPU without gradient recording (rendering, evaluation) the rays are
-  // split across CPU threads (model/cpu_parallel.h); outputs equal the serial ones to float
+  // split across CPU threads (kernels/cpu_parallel.h); outputs equal the serial ones to float
   // tolerance.
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
   int64_t parameter_count() const;

@@ -4,18 +4,22 @@
 
 #include <cmath>
 
+#include "kernels/packed_attention.h"
 #include "model/ab_transformer.h"
-#include "model/attention_core.h"
 #include "model/linear_tokens.h"
 
 #ifdef ABLENERF_CUDA_KERNELS
+#include "kernels/bias_gelu.h"
 #include "kernels/ray_attention.h"
+#include "kernels/residual_layer_norm.h"
 #endif
 
 namespace ablenerf {
 
 namespace {
 constexpr double kLayerNormEps = 1e-5;  // PyTorch default, used by the release
+// Widths the fused LayerNorm kernel takes (kernels/residual_layer_norm.h): a multiple of a warp.
+constexpr int64_t kWarp = 32, kMaxFusedWidth = 1024;
 }  // namespace
 
 MultiHeadAttentionImpl::MultiHeadAttentionImpl(int64_t width, int64_t heads)
@@ -127,6 +131,20 @@ TransformerBlockImpl::TransformerBlockImpl(int64_t width, int64_t heads, int64_t
 }
 
 torch::Tensor TransformerBlockImpl::finish(const torch::Tensor& x, const torch::Tensor& attn_out) {
+#ifdef ABLENERF_CUDA_KERNELS
+  // On CUDA with the fused kernels: residual add + LayerNorm and bias + GELU in one kernel each,
+  // activations kept in the products' dtype (bf16 under autocast) instead of fp32 LayerNorm
+  // outputs that every following product casts again.
+  const int64_t width = x.size(-1);
+  if (attn->kernel() == AttentionKernel::Fused && x.is_cuda() && width % kWarp == 0 && width <= kMaxFusedWidth) {
+    const auto dtype = attn_out.scalar_type();
+    const auto h = residual_layer_norm(x.to(dtype).contiguous(), attn_out.contiguous(), norm1->weight, norm1->bias,
+                                       kLayerNormEps);
+    const auto hidden = bias_gelu(linear_tokens(ff_in, h, /*with_bias=*/false).contiguous(), ff_in->bias);
+    const auto ff = linear_tokens(ff_out, hidden.to(dtype));
+    return residual_layer_norm(h, ff.to(dtype).contiguous(), norm2->weight, norm2->bias, kLayerNormEps);
+  }
+#endif
   const auto h = norm1(x + attn_out);
   // GELU default = exact erf form (PyTorch's default, used by the release).
   const auto ff = linear_tokens(ff_out, torch::gelu(linear_tokens(ff_in, h)));

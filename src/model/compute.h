@@ -2,12 +2,13 @@
 // How the model's arithmetic runs, without changing what it computes:
 //  - the attention kernel: "fused" = on the CPU the direct-BLAS kernel over the packed projections
 //    (kernels/packed_attention.h); on CUDA the project's ray-attention kernel where it applies
-//    (kernels/ray_attention.h), else scaled_dot_product_attention (LibTorch >= 2); "plain" =
-//    explicit softmax(Q K^T / sqrt(d) + mask) V;
+//    (kernels/ray_attention.h), else scaled_dot_product_attention (LibTorch >= 2), and the
+//    project's residual + LayerNorm and bias + GELU kernels in every transformer block;
+//    "plain" = explicit softmax(Q K^T / sqrt(d) + mask) V and LibTorch's own ops;
 //  - the precision of the matrix products: "fp32", or "bf16" = CUDA autocast to bfloat16 with
 //    the weights, the loss and the optimiser kept in fp32;
 //  - how CPU threads share the work: "rays" = a slice of the rays per thread through the whole
-//    model (model/cpu_parallel.h), "ops" = threads only inside each op or product.
+//    model (kernels/cpu_parallel.h), "ops" = threads only inside each op or product.
 // A model owns its Compute (AbleNerf::set_compute), so two models in one process (a benchmark's
 // reference and fast variants) never share a switch.
 #include <torch/torch.h>

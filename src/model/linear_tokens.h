@@ -6,6 +6,7 @@
 
 namespace ablenerf {
 
-torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x);
+// with_bias = false leaves the bias out (for a kernel that adds it in its own epilogue).
+torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x, bool with_bias = true);
 
 }  // namespace ablenerf

@@ -2,7 +2,7 @@
 
 #include <vector>
 
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 

@@ -7,7 +7,7 @@
 
 #include "model/able_nerf.h"
 #include "model/compute.h"
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 #include "model/tonemap.h"
 #include "test_util.h"
 

@@ -5,7 +5,7 @@
 #include <torch/torch.h>
 
 #include "model/compute.h"
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 #include "test_util.h"
 #include "train/grad_accumulation.h"
 

@@ -1,8 +1,8 @@
-#include "model/attention_core.h"
+#include "kernels/packed_attention.h"
 
 #include <dlfcn.h>
 
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 

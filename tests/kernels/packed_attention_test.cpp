@@ -1,12 +1,12 @@
-// The CPU attention kernels over packed projections (model/attention_core.h) against the plain
+// The CPU attention kernels over packed projections (kernels/packed_attention.h) against the plain
 // per-head autograd formula softmax(Q K^T * scale + mask) V: same values and same gradients, in
 // float64 to 1e-10 and in float32 to float tolerance, for self-attention with the causal mask
 // and for cross-attention with per-ray and with shared (batch-1) queries.
 #include <gtest/gtest.h>
 
-#include "model/ab_transformer.h"
-#include "model/attention_core.h"
-#include "model/cpu_parallel.h"
+#include <limits>
+
+#include "kernels/packed_attention.h"
 #include "test_util.h"
 
 namespace ablenerf {
@@ -19,6 +19,14 @@ constexpr double kScale = 0.4;
 // Heads of a packed (B, L, C) tensor at columns [offset, offset + E): (B, H, L, dh).
 torch::Tensor heads_of(const torch::Tensor& x, int64_t offset) {
   return x.narrow(2, offset, kWidth).reshape({x.size(0), x.size(1), kHeads, kHeadDim}).transpose(1, 2);
+}
+
+// The ray mask over n tokens, additive: row 0 (the ray token) sees every column, row i >= 1 sees
+// columns 0..i. Built here so that this suite needs nothing from the model.
+torch::Tensor ray_mask(int64_t n, torch::ScalarType t = torch::kFloat) {
+  auto blocked = torch::ones({n, n}, torch::kBool).triu(1);
+  blocked[0].fill_(false);
+  return torch::zeros({n, n}, t).masked_fill(blocked, -std::numeric_limits<double>::infinity());
 }
 
 torch::Tensor reference(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
@@ -66,16 +74,16 @@ torch::Tensor rnd(std::vector<int64_t> sizes, torch::ScalarType t, uint64_t seed
   return torch::randn(sizes, gen, torch::kDouble).to(t);
 }
 
-TEST(AttentionCore, MaskedSelfAttentionMatchesReference) {
+TEST(PackedAttention, MaskedSelfAttentionMatchesReference) {
   if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
-  const auto mask = ray_attention_mask(kTokens - 1, torch::TensorOptions().dtype(torch::kDouble));
+  const auto mask = ray_mask(kTokens, torch::kDouble);
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 1), {}, mask}, 1e-10);
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 2), {}, {}}, 1e-10);  // bidirectional
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 3), {}, mask.to(torch::kFloat)}, 1e-4);
 }
 
-TEST(AttentionCore, CrossAttentionMatchesReference) {
+TEST(PackedAttention, CrossAttentionMatchesReference) {
   if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
   // Per-ray queries, and queries shared by the batch (their gradient sums over rays).
@@ -85,17 +93,17 @@ TEST(AttentionCore, CrossAttentionMatchesReference) {
   compare({rnd({1, 5, kWidth}, torch::kFloat, 8), rnd({kBatch, kTokens, 2 * kWidth}, torch::kFloat, 9), {}}, 1e-4);
 }
 
-TEST(AttentionCore, InferenceModeGivesTheSameValues) {
+TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
   const auto qkv = rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 10);
-  const auto mask = ray_attention_mask(kTokens - 1);
+  const auto mask = ray_mask(kTokens);
   const auto want = reference(qkv, qkv, kWidth, 2 * kWidth, mask);
   c10::InferenceMode guard;
   EXPECT_LT((packed_self_attention(qkv, kHeads, mask, kScale) - want).abs().max().item<double>(), 1e-5);
 }
 
-TEST(AttentionCore, AvailableOnlyForCpuFloatingPoint) {
+TEST(PackedAttention, AvailableOnlyForCpuFloatingPoint) {
   EXPECT_FALSE(packed_attention_available(torch::zeros({1}, torch::kInt)));
   EXPECT_FALSE(packed_attention_available(torch::zeros({1}, torch::kHalf)));
 }

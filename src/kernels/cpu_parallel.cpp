@@ -1,4 +1,4 @@
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 
 #include <dlfcn.h>
 

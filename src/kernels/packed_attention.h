@@ -10,7 +10,7 @@
 // that dispatches every small product separately, and a copy back; OpenBLAS's own thread pool
 // then synchronises inside every one of them. Here each product is one direct BLAS call on
 // strided operands (no copies), with single-threaded BLAS, the batch split across CPU threads
-// (model/cpu_parallel.h), and a hand-written backward doing the same. The mathematics are those
+// (kernels/cpu_parallel.h), and a hand-written backward doing the same. The mathematics are those
 // of the reference formula; only the summation order inside the BLAS may differ.
 #include <torch/torch.h>
 

@@ -13,7 +13,7 @@
 #include <thread>
 #include <vector>
 
-#include "model/cpu_parallel.h"
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 namespace {
