@@ -129,7 +129,8 @@ stage_lego5() {
     --set train.time_budget_s="${BUDGET:-300}" --set train.eval_views=2 > "$OUT/lego5_train.log" 2>&1
   local rc=$?
   echo "lego5: train rc $rc, $((SECONDS - t0)) s wall (data loading included)"
-  tail -c 400 "$OUT/lego5_train.log"; echo
+  grep -m2 -E "^(error|internal error)|what\(\)|Error" "$OUT/lego5_train.log" | cut -c1-400
+  tail -c 300 "$OUT/lego5_train.log"; echo
   $bin eval --run "$run" --split test --max-images 6 > "$OUT/lego5_eval.log" 2>&1 || { tail -5 "$OUT/lego5_eval.log"; return 1; }
   grep '^eval' "$OUT/lego5_eval.log"
   cp "$run/log.jsonl" "$OUT/lego5_log.jsonl"

@@ -12,11 +12,13 @@ Config resolve_config(const ConfigOptions& opts) {
 }
 
 torch::Device parse_device(const std::string& name) {
-  if (name == "auto") return torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+  // "cuda" means the first GPU: a device with an index (LibTorch 2.x refuses index -1 in places).
+  if (name == "auto") return torch::cuda::is_available() ? torch::Device(torch::kCUDA, 0) : torch::Device(torch::kCPU);
   try {
     torch::Device d(name);
     if (d.is_cuda() && !torch::cuda::is_available())
       throw InputError("--device", name, "CUDA is not available in this build or on this machine");
+    if (d.is_cuda() && !d.has_index()) d = torch::Device(torch::kCUDA, 0);
     return d;
   } catch (const c10::Error&) {
     throw InputError("--device", name, "expected cpu, cuda, cuda:N or auto");

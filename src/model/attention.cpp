@@ -138,8 +138,11 @@ torch::Tensor TransformerBlockImpl::finish(const torch::Tensor& x, const torch::
   const int64_t width = x.size(-1);
   if (attn->kernel() == AttentionKernel::Fused && x.is_cuda() && width % kWarp == 0 && width <= kMaxFusedWidth) {
     const auto dtype = attn_out.scalar_type();
-    const auto h = residual_layer_norm(x.to(dtype).contiguous(), attn_out.contiguous(), norm1->weight, norm1->bias,
-                                       kLayerNormEps);
+    // Queries shared by the batch (the LE's, batch 1) are materialised per ray, as the plain
+    // path's broadcasting add would.
+    const auto residual = x.sizes() == attn_out.sizes() ? x : x.expand_as(attn_out);
+    const auto h = residual_layer_norm(residual.to(dtype).contiguous(), attn_out.contiguous(), norm1->weight,
+                                       norm1->bias, kLayerNormEps);
     const auto hidden = bias_gelu(linear_tokens(ff_in, h, /*with_bias=*/false).contiguous(), ff_in->bias);
     const auto ff = linear_tokens(ff_out, hidden.to(dtype));
     return residual_layer_norm(h, ff.to(dtype).contiguous(), norm2->weight, norm2->bias, kLayerNormEps);

@@ -208,10 +208,6 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   const auto& d = o.device;
   const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
   const Precision precision = cfg.compute.precision;
-#ifdef ABLENERF_CUDA_MEMORY_STATS
-  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
-#endif
-
   // The trainer's own step (Trainer::step) on an in-memory split: the same rays, micro-batches,
   // loss, optimiser and (on CUDA) CUDA graph as `ablenerf train`.
   Config c = cfg;
@@ -226,6 +222,10 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   trainer.setup(bench_split(o.image_side, o.seed), bench_intrinsics(o.image_side));
   AbleNerf& model = trainer.model();
   m.parameters = model->parameter_count();
+#ifdef ABLENERF_CUDA_MEMORY_STATS
+  // After the first allocations: the caching allocator of a device exists only from then on.
+  if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
+#endif
   m.device_step = trainer.device_form();
   // Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
   for (int64_t i = 0; i < o.warmup || (m.device_step && c.train.graph && !trainer.graph_captured()); ++i) trainer.step();

@@ -122,10 +122,12 @@ TrainState load_checkpoint(const std::string& path, const Config& config, AbleNe
   archive.read("elapsed_seconds", elapsed);
   st.elapsed_seconds = elapsed.item<double>();
   archive.read("rng_state", st.rng_state);
+  // Random-stream states are CPU byte tensors whatever device the archive was loaded onto.
+  st.rng_state = st.rng_state.cpu();
   torch::Tensor global_rng;
   if (archive.try_read("torch_rng_state", global_rng)) {
     at::Generator global = at::detail::getDefaultCPUGenerator();  // a handle to the global stream
-    global.set_state(global_rng);
+    global.set_state(global_rng.cpu());
   }
   return st;
 }

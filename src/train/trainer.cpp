@@ -105,6 +105,8 @@ struct Trainer::State {
 
 Trainer::Trainer(Config config, TrainOptions opts)
     : config_(std::move(config)), opts_(std::move(opts)), s_(std::make_unique<State>()) {
+  // A CUDA device always with its index (LibTorch 2.x refuses index -1 in places).
+  if (opts_.device.is_cuda() && !opts_.device.has_index()) opts_.device = torch::Device(torch::kCUDA, 0);
   s_->rank = opts_.dist ? opts_.dist->rank() : 0;
   s_->world = opts_.dist ? opts_.dist->world_size() : 1;
   s_->leader = s_->rank == 0;
