@@ -47,11 +47,12 @@ double mse(const torch::Tensor& img, const torch::Tensor& ref) {
   return (img.to(torch::kDouble) - ref.to(torch::kDouble)).pow(2).mean().item<double>();
 }
 
-double psnr(const torch::Tensor& img, const torch::Tensor& ref) {
-  const double m = mse(img, ref);
-  if (m == 0.0) return std::numeric_limits<double>::infinity();
-  return -10.0 * std::log10(m);
+double psnr_from_mse(double mse) {
+  if (mse == 0.0) return std::numeric_limits<double>::infinity();
+  return -10.0 * std::log10(mse);
 }
+
+double psnr(const torch::Tensor& img, const torch::Tensor& ref) { return psnr_from_mse(mse(img, ref)); }
 
 SsimVariant parse_ssim_variant(const std::string& name, const std::string& source,
                                const std::string& field) {

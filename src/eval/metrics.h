@@ -13,6 +13,9 @@ namespace ablenerf {
 // always; callers that serialise to JSON must handle it (JSON has no infinity).
 double psnr(const torch::Tensor& img, const torch::Tensor& ref);
 
+// PSNR in dB for data range 1 from a mean squared error: -10 log10(mse); +infinity for 0 (as psnr).
+double psnr_from_mse(double mse);
+
 // Mean squared error over every pixel and channel (float64).
 double mse(const torch::Tensor& img, const torch::Tensor& ref);
 

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <csignal>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -12,7 +11,8 @@
 #include "data/load_options.h"
 #include "eval/metrics.h"
 #include "eval/renderer.h"
-#include "eval/run_folder.h"
+#include "run/run_folder.h"
+#include "run/run_log.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
 #include "train/checkpoint.h"
@@ -36,14 +36,6 @@ void on_signal(int) { g_interrupt.store(true); }
 
 double mse_to_psnr(double mse) { return -10.0 * std::log10(std::max(mse, 1e-12)); }
 
-// Appends one JSON line to the run's log (opened per write, so a crash loses at most the line).
-void log_line(const std::string& path, const nlohmann::json& j) {
-  std::ofstream out(path, std::ios::app);
-  out << j.dump() << "\n";
-  out.close();
-  if (!out) throw InputError(path, "", "cannot append to the log (disk full or no permission?)");
-}
-
 // Mean PSNR of the fine colour on the first `views` images of the held-out split.
 double held_out_psnr(AbleNerf& model, const Split& split, const Intrinsics& k, const Config& c, int64_t views,
                      const torch::Device& device) {
@@ -66,17 +58,6 @@ bool gradients_finite(AbleNerf& model) {
     if (p.grad().defined()) norms.push_back(p.grad().abs().max());
   if (norms.empty()) return true;
   return torch::stack(norms).isfinite().all().item<bool>();
-}
-
-// A kill -9 during an atomic write leaves its temporary file (NAME.tmpPID_N) behind; the real file
-// is intact, so the temporaries of the run's own outputs are simply removed.
-void remove_stale_temporaries(const std::string& dir) {
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    const std::string name = e.path().filename().string();
-    for (const char* stem : {"checkpoint.pt.tmp", "weights.pt.tmp", "config.toml.tmp", "run.json.tmp"})
-      if (name.rfind(stem, 0) == 0) fs::remove(e.path(), ec);
-  }
 }
 
 }  // namespace
@@ -108,7 +89,7 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
     else run.dir = opts.out_dir, run.config = config, run.data_dir = opts.data_dir;
   }
   if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "missing: give --data");
-  if (leader) remove_stale_temporaries(run.dir);
+  if (leader) run.remove_stale_temporaries();
 
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};
@@ -244,13 +225,13 @@ TrainResult train(const Config& config, const TrainOptions& opts) {
                          {"lr", lr},
                          {"rays_per_s", rays_per_s},
                          {"elapsed_s", now_elapsed}};
-        log_line(run.log_path(), j);
+        append_run_log(run.log_path(), j);
         loss_acc = mse_fine_acc = 0;
         acc_steps = 0;
       }
       if (tc.eval_every > 0 && !held_out.empty() && (state.step % tc.eval_every == 0 || state.step == tc.steps)) {
         const double p = held_out_psnr(model, ds.split(held_out), ds.intrinsics, config, tc.eval_views, opts.device);
-        log_line(run.log_path(), {{"type", "eval"}, {"step", state.step}, {"psnr", p}, {"views", tc.eval_views},
+        append_run_log(run.log_path(), {{"type", "eval"}, {"step", state.step}, {"psnr", p}, {"views", tc.eval_views},
                                   {"split", held_out}, {"elapsed_s", now_elapsed}});
         if (!opts.quiet) std::cerr << (progress.elapsed_seconds() > 0 ? "\n" : "") << "train: step " << state.step
                                    << " held-out " << held_out << " PSNR " << p << " dB\n";
