@@ -5,7 +5,7 @@
 #   scripts/gpu.sh STAGE...    stages run in order; logs and results go to $OUT (default /tmp/gpu)
 # Stages:
 #   env        versions: GPU, driver, PyTorch, compiler, where nccl.h and gloo headers are
-#   build      configure + build build-cuda (Release, every target but Google Benchmark)
+#   build      configure + build build-cuda (Release, every target)
 #   test       ctest in build-cuda (the CPU test suites, built against the CUDA LibTorch)
 #   gputest    the ctest label gpu (kernels against their references, graph vs eager steps)
 #   bench      ablenerf bench on the GPU at the blender preset: 1024- and 8192-ray steps, bf16 + fused
@@ -45,7 +45,7 @@ stage_build() {
   nccl_inc=$(dirname "$(find "$(dirname "$(dirname "$torch_prefix")")/.." -name nccl.h 2>/dev/null | head -1)" 2>/dev/null)
   command -v ninja >/dev/null && gen=(-G Ninja)
   local t0=$SECONDS
-  cmake -S . -B build-cuda "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DABLENERF_BENCH=OFF \
+  cmake -S . -B build-cuda "${gen[@]}" -DCMAKE_BUILD_TYPE=Release \
     -DCMAKE_PREFIX_PATH="$torch_prefix;$root/usr" -DCMAKE_CUDA_ARCHITECTURES=90 \
     -DNCCL_INCLUDE_DIR="$nccl_inc" \
     -DPNG_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libpng16.so" -DPNG_PNG_INCLUDE_DIR="$root/usr/include" \

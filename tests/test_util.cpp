@@ -1,5 +1,6 @@
 #include "test_util.h"
 
+#include <ATen/CPUGeneratorImpl.h>
 #include <ATen/Parallel.h>
 
 #include <ftw.h>
@@ -82,5 +83,13 @@ void write_file(const std::string& path, const std::string& text) {
 
 IntraOpThreads::IntraOpThreads(int threads) : previous_(at::get_num_threads()) { at::set_num_threads(threads); }
 IntraOpThreads::~IntraOpThreads() { at::set_num_threads(previous_); }
+
+Rays random_rays(int64_t n, uint64_t seed, torch::Dtype dtype) {
+  torch::Generator gen = at::detail::createCPUGenerator(seed);
+  const auto opts = torch::TensorOptions().dtype(dtype);
+  const auto o = torch::randn({n, 3}, gen, opts) * 0.2 + torch::tensor({0.0, 0.0, 4.0}, opts);
+  const auto d = torch::randn({n, 3}, gen, opts) * 0.2 + torch::tensor({0.0, 0.0, -1.0}, opts);
+  return {o, d, torch::full({n, 1}, kBlenderPixelRadius, opts)};
+}
 
 }  // namespace ablenerf::test

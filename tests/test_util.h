@@ -1,6 +1,11 @@
 #pragma once
 // Helpers shared by the test suites: scratch folders, the shared data folder, running the CLI.
+#include <torch/torch.h>
+
+#include <cstdint>
 #include <string>
+
+#include "data/rays.h"
 
 namespace ablenerf::test {
 
@@ -37,6 +42,15 @@ CommandResult run_cli(const std::string& args);
 
 // Writes a text file (creating parent folders).
 void write_file(const std::string& path, const std::string& text);
+
+// The pixel footprint of the Blender scenes: mip-NeRF's base radius (2/sqrt(12) / fx) of an
+// 800x800 image with camera_angle_x 0.6911, the radius of the paper's rays (data/rays.h).
+constexpr double kBlenderPixelRadius = 5.196e-4;
+
+// `n` rays looking from around (0, 0, 4) towards the origin: origins (0, 0, 4) and directions
+// (0, 0, -1), each jittered by N(0, 0.2^2) per coordinate from a generator seeded with `seed` (the
+// global RNG is left alone); radius kBlenderPixelRadius. Same seed and n, same rays.
+Rays random_rays(int64_t n, uint64_t seed, torch::Dtype dtype = torch::kFloat);
 
 // LibTorch's intra-op thread count set to `threads` for the scope, restored afterwards. The CPU
 // ray split takes the larger of this count and OpenBLAS's, so 2 makes it split on any machine.

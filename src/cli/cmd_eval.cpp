@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "cli/command.h"
+#include "cli/common.h"
 #include "eval/evaluate.h"
 #include "eval/report.h"
 #include "util/errors.h"
@@ -13,8 +14,8 @@ namespace ablenerf::cli {
 namespace {
 
 struct EvalArgs {
-  std::string run, split = "test", data, ssim, lpips_weights;
-  int64_t max_images = -1, chunk = 0;  // -1 / 0: defaults (all views / the run's eval.chunk)
+  std::string run, split = "test", data, ssim, lpips_weights, device = "auto";
+  int64_t max_images = -1, chunk = 0;  // -1: every view; chunk and downscale only when given
   int downscale = 0;
 };
 
@@ -24,26 +25,28 @@ void setup(CLI::App& app) {
   app.add_option("--split", a->split, "Dataset split to evaluate")->capture_default_str();
   app.add_option("--max-images", a->max_images, "Evaluate only the first N views (default: all)")
       ->check(CLI::PositiveNumber);
-  app.add_option("--downscale", a->downscale, "Image downscale factor (default: the run's data.downscale)")
-      ->check(CLI::PositiveNumber);
+  auto* downscale = app.add_option("--downscale", a->downscale, "Image downscale factor (default: the run's data.downscale)")
+                        ->check(CLI::PositiveNumber);
   app.add_option("--data", a->data, "Dataset folder (default: the one recorded in RUN/run.json)");
   app.add_option("--ssim", a->ssim, "SSIM variant: standard (valid 11x11 window) or release (zero-padded, "
                                     "the authors' code); default: the run's eval.ssim");
   app.add_option("--lpips-weights", a->lpips_weights,
                  "LPIPS AlexNet weights (default: $ABLENERF_LPIPS_WEIGHTS or shared/weights; none -> skipped)");
-  app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
-      ->check(CLI::PositiveNumber);
-  app.callback([a] {
+  auto* chunk = app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
+                    ->check(CLI::PositiveNumber);
+  app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
+  app.callback([a, downscale, chunk] {
+    const torch::Device device = parse_device(a->device);
     const RunFolder run = RunFolder::open(a->run);
     EvalOptions o;
     o.split = a->split;
     o.max_images = a->max_images;
-    o.downscale = a->downscale;
+    if (downscale->count()) o.downscale = a->downscale;
     o.data_dir = a->data;
     o.ssim = a->ssim;
     o.lpips_weights = a->lpips_weights;
-    o.chunk = a->chunk;
-    o.device = torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
+    if (chunk->count()) o.chunk = a->chunk;
+    o.device = device;
     const auto m = evaluate_run(run, o);
     write_report(run);
     const auto& mean = m["mean"];

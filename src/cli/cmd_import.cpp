@@ -24,7 +24,7 @@ void run_import(const ImportArgs& a) {
   AbleNerf model(c.model);
   import_release_weights(model, read_weights_dict(a.weights), a.weights);
   ensure_dir(a.out);
-  atomic_write_text(a.out + "/config.toml", c.to_toml());
+  write_file_atomic(a.out + "/config.toml", c.to_toml());
   save_weights(model, a.out + "/weights.pt");
   nlohmann::json j;
   j["run"] = a.out;

@@ -13,17 +13,18 @@
 #include <optional>
 
 #include "cli/command.h"
+#include "cli/common.h"
 #include "data/dataset.h"
 #include "eval/camera_path.h"
 #include "eval/colormap.h"
-#include "util/progress.h"
 #include "eval/renderer.h"
-#include "eval/run_folder.h"
 #include "eval/video.h"
 #include "model/tonemap.h"
+#include "run/run_folder.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "util/progress.h"
 
 namespace fs = std::filesystem;
 
@@ -34,7 +35,7 @@ constexpr int kDefaultFrames = 120;
 constexpr double kDefaultFps = 30;
 
 struct RenderArgs {
-  std::string run, cameras, path, out;
+  std::string run, cameras, path, out, device = "auto";
   int frames = kDefaultFrames, width = 0, height = 0;
   bool raw = false, depth = false, branches = false, le_zero = false, fallback_frames = false;
   double le_noise = 0, fps = kDefaultFps;
@@ -50,7 +51,7 @@ bool ends_with(const std::string& s, const std::string& suffix) {
 std::pair<int, int> native_size(const std::string& json_path) {
   nlohmann::json j;
   try {
-    j = nlohmann::json::parse(read_text_file(json_path));
+    j = nlohmann::json::parse(read_file(json_path));
   } catch (const nlohmann::json::exception&) {
     throw InputError(json_path, "", "invalid JSON");
   }
@@ -93,12 +94,7 @@ std::pair<int, int> output_size(const std::string& json_path, int width, int hei
 
 void save_tensor(const std::string& path, const torch::Tensor& t) {
   const std::vector<char> bytes = torch::pickle_save(t.contiguous().to(torch::kCPU, torch::kFloat));
-  atomic_write(path, [&](const std::string& tmp) {
-    FILE* f = std::fopen(tmp.c_str(), "wb");
-    if (!f) throw InputError(path, "", "cannot write");
-    const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
-    if (std::fclose(f) != 0 || !ok) throw InputError(path, "", "cannot write");
-  });
+  write_file_atomic(path, {bytes.data(), bytes.size()});
 }
 
 // Linear branch colour -> viewable sRGB in [0,1].
@@ -111,6 +107,7 @@ std::string frame_name(int k) {
 }
 
 void run_render(const RenderArgs& a) {
+  const torch::Device device = parse_device(a.device);
   const RunFolder run = RunFolder::open(a.run);
   const bool video = ends_with(a.out, ".mp4");
   if (video) {
@@ -145,7 +142,6 @@ void run_render(const RenderArgs& a) {
   }
   if (!frame_dir.empty()) ensure_dir(frame_dir);
 
-  const torch::Device device = torch::cuda::is_available() ? torch::Device(torch::kCUDA) : torch::Device(torch::kCPU);
   AbleNerf model = load_run_model(run, device);
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
     std::cerr << "note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing"
@@ -222,6 +218,7 @@ void setup(CLI::App& app) {
   app.add_option("--fps", a->fps, "Video frame rate")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
       ->check(CLI::PositiveNumber);
+  app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
   app.add_flag("--fallback-frames", a->fallback_frames,
                "With a .mp4 --out and no ffmpeg: write PNG frames to OUT_frames/ instead of failing");
   app.add_option("--out", a->out, "Output folder for PNG frames, or FILE.mp4 (needs ffmpeg)")->required();

@@ -1,10 +1,10 @@
 // `ablenerf train`: trains a model on a dataset into a run folder (see train/trainer.h).
-#include <cstdlib>
+#include <filesystem>
 #include <iostream>
 
 #include "cli/command.h"
 #include "cli/common.h"
-#include "eval/run_folder.h"
+#include "run/run_folder.h"
 #include "train/distributed.h"
 #include "train/trainer.h"
 
@@ -62,13 +62,15 @@ void setup(CLI::App& app) {
       o.dist = dist.get();
     }
     install_interrupt_handlers();
+    // Exit codes other than 0 and 2 travel as CommandExit so that `dist` (the process group) is
+    // destroyed on the way out.
+    TrainResult r;
     try {
-      const TrainResult r = train(config, o);
-      if (r == TrainResult::Interrupted) std::exit(kExitInterrupted);
+      r = train(config, o);
     } catch (const TrainingDiverged& e) {
-      std::cerr << "error: " << e.what() << std::endl;
-      std::exit(kExitDiverged);
+      throw CommandExit(kExitDiverged, e.what());
     }
+    if (r == TrainResult::Interrupted) throw CommandExit(kExitInterrupted);
     if (env.rank == 0) std::cerr << "train: run written to " << a->out << std::endl;
   });
 }

@@ -3,11 +3,27 @@
 // ABLENERF_COMMAND(...) so that commands live in their own files and main.cpp stays generic.
 #include <CLI/CLI.hpp>
 
+#include <exception>
 #include <functional>
 #include <string>
 #include <vector>
 
 namespace ablenerf::cli {
+
+// Thrown by a command that ends the process with an exit code other than 0 and 2 (interrupted,
+// diverged). main() returns `code` after the stack has unwound, so destructors run (a process
+// group's among them); `message`, when not empty, is printed first as "error: MESSAGE".
+class CommandExit : public std::exception {
+ public:
+  explicit CommandExit(int code, std::string message = "") : code_(code), message_(std::move(message)) {}
+  int code() const { return code_; }
+  const std::string& message() const { return message_; }
+  const char* what() const noexcept override { return message_.c_str(); }
+
+ private:
+  int code_;
+  std::string message_;
+};
 
 struct CommandSpec {
   std::string name;
@@ -16,6 +32,7 @@ struct CommandSpec {
   std::function<void(CLI::App&)> setup;  // adds options and a callback
 };
 
+// Every registered subcommand (command.cpp), in registration order.
 std::vector<CommandSpec>& command_registry();
 
 struct CommandRegistrar {

@@ -1,5 +1,7 @@
 #include "cli/common.h"
 
+#include <optional>
+
 #include "model/able_nerf.h"
 
 namespace ablenerf::cli {
@@ -14,15 +16,24 @@ Config resolve_config(const ConfigOptions& opts) {
 torch::Device parse_device(const std::string& name) {
   // "cuda" means the first GPU: a device with an index (LibTorch 2.x refuses index -1 in places).
   if (name == "auto") return torch::cuda::is_available() ? torch::Device(torch::kCUDA, 0) : torch::Device(torch::kCPU);
+  std::optional<torch::Device> d;
   try {
-    torch::Device d(name);
-    if (d.is_cuda() && !torch::cuda::is_available())
-      throw InputError("--device", name, "CUDA is not available in this build or on this machine");
-    if (d.is_cuda() && !d.has_index()) d = torch::Device(torch::kCUDA, 0);
-    return d;
+    d.emplace(name);
   } catch (const c10::Error&) {
     throw InputError("--device", name, "expected cpu, cuda, cuda:N or auto");
   }
+  if (!d->is_cpu() && !d->is_cuda()) throw InputError("--device", name, "expected cpu, cuda, cuda:N or auto");
+  if (d->is_cuda()) {
+    if (!torch::cuda::is_available())
+      throw InputError("--device", name,
+                       "no GPU: this LibTorch build has no CUDA or this machine has no GPU (use --device cpu)");
+    const int64_t count = static_cast<int64_t>(torch::cuda::device_count());
+    if (d->has_index() && d->index() >= count)
+      throw InputError("--device", name, "no such GPU: this machine has " + std::to_string(count) +
+                                             " (cuda:0 to cuda:" + std::to_string(count - 1) + ")");
+    if (!d->has_index()) d.emplace(torch::kCUDA, 0);
+  }
+  return *d;
 }
 
 nlohmann::json config_summary(const Config& c) {

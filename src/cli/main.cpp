@@ -1,24 +1,20 @@
-// ablenerf: the command-line entry point. Subcommands register themselves (command.h).
+// ablenerf: the command-line entry point. Subcommands register themselves (command.h); this file
+// turns what escapes them into one line on stderr and an exit code.
+#include <c10/util/Exception.h>
+
 #include <algorithm>
 #include <iostream>
 
 #include "cli/command.h"
 #include "util/errors.h"
 
-namespace ablenerf::cli {
+namespace {
 
-std::vector<CommandSpec>& command_registry() {
-  static std::vector<CommandSpec> registry;
-  return registry;
-}
+constexpr const char* kOutOfGpuMemory =
+    "error: out of GPU memory: lower train.micro_batch (training) or eval.chunk (eval/render: --chunk), "
+    "e.g. --set train.micro_batch=2048 or --chunk 4096";
 
-void ConfigOptions::add_to(CLI::App& app, bool config_required) {
-  auto* opt = app.add_option("--config", config_path, "Config file (TOML), e.g. configs/demo.toml");
-  if (config_required) opt->required();
-  app.add_option("--set", sets, "Override a config key, e.g. --set model.le_count=16 (repeatable)");
-}
-
-}  // namespace ablenerf::cli
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace ablenerf;
@@ -42,9 +38,26 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     app.exit(e);
     return kExitBadInput;
+  } catch (const cli::CommandExit& e) {
+    if (!e.message().empty()) std::cerr << "error: " << e.message() << std::endl;
+    return e.code();
   } catch (const InputError& e) {
     std::cerr << "error: " << e.what() << std::endl;
     return kExitBadInput;
+  } catch (const EnvironmentError& e) {
+    std::cerr << "error: " << e.what() << std::endl;
+    return kExitEnvironment;
+  } catch (const c10::OutOfMemoryError&) {
+    std::cerr << kOutOfGpuMemory << std::endl;
+    return kExitEnvironment;
+  } catch (const c10::Error& e) {
+    // Some allocation paths (cuBLAS workspaces, older LibTorch) raise a plain c10::Error.
+    if (std::string(e.what()).find("CUDA out of memory") != std::string::npos) {
+      std::cerr << kOutOfGpuMemory << std::endl;
+      return kExitEnvironment;
+    }
+    std::cerr << "internal error: " << e.what_without_backtrace() << std::endl;
+    return kExitInternal;
   } catch (const std::exception& e) {
     std::cerr << "internal error: " << e.what() << std::endl;
     return kExitInternal;

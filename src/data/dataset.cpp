@@ -66,7 +66,7 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
     if (!fr.depth.empty()) {
       torch::Tensor d;
       try {
-        const std::string bytes = read_text_file(fr.depth);
+        const std::string bytes = read_file(fr.depth);
         d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
       } catch (const InputError&) {
         throw;

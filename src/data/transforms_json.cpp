@@ -73,7 +73,7 @@ std::string mark_nonfinite(const std::string& text) {
 bool is_nonfinite_marker(const json& v) { return v.is_string() && v.get<std::string>() == "non-finite"; }
 
 json parse_json_file(const std::string& path) {
-  const std::string text = mark_nonfinite(read_text_file(path));
+  const std::string text = mark_nonfinite(read_file(path));
   try {
     return json::parse(text);
   } catch (const json::parse_error& e) {

@@ -1,7 +1,5 @@
 #include "eval/evaluate.h"
 
-#include "data/load_options.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -14,12 +12,13 @@
 #include "eval/colormap.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
-#include "util/progress.h"
 #include "eval/renderer.h"
 #include "eval/report.h"
+#include "run/run_log.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "util/progress.h"
 
 namespace fs = std::filesystem;
 
@@ -60,17 +59,19 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   if (data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded (pass --data DIR)");
   if (!fs::is_directory(data_dir))
     throw InputError(data_dir, "", std::string("dataset folder not found") + (opts.data_dir.empty() ? " (recorded in run.json; pass --data DIR)" : ""));
-  if (opts.chunk < 0) throw InputError("--chunk", "", "must be positive");
-  if (opts.downscale < 0) throw InputError("--downscale", "", "must be positive");
+  if (opts.chunk && *opts.chunk <= 0)
+    throw InputError("--chunk", "", "must be positive (got " + std::to_string(*opts.chunk) + ")");
+  if (opts.downscale && *opts.downscale <= 0)
+    throw InputError("--downscale", "", "must be positive (got " + std::to_string(*opts.downscale) + ")");
   const SsimVariant variant = parse_ssim_variant(opts.ssim.empty() ? run.config.eval.ssim : opts.ssim, "--ssim");
-  const int64_t chunk = opts.chunk > 0 ? opts.chunk : run.config.eval.chunk;
+  const int64_t chunk = opts.chunk.value_or(run.config.eval.chunk);
 
   const auto splits = available_splits(data_dir);
   if (std::find(splits.begin(), splits.end(), opts.split) == splits.end())
     throw InputError(data_dir, "--split",
                      "no split '" + opts.split + "'" + (splits.empty() ? "" : " (available: " + join(splits) + ")"));
   LoadOptions lo = load_options_for(run.config, {opts.split});
-  if (opts.downscale > 0) lo.downscale = opts.downscale;
+  if (opts.downscale) lo.downscale = *opts.downscale;
   const Dataset ds = Dataset::load(data_dir, lo);
   const Split& split = ds.split(opts.split);
   const Intrinsics& k = ds.intrinsics;
@@ -162,7 +163,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["near"] = ds.near;
   m["far"] = ds.far;
   m["error_map_max"] = kErrorMapMax;
-  atomic_write_text(out_dir + "/metrics.json", m.dump(2) + "\n");
+  write_file_atomic(out_dir + "/metrics.json", m.dump(2) + "\n");
   return m;
 }
 

@@ -12,9 +12,10 @@
 #include <cstdint>
 #include <functional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 
-#include "eval/run_folder.h"
+#include "run/run_folder.h"
 
 namespace ablenerf {
 
@@ -27,11 +28,11 @@ constexpr double kDepthAlphaThreshold = 0.5;
 struct EvalOptions {
   std::string split = "test";
   int64_t max_images = -1;    // < 0: every view of the split
-  int downscale = 0;          // 0: the run's data.downscale
+  std::optional<int> downscale;  // unset: the run's data.downscale
   std::string data_dir;       // "": the run's dataset (run.json)
   std::string ssim;           // "standard" | "release" | "": the run's eval.ssim
   std::string lpips_weights;  // "": default_lpips_weights_path(); none found -> LPIPS skipped
-  int64_t chunk = 0;          // rays per forward; 0: the run's eval.chunk
+  std::optional<int64_t> chunk;  // rays per forward; unset: the run's eval.chunk
   torch::Device device = torch::kCPU;
   bool progress = true;       // progress line with ETA on stderr
   // One-line notes for the user (LPIPS skipped, ...); default: stderr.

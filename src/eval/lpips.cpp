@@ -2,12 +2,11 @@
 
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <sstream>
 #include <vector>
 
 #include "util/errors.h"
+#include "util/fs.h"
 
 namespace ablenerf {
 
@@ -70,9 +69,8 @@ Lpips::Lpips(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec))
     throw InputError(path, "", "LPIPS weights file not found");
-  std::ifstream in(path, std::ios::binary);
-  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) throw InputError(path, "", "cannot read the LPIPS weights file");
+  const std::string file = read_file(path);
+  const std::vector<char> bytes(file.begin(), file.end());
 
   c10::IValue root;
   try {

@@ -47,9 +47,9 @@ double mse(const torch::Tensor& img, const torch::Tensor& ref) {
   return (img.to(torch::kDouble) - ref.to(torch::kDouble)).pow(2).mean().item<double>();
 }
 
-double psnr_from_mse(double m) {
-  if (m == 0.0) return std::numeric_limits<double>::infinity();
-  return -10.0 * std::log10(m);
+double psnr_from_mse(double mse) {
+  if (mse == 0.0) return std::numeric_limits<double>::infinity();
+  return -10.0 * std::log10(mse);
 }
 
 double psnr(const torch::Tensor& img, const torch::Tensor& ref) { return psnr_from_mse(mse(img, ref)); }

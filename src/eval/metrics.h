@@ -15,6 +15,9 @@ double psnr(const torch::Tensor& img, const torch::Tensor& ref);
 // The same from a mean squared error (MSE == 0 gives +infinity).
 double psnr_from_mse(double mse);
 
+// PSNR in dB for data range 1 from a mean squared error: -10 log10(mse); +infinity for 0 (as psnr).
+double psnr_from_mse(double mse);
+
 // Mean squared error over every pixel and channel (float64).
 double mse(const torch::Tensor& img, const torch::Tensor& ref);
 

@@ -5,12 +5,12 @@
 #include <cmath>
 #include <ctime>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
 #include <sstream>
 
 #include "eval/colormap.h"
 #include "eval/evaluate.h"
+#include "run/run_log.h"
 #include "util/progress.h"
 #include "util/fs.h"
 
@@ -43,13 +43,6 @@ std::string fmt_json(const nlohmann::json& v, int precision = 4) {
   return "n/a";
 }
 
-std::string read_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // "Nice" tick spacing: 1, 2 or 5 times a power of ten, about range / kLinearTicks.
 double nice_step(double range) {
   const double raw = range / kLinearTicks;
@@ -79,7 +72,7 @@ std::string colour_bar(double lo, double hi, const std::string& caption) {
 std::string img_tag(const std::string& path, const std::string& alt) {
   if (!fs::exists(path)) return "<div class=\"missing\">" + html_escape(alt) + " missing</div>";
   return "<img alt=\"" + html_escape(alt) + "\" width=\"" + std::to_string(kViewWidthPx) +
-         "\" src=\"data:image/png;base64," + base64_encode(read_bytes(path)) + "\">";
+         "\" src=\"data:image/png;base64," + base64_encode(read_file(path)) + "\">";
 }
 
 struct SplitMetrics {
@@ -96,7 +89,7 @@ std::vector<SplitMetrics> load_metrics(const RunFolder& run) {
     const auto file = e.path() / "metrics.json";
     if (!e.is_directory() || !fs::exists(file)) continue;
     try {
-      out.push_back({e.path().filename().string(), e.path().string(), nlohmann::json::parse(read_bytes(file.string()))});
+      out.push_back({e.path().filename().string(), e.path().string(), nlohmann::json::parse(read_file(file.string()))});
     } catch (const nlohmann::json::exception&) {
       // A damaged metrics file is left out of the report rather than failing it.
     }
@@ -249,37 +242,6 @@ img { image-rendering: pixelated; border: 1px solid #ccc; }
 
 }  // namespace
 
-RunLog read_run_log(const std::string& path) {
-  RunLog log;
-  std::ifstream in(path);
-  if (!in) return log;
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-    nlohmann::json j;
-    try {
-      j = nlohmann::json::parse(line);
-    } catch (const nlohmann::json::exception&) {
-      ++log.skipped_lines;
-      continue;
-    }
-    if (!j.is_object()) {
-      ++log.skipped_lines;
-      continue;
-    }
-    if (j.contains("step") && j["step"].is_number_integer())
-      log.last_step = std::max(log.last_step, j["step"].get<int64_t>());
-    const std::string type = j.value("type", std::string());
-    if (type == "train") {
-      log.train.push_back(j);
-      if (j.contains("elapsed_s") && j["elapsed_s"].is_number()) log.elapsed_s = j["elapsed_s"].get<double>();
-    } else if (type == "eval") {
-      log.eval.push_back(j);
-    }
-  }
-  return log;
-}
-
 std::string base64_encode(const std::string& bytes) {
   static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;
@@ -424,7 +386,7 @@ void write_report(const RunFolder& run) {
     << "<p class=\"note\">Written " << when << " by ablenerf " << ABLENERF_VERSION << ".</p>"
     << summary_section(run, log) << metrics_section(metrics) << views_section(metrics) << curves_section(log)
     << config_section(run) << "</body></html>\n";
-  atomic_write_text(run.report_path(), h.str());
+  write_file_atomic(run.report_path(), h.str());
 }
 
 }  // namespace ablenerf

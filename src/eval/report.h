@@ -8,20 +8,9 @@
 #include <string>
 #include <vector>
 
-#include "eval/run_folder.h"
+#include "run/run_folder.h"
 
 namespace ablenerf {
-
-// log.jsonl split by record type. Lines that are not JSON objects (e.g. a line cut short by a
-// crash) are skipped and counted.
-struct RunLog {
-  std::vector<nlohmann::json> train, eval;
-  int64_t last_step = -1;     // largest "step" of any record, -1 when none
-  double elapsed_s = -1;      // "elapsed_s" of the last train record, -1 when none
-  int64_t skipped_lines = 0;
-};
-// A missing file gives an empty log.
-RunLog read_run_log(const std::string& path);
 
 // Standard base64 (RFC 4648, with '=' padding).
 std::string base64_encode(const std::string& bytes);

@@ -1,7 +1,5 @@
 // Weight files: our own name -> tensor dictionary (save/load) and the import of the authors'
 // release state dict (spec Appendix A). Names are documented in docs/weights.md.
-#include <fstream>
-#include <iterator>
 #include <map>
 #include <sstream>
 
@@ -106,18 +104,12 @@ void save_weights(AbleNerf& model, const std::string& path) {
   c10::Dict<std::string, torch::Tensor> dict;
   for (const auto& p : model->named_parameters()) dict.insert(p.key(), p.value().detach().cpu().contiguous());
   const std::vector<char> bytes = torch::pickle_save(c10::IValue(dict));
-  atomic_write(path, [&](const std::string& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    out.close();
-    if (!out) throw InputError(path, "", "cannot write weights");
-  });
+  write_file_atomic(path, {bytes.data(), bytes.size()});
 }
 
 c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError(path, "", "cannot read");
-  const std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string file = read_file(path);
+  const std::vector<char> bytes(file.begin(), file.end());
   c10::IValue v;
   try {
     v = torch::pickle_load(bytes);

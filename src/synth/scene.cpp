@@ -4,9 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
-#include <cstring>
 #include <exception>
-#include <fstream>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -92,12 +90,7 @@ json scene_json(const SynthOptions& o) {
 void write_depth(const std::string& base, const ViewImage& img) {
   const auto depth = torch::from_blob(const_cast<float*>(img.depth.data()), {img.height, img.width}, torch::kFloat).clone();
   const std::vector<char> bytes = torch::pickle_save(depth);
-  atomic_write(base + "_depth.pt", [&](const std::string& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    out.flush();
-    if (!out) throw InputError(base + "_depth.pt", "", std::string("cannot write: ") + std::strerror(errno));
-  });
+  write_file_atomic(base + "_depth.pt", {bytes.data(), bytes.size()});
   const double near = kCameraDistance - kSceneBound, far = kCameraDistance + kSceneBound;
   auto grey = torch::zeros({img.height, img.width, 1}, torch::kFloat);
   auto acc = grey.accessor<float, 3>();
@@ -172,9 +165,9 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   if (failure) std::rethrow_exception(failure);
 
   // The json files go last, so a readable transforms file implies its images exist.
-  atomic_write_text(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
-  atomic_write_text(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
-  atomic_write_text(dir + "/scene.json", scene_json(o).dump(2) + "\n");
+  write_file_atomic(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
+  write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
+  write_file_atomic(dir + "/scene.json", scene_json(o).dump(2) + "\n");
 }
 
 }  // namespace ablenerf::synth

@@ -1,7 +1,6 @@
 #include "train/checkpoint.h"
 
 #include <cstring>
-#include <fstream>
 #include <sstream>
 
 #include "util/errors.h"
@@ -69,21 +68,16 @@ void save_checkpoint(const std::string& path, const Config& config, AbleNerf& mo
   archive.save_to(payload_stream);
   const std::string payload = payload_stream.str();
 
-  std::string header(kMagic, sizeof(kMagic));
-  put(header, kFormatVersion);
-  put(header, static_cast<uint64_t>(payload.size()));
-  put(header, fnv1a64(payload.data(), payload.size()));
-  atomic_write(path, [&](const std::string& tmp) {
-    std::ofstream out(tmp, std::ios::binary);
-    out.write(header.data(), static_cast<std::streamsize>(header.size()));
-    out.write(payload.data(), static_cast<std::streamsize>(payload.size()));
-    out.close();  // close() flushes; a full disk surfaces here at the latest
-    if (!out) throw InputError(path, "", "cannot write the checkpoint (disk full or no permission?)");
-  });
+  std::string file(kMagic, sizeof(kMagic));
+  put(file, kFormatVersion);
+  put(file, static_cast<uint64_t>(payload.size()));
+  put(file, fnv1a64(payload.data(), payload.size()));
+  file += payload;
+  write_file_atomic(path, file);
 }
 
 TrainState load_checkpoint(const std::string& path, const Config& config, AbleNerf& model, torch::optim::Adam& optim) {
-  const std::string bytes = read_text_file(path);
+  const std::string bytes = read_file(path);
   if (bytes.size() < kHeaderBytes || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
     throw InputError(path, "header", "not an ablenerf checkpoint (or truncated)");
   uint32_t version;

@@ -24,8 +24,8 @@ struct TrainState {
 
 uint64_t fnv1a64(const char* data, size_t size);
 
-// Writes the checkpoint atomically. Throws InputError(path, ...) when it cannot be written (disk
-// full, permissions); an earlier checkpoint at `path` is then left intact.
+// Writes the checkpoint atomically. Throws EnvironmentError naming `path` when it cannot be written
+// (disk full, permissions); an earlier checkpoint at `path` is then left intact.
 void save_checkpoint(const std::string& path, const Config& config, AbleNerf& model, torch::optim::Adam& optim,
                      const TrainState& state);
 

@@ -3,7 +3,7 @@
 //
 // The step's rays run in micro-batches (bounded memory); on the CPU with compute.cpu_split =
 // "rays" each micro-batch is further cut into slices that run side by side on CPU threads
-// (model/cpu_parallel.h), each slice computing its own gradients, which are then added to the
+// (kernels/cpu_parallel.h), each slice computing its own gradients, which are then added to the
 // parameters' .grad in slice order. The sum is deterministic for a given thread count; with one
 // thread (or cpu_split = "ops", or on a GPU) it is a plain loss.backward() per micro-batch.
 // Nothing here synchronises with the device (the sums are returned as device tensors), so on a

@@ -4,16 +4,16 @@
 #include <chrono>
 #include <csignal>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
 #include "data/load_options.h"
 #include "eval/metrics.h"
 #include "eval/renderer.h"
-#include "eval/run_folder.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
+#include "run/run_folder.h"
+#include "run/run_log.h"
 #include "train/adam.h"
 #include "train/checkpoint.h"
 #include "train/cuda_step.h"
@@ -41,25 +41,6 @@ constexpr int64_t kGraphWarmupSteps = 3;
 constexpr double kProgressIntervalS = 15.0;
 // Seconds over which the rays/s figure of the progress line is averaged.
 constexpr double kRateWindowS = 0.5;
-
-// Appends one JSON line to the run's log (opened per write, so a crash loses at most the line).
-void log_line(const std::string& path, const nlohmann::json& j) {
-  std::ofstream out(path, std::ios::app);
-  out << j.dump() << "\n";
-  out.close();
-  if (!out) throw InputError(path, "", "cannot append to the log (disk full or no permission?)");
-}
-
-// A kill -9 during an atomic write leaves its temporary file (NAME.tmpPID_N) behind; the real file
-// is intact, so the temporaries of the run's own outputs are simply removed.
-void remove_stale_temporaries(const std::string& dir) {
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    const std::string name = e.path().filename().string();
-    for (const char* stem : {"checkpoint.pt.tmp", "weights.pt.tmp", "config.toml.tmp", "run.json.tmp"})
-      if (name.rfind(stem, 0) == 0) fs::remove(e.path(), ec);
-  }
-}
 
 }  // namespace
 
@@ -138,7 +119,7 @@ void Trainer::setup() {
     }
   }
   if (s.run.data_dir.empty()) throw InputError(s.run.path("run.json"), "data", "missing: give --data");
-  if (s.leader) remove_stale_temporaries(s.run.dir);
+  if (s.leader) s.run.remove_stale_temporaries();
 
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};
@@ -348,7 +329,7 @@ void Trainer::log_step(const StepReport& r) {
     s.progress->update(s.state.step, fields, false, schedule_fraction());
   }
   if (r.step % tc.log_every == 0 || r.step == tc.steps) {
-    log_line(s.run.log_path(), {{"type", "train"},
+    append_run_log(s.run.log_path(), {{"type", "train"},
                                 {"step", r.step},
                                 {"loss", s.loss_acc / static_cast<double>(s.acc_steps)},
                                 {"psnr", psnr_from_mse(s.mse_fine_acc / static_cast<double>(s.acc_steps))},
@@ -378,7 +359,7 @@ void Trainer::held_out_check() {
   }
   s.model->train();
   const double p = n > 0 ? sum / static_cast<double>(n) : NAN;
-  log_line(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
+  append_run_log(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
                               {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
   if (!opts_.quiet) std::cerr << "\ntrain: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB\n";
 }

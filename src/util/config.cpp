@@ -185,7 +185,7 @@ Config Config::parse(const std::string& text, const std::string& origin) {
   return c;
 }
 
-Config Config::load(const std::string& path) { return parse(read_text_file(path), path); }
+Config Config::load(const std::string& path) { return parse(read_file(path), path); }
 
 void Config::set(const std::string& assignment) {
   const auto eq = assignment.find('=');

@@ -2,8 +2,11 @@
 // Error types shared by every module.
 //
 // InputError is what bad user input raises: the CLI prints its one-line message
-// ("FILE: FIELD: what is wrong") and exits with code 2. Anything else that escapes
-// is an internal error (exit code 1).
+// ("FILE: FIELD: what is wrong") and exits with code 2.
+// EnvironmentError is what the machine raises when it cannot do what a correct command asks (a full
+// disk, a folder without write permission, no GPU memory left): the CLI prints its one-line message,
+// which names the fix, and exits with code 1.
+// Anything else that escapes is an internal error (exit code 1, "internal error: ...").
 #include <stdexcept>
 #include <string>
 
@@ -26,9 +29,23 @@ class InputError : public std::runtime_error {
   std::string file_, field_;
 };
 
+// "SUBJECT: WHAT (FIX)", e.g. "runs/a/checkpoint.pt: cannot write: No space left on device (disk
+// full? free space in runs/a)". `fix` may be empty.
+class EnvironmentError : public std::runtime_error {
+ public:
+  EnvironmentError(const std::string& subject, const std::string& what, const std::string& fix)
+      : std::runtime_error(subject + ": " + what + (fix.empty() ? std::string() : " (" + fix + ")")),
+        subject_(subject) {}
+  const std::string& subject() const { return subject_; }
+
+ private:
+  std::string subject_;
+};
+
 // Exit codes of the CLI.
 constexpr int kExitOk = 0;
 constexpr int kExitInternal = 1;
+constexpr int kExitEnvironment = 1;
 constexpr int kExitBadInput = 2;
 constexpr int kExitInterrupted = 130;
 

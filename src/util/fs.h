@@ -1,22 +1,33 @@
 #pragma once
-// Small filesystem helpers: atomic writes and readable failures.
-#include <functional>
+// Reading and writing whole files: the one atomic writer and the one reader of the project.
 #include <string>
+#include <string_view>
+
+#include "util/errors.h"
 
 namespace ablenerf {
 
-// Writes a file through `writer(tmp_path)` then renames tmp -> path, so readers never see a
-// partial file and an earlier version survives a failure. `writer` must throw on failure;
-// the temporary file is removed then. Also fsyncs the file before the rename.
-void atomic_write(const std::string& path, const std::function<void(const std::string&)>& writer);
+// Writes `bytes` to `path` through a temporary file in the same folder (atomic_temp_prefix(path)
+// followed by the process id and a counter), flushed to the device (fsync) and renamed over `path`:
+// readers never see a partial file, a kill at any moment leaves the old or the new file, and an
+// earlier file at `path` survives a failure. The temporary is removed when the write fails.
+// Throws EnvironmentError naming `path` and the fix (write_error) when it cannot write.
+void write_file_atomic(const std::string& path, std::string_view bytes);
 
-// Convenience: atomically write a string.
-void atomic_write_text(const std::string& path, const std::string& text);
+// "PATH.tmp": the start of the names of write_file_atomic's temporaries for `path`. A process
+// killed mid-write leaves such a file behind; the real file is intact.
+std::string atomic_temp_prefix(const std::string& path);
 
-// Reads a whole file; throws InputError(path, "", "cannot read: ...") on failure.
-std::string read_text_file(const std::string& path);
+// The whole file, byte for byte (binary-safe). Throws InputError(path, "", "cannot read: ...")
+// when it is missing, a folder or unreadable.
+std::string read_file(const std::string& path);
 
-// Creates the directory (and parents); throws InputError on failure.
+// Creates the folder (and its parents). A file in the way is an InputError; a folder that cannot
+// be created (permissions, full disk) an EnvironmentError.
 void ensure_dir(const std::string& path);
+
+// The EnvironmentError for a failed write of `path` with errno `err`: "PATH: cannot write: REASON
+// (FIX)", where FIX names what to do (free space in the folder, make it writable, ...).
+EnvironmentError write_error(const std::string& path, int err);
 
 }  // namespace ablenerf

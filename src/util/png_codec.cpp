@@ -3,6 +3,7 @@
 #include <png.h>
 
 #include <cstring>
+#include <stdexcept>
 
 #include "util/errors.h"
 #include "util/fs.h"
@@ -68,14 +69,19 @@ PngImage decode_png_file(const std::string& path) {
 void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels) {
   if (width <= 0 || height <= 0 || (channels != 1 && channels != 3 && channels != 4))
     throw InputError(path, "", "cannot write PNG: expected a non-empty image with 1, 3 or 4 channels");
-  atomic_write(path, [&](const std::string& tmp) {
-    PngHandle p;
-    p.img.width = static_cast<png_uint_32>(width);
-    p.img.height = static_cast<png_uint_32>(height);
-    p.img.format = format_of(channels);
-    if (!png_image_write_to_file(&p.img, tmp.c_str(), 0, pixels, 0, nullptr))
-      throw InputError(path, "", std::string("cannot write PNG: ") + p.img.message);
-  });
+  PngHandle p;
+  p.img.width = static_cast<png_uint_32>(width);
+  p.img.height = static_cast<png_uint_32>(height);
+  p.img.format = format_of(channels);
+  // Encoded in memory (first call: the size, second: the bytes), then written atomically.
+  png_alloc_size_t size = 0;
+  if (!png_image_write_to_memory(&p.img, nullptr, &size, 0, pixels, 0, nullptr))
+    throw std::runtime_error(path + ": cannot encode PNG: " + p.img.message);
+  std::string bytes(size, '\0');
+  if (!png_image_write_to_memory(&p.img, bytes.data(), &size, 0, pixels, 0, nullptr))
+    throw std::runtime_error(path + ": cannot encode PNG: " + p.img.message);
+  bytes.resize(size);
+  write_file_atomic(path, bytes);
 }
 
 }  // namespace ablenerf

@@ -27,7 +27,8 @@ PngImage decode_png_file(const std::string& path);
 std::pair<int, int> png_size(const std::string& path);
 
 // Writes `pixels` (row-major height x width x channels, channels in {1, 3, 4}) as a PNG through
-// atomic_write: an existing file is never left half-written. Throws InputError naming `path`.
+// write_file_atomic: an existing file is never left half-written. A bad image shape is an
+// InputError naming `path`; a failed write an EnvironmentError.
 void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels);
 
 }  // namespace ablenerf

@@ -5,7 +5,7 @@
 
 #include <string>
 
-#include "eval/run_folder.h"
+#include "run/run_folder.h"
 #include "util/config.h"
 
 namespace ablenerf::test {

@@ -46,7 +46,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   const auto m = evaluate_run(run, o);
 
   const std::string dir = run_dir + "/eval/test";
-  const auto on_disk = nlohmann::json::parse(read_text_file(dir + "/metrics.json"));
+  const auto on_disk = nlohmann::json::parse(read_file(dir + "/metrics.json"));
   EXPECT_EQ(on_disk, m);
   EXPECT_EQ(m["split"], "test");
   EXPECT_EQ(m["step"], 500);  // last step in the fixture's log.jsonl
@@ -92,7 +92,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   EXPECT_TRUE(m["mean"]["depth_mae"].is_number());
 
   write_report(run);
-  const std::string html = read_text_file(run.report_path());
+  const std::string html = read_file(run.report_path());
   EXPECT_NE(html.find("<svg"), std::string::npos);
   EXPECT_NE(html.find("<polyline"), std::string::npos);
   EXPECT_NE(html.find("data:image/png;base64,iVBORw0KGgo"), std::string::npos);  // an embedded PNG
@@ -141,4 +141,40 @@ TEST(Evaluate, BadInputsNameTheProblem) {
   o.split = "test";
   o.ssim = "fancy";
   EXPECT_THROW(evaluate_run(run, o), InputError);
+}
+
+TEST(Evaluate, ChunkAndDownscaleMustBePositiveWhenGiven) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
+  const RunFolder run = test::make_tiny_run(t / "run", t / "scene");
+  auto refused = [&](const EvalOptions& o, const std::string& field) {
+    try {
+      evaluate_run(run, o);
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.file(), field) << e.what();
+      EXPECT_NE(std::string(e.what()).find("must be positive"), std::string::npos) << e.what();
+      return;
+    }
+    ADD_FAILURE() << field << " accepted";
+  };
+  for (const int64_t bad : {int64_t(0), int64_t(-3)}) {
+    EvalOptions o;
+    o.progress = false;
+    o.note = [](const std::string&) {};
+    o.chunk = bad;
+    refused(o, "--chunk");
+    EvalOptions d;
+    d.progress = false;
+    d.note = [](const std::string&) {};
+    d.downscale = static_cast<int>(bad);
+    refused(d, "--downscale");
+  }
+  // Control: the same run evaluates with positive values, and nothing was written by the refusals.
+  EXPECT_FALSE(fs::exists(t / "run/eval/test/metrics.json"));
+  EvalOptions ok;
+  ok.progress = false;
+  ok.note = [](const std::string&) {};
+  ok.chunk = 7;
+  ok.downscale = 1;
+  EXPECT_EQ(evaluate_run(run, ok)["images"].size(), 1u);
 }

@@ -1,12 +1,10 @@
-// PSNR / SSIM against hand-computed values and an independent double-precision loop SSIM,
-// plus the `ablenerf metrics` command.
+// PSNR / SSIM against hand-computed values and an independent double-precision loop SSIM.
+// The `ablenerf metrics` command is tested in tests/cli/metrics_test.cpp.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include <cmath>
-#include <filesystem>
 #include <limits>
-#include <nlohmann/json.hpp>
 #include <vector>
 
 #include "eval/metrics.h"
@@ -46,6 +44,13 @@ TEST(Psnr, HalfThePixelsInOneChannel) {
 TEST(Psnr, IdenticalImagesGiveInfinity) {
   auto a = torch::rand({5, 6, 3});
   EXPECT_EQ(psnr(a, a), std::numeric_limits<double>::infinity());
+}
+
+TEST(Psnr, FromMseClosedForms) {
+  EXPECT_NEAR(psnr_from_mse(0.01), 20.0, 1e-12);
+  EXPECT_NEAR(psnr_from_mse(1.0), 0.0, 1e-15);
+  EXPECT_NEAR(psnr_from_mse(1.0 / 24.0), 10.0 * std::log10(24.0), 1e-12);
+  EXPECT_EQ(psnr_from_mse(0.0), std::numeric_limits<double>::infinity());
 }
 
 TEST(Psnr, ShapeMismatchIsRejected) {
@@ -160,80 +165,6 @@ TEST(ReadRgbForMetrics, CompositesRgbaOnWhite) {
   EXPECT_TRUE(torch::allclose(im[0][0], torch::tensor({1.0f, 0.0f, 0.0f})));
   EXPECT_TRUE(torch::allclose(im[0][1], torch::ones({3})));
   EXPECT_TRUE(torch::allclose(im[1][0], torch::full({3}, 0.8f)));
-}
-
-// ---- CLI ------------------------------------------------------------------------------------
-
-bool cli_available() {
-  const char* bin = std::getenv("ABLENERF_BIN");
-  return bin && std::filesystem::exists(bin);
-}
-
-TEST(MetricsCli, IdenticalImagesScorePerfectly) {
-  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
-  test::TempDir dir("metrics");
-  torch::manual_seed(3);
-  write_png(dir / "x.png", torch::rand({40, 36, 3}));
-  const std::string pair = "metrics --ref " + (dir / "x.png") + " --img " + (dir / "x.png");
-  auto r = test::run_cli(pair + " --ssim release");
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  auto j = nlohmann::json::parse(r.output);
-  EXPECT_TRUE(j["psnr"].is_null());  // +infinity has no JSON form; explained in psnr_note
-  EXPECT_TRUE(j["psnr_note"].is_string());
-  EXPECT_EQ(j["mse"].get<double>(), 0.0);
-  EXPECT_NEAR(j["ssim"].get<double>(), 1.0, 1e-9);
-  EXPECT_EQ(j["ssim_variant"], "release");
-  if (j["lpips"].is_null())
-    EXPECT_TRUE(j["lpips_note"].is_string());
-  else
-    EXPECT_NEAR(j["lpips"].get<double>(), 0.0, 1e-6);
-}
-
-TEST(MetricsCli, MatchesLibraryOnDifferentImages) {
-  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
-  test::TempDir dir("metrics");
-  torch::manual_seed(4);
-  write_png(dir / "a.png", torch::rand({20, 24, 3}));
-  write_png(dir / "b.png", torch::rand({20, 24, 3}));
-  auto r = test::run_cli("metrics --ref " + (dir / "a.png") + " --img " + (dir / "b.png"));
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  auto j = nlohmann::json::parse(r.output);
-  auto a = read_rgb_for_metrics(dir / "a.png"), b = read_rgb_for_metrics(dir / "b.png");
-  EXPECT_NEAR(j["psnr"].get<double>(), psnr(b, a), 1e-9);
-  EXPECT_NEAR(j["ssim"].get<double>(), ssim(b, a), 1e-9);
-  EXPECT_EQ(j["ssim_variant"], "standard");
-  // 20x24 is below AlexNet's minimum input, so LPIPS is reported as skipped.
-  EXPECT_TRUE(j["lpips"].is_null());
-  EXPECT_TRUE(j["lpips_note"].is_string());
-}
-
-TEST(MetricsCli, MismatchedSizesExitTwoNamingBothFiles) {
-  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
-  test::TempDir dir("metrics");
-  write_png(dir / "small.png", torch::zeros({12, 12, 3}));
-  write_png(dir / "large.png", torch::zeros({12, 13, 3}));
-  auto r = test::run_cli("metrics --ref " + (dir / "small.png") + " --img " + (dir / "large.png"));
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_NE(r.output.find("small.png"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("large.png"), std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("error:"), std::string::npos) << r.output;
-}
-
-TEST(MetricsCli, BadOptionsExitTwo) {
-  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
-  test::TempDir dir("metrics");
-  write_png(dir / "x.png", torch::zeros({40, 40, 3}));
-  const std::string pair = "metrics --ref " + (dir / "x.png") + " --img " + (dir / "x.png");
-  auto r = test::run_cli(pair + " --ssim skimage");
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_NE(r.output.find("skimage"), std::string::npos) << r.output;
-  // An explicit but missing LPIPS weights file is an input error naming the file.
-  r = test::run_cli(pair + " --lpips-weights " + (dir / "none.pt"));
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_NE(r.output.find("none.pt"), std::string::npos) << r.output;
-  r = test::run_cli("metrics --ref " + (dir / "missing.png") + " --img " + (dir / "x.png"));
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_NE(r.output.find("missing.png"), std::string::npos) << r.output;
 }
 
 }  // namespace

@@ -1,11 +1,10 @@
-// Report building blocks: base64 against RFC 4648 test vectors, the log reader on good and
-// damaged lines, the SVG chart geometry, the colour map's end points.
+// Report building blocks: base64 against RFC 4648 test vectors, the SVG chart geometry, the colour
+// map's end points. (The log.jsonl reader is tested in tests/run/run_log_test.cpp.)
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include "eval/colormap.h"
 #include "eval/report.h"
-#include "test_util.h"
 
 using namespace ablenerf;
 
@@ -19,25 +18,6 @@ TEST(Base64, Rfc4648Vectors) {
   EXPECT_EQ(base64_encode("foobar"), "Zm9vYmFy");
   // High bytes (a PNG signature): 89 50 4E 47 0D 0A 1A 0A.
   EXPECT_EQ(base64_encode(std::string("\x89PNG\r\n\x1a\n", 8)), "iVBORw0KGgo=");
-}
-
-TEST(RunLogReader, SplitsByTypeAndSkipsDamagedLines) {
-  test::TempDir t;
-  test::write_file(t / "log.jsonl",
-                   "{\"type\":\"train\",\"step\":10,\"loss\":0.5,\"psnr\":12,\"elapsed_s\":3.5}\n"
-                   "{\"type\":\"eval\",\"step\":20,\"psnr\":14,\"views\":4,\"split\":\"val\"}\n"
-                   "\n"
-                   "{\"type\":\"train\",\"step\":20,\"loss\":0.4,\"psnr\":13,\"elapsed_s\":7.25}\n"
-                   "{\"type\":\"train\",\"step\":30,\"lo");  // cut short by a crash
-  const RunLog log = read_run_log(t / "log.jsonl");
-  EXPECT_EQ(log.train.size(), 2u);
-  EXPECT_EQ(log.eval.size(), 1u);
-  EXPECT_EQ(log.last_step, 20);
-  EXPECT_DOUBLE_EQ(log.elapsed_s, 7.25);
-  EXPECT_EQ(log.skipped_lines, 1);
-  const RunLog none = read_run_log(t / "absent.jsonl");
-  EXPECT_TRUE(none.train.empty());
-  EXPECT_EQ(none.last_step, -1);
 }
 
 TEST(SvgChart, PolylineSpansThePlotAreaAndLogAxisHasDecades) {

@@ -1,4 +1,4 @@
-// Ray-parallel CPU execution (model/cpu_parallel.h): slices cover the range once, errors come
+// Ray-parallel CPU execution (kernels/cpu_parallel.h): slices cover the range once, errors come
 // back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's
 // thread count is single inside and restored after.
 #include <dlfcn.h>

@@ -34,12 +34,7 @@ ModelConfig tiny() {
   return m;
 }
 
-Rays some_rays(int64_t b) {
-  torch::manual_seed(99);
-  const auto o = torch::randn({b, 3}) * 0.2 + torch::tensor({0.0f, 0.0f, 4.0f});
-  const auto d = torch::randn({b, 3}) * 0.2 + torch::tensor({0.0f, 0.0f, -1.0f});
-  return {o, d, torch::full({b, 1}, 5.196e-4f)};
-}
+Rays some_rays(int64_t b) { return test::random_rays(b, 99); }
 
 TEST(AbleNerf, PresetParameterCounts) {
   EXPECT_EQ(AbleNerf(preset("blender").model)->parameter_count(), 6163404);  // spec 10

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "model/frustum.h"
+#include "test_util.h"
 
 namespace ablenerf {
 namespace {
@@ -91,7 +92,7 @@ TEST(Frustum, MomentsMatchQuadratureInDouble) {
 
 TEST(Frustum, StableFormKeepsTinyIntervalsAccurateInFloat) {
   // A 1e-4 interval at t = 2: naive (t1^3 - t0^3) forms lose everything in float32.
-  const double t0 = 2.0, t1 = 2.0 + 1e-4, r = 5.196e-4;
+  const double t0 = 2.0, t1 = 2.0 + 1e-4, r = test::kBlenderPixelRadius;
   const auto ref = reference_moments(t0, t1, r);
   const auto m = conical_frustum_moments(scalar(t0, torch::kFloat), scalar(t1, torch::kFloat), scalar(r, torch::kFloat));
   EXPECT_NEAR(m.t_var.item<double>(), ref.t_var, 1e-2 * ref.t_var);

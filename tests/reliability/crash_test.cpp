@@ -12,9 +12,9 @@
 #include <random>
 #include <thread>
 
-#include "eval/run_folder.h"
 #include "model/able_nerf.h"
 #include "reliability/reliability_util.h"
+#include "run/run_folder.h"
 #include "test_util.h"
 #include "train/checkpoint.h"
 

@@ -73,6 +73,12 @@ bool ChildProcess::kill9() {
   return true;
 }
 
+bool ChildProcess::send_signal(int sig) {
+  if (finished()) return false;
+  ::kill(pid_, sig);
+  return true;
+}
+
 int ChildProcess::wait() {
   if (pid_ > 0) {
     int status = 0;

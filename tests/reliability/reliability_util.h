@@ -24,6 +24,8 @@ class ChildProcess {
   bool finished();
   // SIGKILL and reap. Returns false if the child had already ended on its own.
   bool kill9();
+  // Sends `sig` without waiting. Returns false if the child had already ended.
+  bool send_signal(int sig);
   // Blocks until the child ends; returns its exit code (128+signal when killed).
   int wait();
   int exit_code() const { return exit_code_; }

@@ -1,6 +1,7 @@
 // Resource limits: a full disk while writing outputs (PNG, text, checkpoint, a training run) fails
-// with an InputError naming the file and leaves the earlier file at that path intact; a dataset
-// too large for memory is refused before any image is decoded, with the size it needed.
+// with an EnvironmentError naming the file and the fix (exit code 1 from the CLI) and leaves the
+// earlier file at that path intact; a dataset too large for memory is refused before any image is
+// decoded, with the size it needed.
 //
 // The small disk is a 1 MiB tmpfs when this process may mount one (root), else the file-size
 // rlimit (writes past it fail with EFBIG; SIGXFSZ is ignored meanwhile).
@@ -15,9 +16,9 @@
 #include <fstream>
 
 #include "data/dataset.h"
-#include "eval/run_folder.h"
 #include "model/able_nerf.h"
 #include "reliability/reliability_util.h"
+#include "run/run_folder.h"
 #include "test_util.h"
 #include "train/checkpoint.h"
 #include "util/errors.h"
@@ -58,8 +59,11 @@ class SmallDisk {
     }
   }
   bool is_tmpfs() const { return mounted_; }
+  const std::string& dir() const { return dir_; }
+  // What the failure message must advise: a full tmpfs is ENOSPC, the rlimit EFBIG.
+  std::string expected_fix() const { return mounted_ ? "disk full? free space in " + dir_ : "ulimit -f"; }
   std::string operator/(const std::string& name) const { return dir_ + "/" + name; }
-  // Files whose name says they are temporaries of atomic_write.
+  // Files whose name says they are temporaries of write_file_atomic.
   int leftover_temporaries() const {
     int n = 0;
     for (const auto& f : test::list_dir(dir_)) n += f.find(".tmp") != std::string::npos;
@@ -74,16 +78,19 @@ class SmallDisk {
   sighandler_t old_handler_ = SIG_DFL;
 };
 
-// Runs `f`, which must throw InputError naming `path`; returns the message.
+// Runs `f`, which must throw EnvironmentError naming `path` and the disk's fix; returns the message.
 template <typename F>
-std::string expect_input_error(F&& f, const std::string& path) {
+std::string expect_write_failure(F&& f, const std::string& path, const SmallDisk& disk) {
   try {
     f();
-  } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
-    return e.what();
+  } catch (const EnvironmentError& e) {
+    const std::string msg = e.what();
+    EXPECT_EQ(e.subject(), path) << msg;
+    EXPECT_EQ(msg.rfind(path + ": cannot write: ", 0), 0u) << msg;
+    EXPECT_NE(msg.find(disk.expected_fix()), std::string::npos) << msg;
+    return msg;
   } catch (const std::exception& e) {
-    ADD_FAILURE() << "not an InputError: " << e.what();
+    ADD_FAILURE() << "not an EnvironmentError: " << e.what();
     return "";
   }
   ADD_FAILURE() << "no error writing " << path;
@@ -106,8 +113,8 @@ Config model_config(int width) {
 TEST(FullDisk, TextWriteFailsAndKeepsTheEarlierFile) {
   SmallDisk disk;
   const std::string path = disk / "report.json";
-  atomic_write_text(path, "first version\n");
-  expect_input_error([&] { atomic_write_text(path, std::string(kTooBig, 'x')); }, path);
+  write_file_atomic(path, "first version\n");
+  expect_write_failure([&] { write_file_atomic(path, std::string(kTooBig, 'x')); }, path, disk);
   EXPECT_EQ(test::read_text(path), "first version\n");
   EXPECT_EQ(disk.leftover_temporaries(), 0);
 }
@@ -120,7 +127,7 @@ TEST(FullDisk, PngWriteFailsAndKeepsTheEarlierFile) {
   // Noise does not compress: ~4 MiB of PNG.
   torch::manual_seed(1);
   const auto noise = torch::randint(0, 256, {1024, 1024, 4}, torch::kLong).to(torch::kUInt8);
-  expect_input_error([&] { write_png(path, noise); }, path);
+  expect_write_failure([&] { write_png(path, noise); }, path, disk);
   EXPECT_TRUE(torch::equal(read_png(path), small));
   EXPECT_EQ(disk.leftover_temporaries(), 0);
 }
@@ -138,8 +145,7 @@ TEST(FullDisk, CheckpointSaveFailsAndKeepsTheEarlierCheckpoint) {
   st.rng_state = torch::zeros({4}, torch::kUInt8);
   save_checkpoint(path, small_cfg, small, small_opt, st);
   st.step = 6;
-  const std::string msg = expect_input_error([&] { save_checkpoint(path, big_cfg, big, big_opt, st); }, path);
-  EXPECT_NE(msg.find("cannot write"), std::string::npos) << msg;
+  expect_write_failure([&] { save_checkpoint(path, big_cfg, big, big_opt, st); }, path, disk);
   AbleNerf again(small_cfg.model);
   torch::optim::Adam again_opt(again->parameters(), torch::optim::AdamOptions(1e-3));
   EXPECT_EQ(load_checkpoint(path, small_cfg, again, again_opt).step, 5);
@@ -159,10 +165,13 @@ TEST(FullDisk, TrainingRunFailsWithOneLineAndALoadableCheckpoint) {
                      " --set train.steps=20 --set train.ckpt_every=1";
   for (const auto& a : test::tiny_train_args()) args += " " + a;
   const auto r = test::run_cli(args);
-  EXPECT_EQ(r.exit_code, 2) << r.output;
+  // An environment failure, not bad input: exit 1 and one line naming the file and the fix.
+  EXPECT_EQ(r.exit_code, 1) << r.output;
   const auto pos = r.output.find("error: " + (disk / "run"));
-  EXPECT_NE(pos, std::string::npos) << r.output;
-  EXPECT_NE(r.output.find("cannot ", pos), std::string::npos) << r.output;
+  ASSERT_NE(pos, std::string::npos) << r.output;
+  const std::string line = r.output.substr(pos, r.output.find('\n', pos) - pos);
+  EXPECT_NE(line.find(": cannot write: "), std::string::npos) << r.output;
+  EXPECT_NE(line.find("(disk full? free space in " + (disk / "run") + ")"), std::string::npos) << r.output;
   // The last checkpoint that fitted loads.
   const RunFolder run = RunFolder::open(disk / "run");
   AbleNerf model(run.config.model);

@@ -35,7 +35,7 @@ struct SphereRef {
   double radius;
 };
 
-json read_json(const std::string& path) { return json::parse(read_text_file(path)); }
+json read_json(const std::string& path) { return json::parse(read_file(path)); }
 
 std::vector<SphereRef> spheres_from_scene_json(const std::string& dir) {
   std::vector<SphereRef> out;
@@ -48,7 +48,7 @@ std::vector<SphereRef> spheres_from_scene_json(const std::string& dir) {
   return out;
 }
 
-std::string file_bytes(const std::string& path) { return read_text_file(path); }
+std::string file_bytes(const std::string& path) { return read_file(path); }
 
 // One small dataset shared by the tests of this file (rendering it takes well under a second).
 class SynthDataset : public ::testing::Test {
@@ -108,7 +108,7 @@ TEST_F(SynthDataset, TestDepthMatchesAnalyticRaySphereDistance) {
   ASSERT_EQ(spheres.size(), 3u);
   const json te = read_json(dir() + "/transforms_test.json");
   for (int k = 0; k < kTest; ++k) {
-    const std::string bytes = read_text_file(dir() + "/test/r_" + std::to_string(k) + "_depth.pt");
+    const std::string bytes = read_file(dir() + "/test/r_" + std::to_string(k) + "_depth.pt");
     const auto depth = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor();
     ASSERT_EQ(depth.scalar_type(), torch::kFloat);
     ASSERT_EQ(depth.dim(), 2);

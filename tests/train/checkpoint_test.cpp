@@ -20,10 +20,7 @@ struct Fixture {
   torch::optim::Adam optim{model->parameters(), torch::optim::AdamOptions(1e-3)};
   Fixture() {
     // one real step so that Adam has state to save
-    Rays r{torch::zeros({4, 3}), torch::randn({4, 3}), torch::full({4, 1}, 1e-3)};
-    r.origins.select(1, 2).fill_(4.0f);
-    r.directions.select(1, 2).fill_(-1.0f);
-    auto out = model->forward(r, 2.0, 6.0);
+    auto out = model->forward(test::random_rays(4, 5), 2.0, 6.0);
     (out.rgb_fine.sum() + out.rgb_coarse.sum()).backward();
     optim.step();
   }

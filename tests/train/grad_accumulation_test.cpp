@@ -27,10 +27,8 @@ ModelConfig small_model() {
 }
 
 RayBatch some_batch(int64_t n) {
-  auto gen = at::detail::createCPUGenerator(17);
-  const auto o = torch::randn({n, 3}, gen, torch::kDouble) * 0.2 + torch::tensor({0.0, 0.0, 4.0}, torch::kDouble);
-  const auto d = torch::randn({n, 3}, gen, torch::kDouble) * 0.2 + torch::tensor({0.0, 0.0, -1.0}, torch::kDouble);
-  return {{o, d, torch::full({n, 1}, 5e-4, torch::kDouble)}, torch::rand({n, 3}, gen, torch::kDouble)};
+  auto gen = at::detail::createCPUGenerator(18);
+  return {test::random_rays(n, 17, torch::kDouble), torch::rand({n, 3}, gen, torch::kDouble)};
 }
 
 // Reference: the whole batch in one forward, the loss written out, one backward.

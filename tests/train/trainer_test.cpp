@@ -7,8 +7,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "eval/run_folder.h"
 #include "kernels/cpu_parallel.h"
+#include "run/run_folder.h"
 #include "train/checkpoint.h"
 #include "train/trainer.h"
 #include "train_fixture.h"

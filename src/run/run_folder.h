@@ -5,7 +5,7 @@
 //   RUN/weights.pt      latest model weights (save_weights format, torch.load-able dict)
 //   RUN/checkpoint.pt   full training state (model, Adam, step, RNG), checksummed; see train/checkpoint.h
 //   RUN/log.jsonl       one JSON object per line: {"type":"train", step, loss, psnr, lr, rays_per_s,
-//                       elapsed_s} or {"type":"eval", step, psnr, views, split}
+//                       elapsed_s} or {"type":"eval", step, psnr, views, split}; see run/run_log.h
 //   RUN/eval/SPLIT/     eval outputs (images, error and depth maps, metrics.json)
 //   RUN/report.html     the self-contained report
 #include <torch/torch.h>
@@ -32,6 +32,11 @@ struct RunFolder {
   std::string checkpoint_path() const { return path("checkpoint.pt"); }
   std::string log_path() const { return path("log.jsonl"); }
   std::string report_path() const { return path("report.html"); }
+
+  // A kill -9 during an atomic write (util/fs.h) leaves its temporary file behind while the real
+  // file is intact: removes the temporaries of this folder's own outputs (weights, checkpoint,
+  // config, run.json, report). Other files are left alone.
+  void remove_stale_temporaries() const;
 };
 
 // The run's model with its latest weights, in eval mode, on `device`.

@@ -1,5 +1,6 @@
 // The `eval` and `render` subcommands through the built CLI ($ABLENERF_BIN): exit codes and
-// one-line errors, raw tensors equal to the PNGs, depth/branch images, video through ffmpeg.
+// one-line errors, raw tensors equal to the PNGs, depth/branch images, video through ffmpeg, and
+// --device (shared with `train`): accepted values, and a GPU asked for where there is none.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -7,12 +8,11 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 
+#include "eval/eval_fixtures.h"
 #include "eval/video.h"
-#include "eval_fixtures.h"
 #include "test_util.h"
+#include "util/fs.h"
 #include "util/image_io.h"
 
 using namespace ablenerf;
@@ -27,9 +27,8 @@ int count_lines(const std::string& s) {
 }
 
 torch::Tensor load_pt(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  return torch::pickle_load(bytes).toTensor();
+  const std::string bytes = read_file(path);
+  return torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor();
 }
 
 // Sets an environment variable for the lifetime of the object.
@@ -142,4 +141,28 @@ TEST(CliRender, VideoThroughFfmpeg) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   ASSERT_TRUE(fs::exists(t / "v.mp4"));
   EXPECT_GT(fs::file_size(t / "v.mp4"), 0u);
+}
+
+TEST(CliDevice, EvalAndRenderTakeDeviceAndRefuseMissingGpusInOneLine) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const std::string eval = "eval --run " + t / "run" + " --max-images 1";
+  const std::string render = "render --run " + t / "run" + " --path orbit --frames 1 --width 4 --height 4 --out " + t / "f";
+  const std::string train = "train --data " + t / "scene" + " --out " + t / "new_run";
+  auto e = test::run_cli(eval + " --device cpu");
+  EXPECT_EQ(e.exit_code, 0) << e.output;
+  auto r = test::run_cli(render + " --device cpu");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(t / "f/frame_0000.png"));
+  std::vector<std::string> refused{"tpu", "gpu0", "meta"};
+  if (!torch::cuda::is_available()) refused.insert(refused.end(), {"cuda", "cuda:1"});
+  for (const std::string& cmd : {eval, render, train})
+    for (const std::string& dev : refused) {
+      const auto bad = test::run_cli(cmd + " --device " + dev);
+      EXPECT_EQ(bad.exit_code, 2) << cmd << " --device " << dev << ": " << bad.output;
+      EXPECT_EQ(count_lines(bad.output), 1) << bad.output;
+      EXPECT_EQ(bad.output.rfind("error: --device: " + dev + ": ", 0), 0u) << bad.output;
+    }
+  EXPECT_FALSE(fs::exists(t / "new_run"));  // refused before anything was written
 }

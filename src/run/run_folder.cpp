@@ -1,10 +1,10 @@
-#include "eval/run_folder.h"
-
-#include "model/compute.h"
+#include "run/run_folder.h"
 
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <vector>
 
+#include "model/compute.h"
 #include "util/errors.h"
 #include "util/fs.h"
 
@@ -23,7 +23,7 @@ RunFolder RunFolder::open(const std::string& dir) {
   if (fs::exists(info)) {
     nlohmann::json j;
     try {
-      j = nlohmann::json::parse(read_text_file(info));
+      j = nlohmann::json::parse(read_file(info));
     } catch (const nlohmann::json::exception& e) {
       throw InputError(info, "", "invalid JSON");
     }
@@ -40,12 +40,24 @@ RunFolder RunFolder::create(const std::string& dir, const Config& config, const 
   r.dir = dir;
   r.config = config;
   r.data_dir = data_dir.empty() ? std::string() : fs::absolute(data_dir).lexically_normal().string();
-  atomic_write_text(r.path("config.toml"), config.to_toml());
+  write_file_atomic(r.path("config.toml"), config.to_toml());
   nlohmann::json j;
   j["data"] = r.data_dir;
   j["version"] = ABLENERF_VERSION;
-  atomic_write_text(r.path("run.json"), j.dump(2) + "\n");
+  write_file_atomic(r.path("run.json"), j.dump(2) + "\n");
   return r;
+}
+
+void RunFolder::remove_stale_temporaries() const {
+  std::vector<std::string> prefixes;
+  for (const std::string& out : {weights_path(), checkpoint_path(), path("config.toml"), path("run.json"), report_path()})
+    prefixes.push_back(fs::path(atomic_temp_prefix(out)).filename().string());
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    for (const std::string& prefix : prefixes)
+      if (name.rfind(prefix, 0) == 0) fs::remove(e.path(), ec);
+  }
 }
 
 AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
