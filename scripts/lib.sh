@@ -72,9 +72,10 @@ ablenerf_cuda_cmake_args() {
   local prefixes=$prefix
   [ -d "$root/usr" ] && prefixes="$prefix;$root/usr"
   ABLENERF_CUDA_CMAKE_ARGS=(-DCMAKE_PREFIX_PATH="$prefixes" -DCMAKE_CUDA_ARCHITECTURES="$arch")
-  # prefix = .../site-packages/torch/share/cmake: NCCL's header sits under .../site-packages.
+  # prefix = .../site-packages/torch/share/cmake: NCCL's own header is in pip's nvidia-nccl package
+  # under .../site-packages (not torch/csrc/cuda/nccl.h, PyTorch's wrapper of the same name).
   site=$(dirname "$(dirname "$(dirname "$prefix")")")
-  nccl_h=$(find "$site" -name nccl.h 2>/dev/null | head -1)
+  nccl_h=$(find "$site" -path '*/nccl/include/nccl.h' 2>/dev/null | head -1)
   [ -n "$nccl_h" ] && ABLENERF_CUDA_CMAKE_ARGS+=(-DNCCL_INCLUDE_DIR="$(dirname "$nccl_h")")
   if [ -d "$root/usr" ]; then
     local lib=$root/usr/lib/x86_64-linux-gnu

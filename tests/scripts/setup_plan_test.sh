@@ -62,5 +62,30 @@ else
   echo "FAIL exported-plan-kept:"; sed 's/^/    /' <<<"$out"; failures=$((failures + 1))
 fi
 
+# The CUDA build's CMake arguments: the prefix, the architecture, and NCCL's own header from pip's
+# nvidia-nccl package, not PyTorch's wrapper header of the same name.
+site="$tmp/site packages"
+mkdir -p "$site/torch/share/cmake" "$site/torch/include/torch/csrc/cuda" "$site/nvidia/nccl/include"
+touch "$site/torch/include/torch/csrc/cuda/nccl.h" "$site/nvidia/nccl/include/nccl.h"
+args=$(cd "$tmp" && bash -c ". '$repo/scripts/lib.sh' && ablenerf_cuda_cmake_args '$site/torch/share/cmake' 90 &&
+       printf '%s\n' \"\${ABLENERF_CUDA_CMAKE_ARGS[@]}\"")
+before=$failures
+for want in "-DCMAKE_PREFIX_PATH=$site/torch/share/cmake" -DCMAKE_CUDA_ARCHITECTURES=90 \
+            "-DNCCL_INCLUDE_DIR=$site/nvidia/nccl/include"; do
+  if ! grep -qxF -- "$want" <<<"$args"; then
+    echo "FAIL cuda-cmake-args: expected '$want' in:"; sed 's/^/    /' <<<"$args"; failures=$((failures + 1))
+  fi
+done
+[ $failures -eq $before ] && echo "ok   cuda-cmake-args"
+# PyTorch's wrapper header alone is not NCCL: no NCCL_INCLUDE_DIR then.
+rm -r "$site/nvidia"
+args=$(cd "$tmp" && bash -c ". '$repo/scripts/lib.sh' && ablenerf_cuda_cmake_args '$site/torch/share/cmake' 90 &&
+       printf '%s\n' \"\${ABLENERF_CUDA_CMAKE_ARGS[@]}\"")
+if grep -q -- -DNCCL_INCLUDE_DIR <<<"$args"; then
+  echo "FAIL cuda-cmake-args-no-nccl:"; sed 's/^/    /' <<<"$args"; failures=$((failures + 1))
+else
+  echo "ok   cuda-cmake-args-no-nccl"
+fi
+
 if [ $failures -ne 0 ]; then echo "setup_plan_test: $failures failed"; exit 1; fi
 echo "setup_plan_test: all passed"
