@@ -16,7 +16,7 @@ namespace {
 namespace F = torch::nn::functional;
 
 // AlexNet layout of torchvision's `features` Sequential: the indices of the five convs, their
-// output channels, input channels, kernel sizes, strides and paddings (shared/weights/README.md).
+// output channels, input channels, kernel sizes, strides and paddings (assets/LPIPS_WEIGHTS.md).
 struct ConvSpec {
   int index;
   int64_t out, in, kernel, stride, padding;
