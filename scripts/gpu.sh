@@ -16,16 +16,17 @@
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
-#   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS when weights are carried)
+#   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS)
 set -uo pipefail
 cd "$(dirname "$0")/.."
+. scripts/lib.sh
 OUT=${OUT:-/tmp/gpu}
 mkdir -p "$OUT"
 root=$PWD/.carry/root
 export LD_LIBRARY_PATH=$root/usr/lib/x86_64-linux-gnu:$root/lib/x86_64-linux-gnu:${LD_LIBRARY_PATH:-}
 bin=build-cuda/ablenerf
 lego=.carry/lego   # lego's train split + the first 20 test views (docs/GPU.md)
-# LPIPS weights, when carried (the eval stages report LPIPS only then).
+# LPIPS weights: the repository's assets/ copy, unless the fp32 original is carried.
 [ -f .carry/weights/lpips_alex_v0.1.pt ] && export ABLENERF_LPIPS_WEIGHTS=$PWD/.carry/weights/lpips_alex_v0.1.pt
 
 stamp() { echo "== $(date -u +%H:%M:%S) $*"; }
@@ -40,17 +41,14 @@ stage_env() {
 }
 
 stage_build() {
-  local torch_prefix nccl_inc gen=()
+  local torch_prefix gen=()
   torch_prefix=$(python3 -c "import torch; print(torch.utils.cmake_prefix_path)")
-  nccl_inc=$(dirname "$(find "$(dirname "$(dirname "$torch_prefix")")/.." -name nccl.h 2>/dev/null | head -1)" 2>/dev/null)
+  # The same CMake arguments as scripts/setup.sh's CUDA build: prefix, sm_90, NCCL, .carry/root.
+  ablenerf_cuda_cmake_args "$torch_prefix" 90
   command -v ninja >/dev/null && gen=(-G Ninja)
   local t0=$SECONDS
   cmake -S . -B build-cuda "${gen[@]}" -DCMAKE_BUILD_TYPE=Release \
-    -DCMAKE_PREFIX_PATH="$torch_prefix;$root/usr" -DCMAKE_CUDA_ARCHITECTURES=90 \
-    -DNCCL_INCLUDE_DIR="$nccl_inc" \
-    -DPNG_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libpng16.so" -DPNG_PNG_INCLUDE_DIR="$root/usr/include" \
-    -DZLIB_LIBRARY="$root/usr/lib/x86_64-linux-gnu/libz.so" -DZLIB_INCLUDE_DIR="$root/usr/include" \
-    > "$OUT/cmake.log" 2>&1 || { tail -40 "$OUT/cmake.log"; return 1; }
+    "${ABLENERF_CUDA_CMAKE_ARGS[@]}" > "$OUT/cmake.log" 2>&1 || { tail -40 "$OUT/cmake.log"; return 1; }
   grep -E "c10d|nccl|Gloo|CUDA" "$OUT/cmake.log" | head
   # BUILD_TARGETS (e.g. "ablenerf test_gpu") builds only those; default: everything.
   local targets=()

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
-# The test command: installs what is missing, builds, runs every test with ctest, then a
-# 60-second libFuzzer smoke run (30 s per target) when clang and its fuzzer runtime are present.
-# Environment: ABLENERF_FUZZ_SECONDS (per target, default 30; 0 skips the smoke run).
+# The test command: installs what is missing, builds, runs every test with ctest, runs the
+# README's command blocks (scripts/check_readme.sh, ~2 minutes), then a 60-second libFuzzer smoke
+# run (30 s per target) when clang and its fuzzer runtime are present.
+# Builds into build-cuda where a PyTorch with working CUDA is present, else build (scripts/setup.sh).
+# Environment: ABLENERF_FUZZ_SECONDS (per target, default 30; 0 skips the smoke run);
+# ABLENERF_README_CHECK=0 skips the README check.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
@@ -27,8 +30,16 @@ else
   echo "test: nvcc compile check skipped (no CUDA toolkit: nvcc not on PATH)"
 fi
 
-scripts/setup.sh build
-(cd build && ctest --output-on-failure --timeout 900 -j "${ABLENERF_TEST_JOBS:-1}")
+. scripts/lib.sh
+ablenerf_plan   # the build folder, shared with setup.sh and check_readme.sh
+tests/scripts/setup_plan_test.sh   # setup.sh's choice of LibTorch and folder (stub python3; a second)
+scripts/setup.sh
+(cd "$ABLENERF_BUILD_DIR" && ctest --output-on-failure --timeout 900 -j "${ABLENERF_TEST_JOBS:-1}")
+if [ "${ABLENERF_README_CHECK:-1}" != 0 ]; then
+  scripts/check_readme.sh
+else
+  echo "test: README check skipped (ABLENERF_README_CHECK=0)"
+fi
 
 # Fuzz smoke stage: builds the torch-free fuzz targets in build-fuzz (clang, ASan + UBSan; about a
 # minute from scratch) and fuzzes each from its committed corpus. A finding fails the script.

@@ -15,7 +15,7 @@ namespace {
 namespace F = torch::nn::functional;
 
 // AlexNet layout of torchvision's `features` Sequential: the indices of the five convs, their
-// output channels, input channels, kernel sizes, strides and paddings (shared/weights/README.md).
+// output channels, input channels, kernel sizes, strides and paddings (assets/LPIPS_WEIGHTS.md).
 struct ConvSpec {
   int index;
   int64_t out, in, kernel, stride, padding;
@@ -36,6 +36,8 @@ constexpr float kShift[3] = {-0.030f, -0.088f, -0.188f};
 constexpr float kScale[3] = {0.458f, 0.448f, 0.450f};
 // Added to the channel norm before dividing (LPIPS normalize_tensor).
 constexpr double kNormEps = 1e-10;
+// File name of the weights in assets/ and in the shared folder.
+constexpr const char* kLpipsFile = "lpips_alex_v0.1.pt";
 
 std::string shape_str(at::IntArrayRef s) {
   std::ostringstream o;
@@ -57,12 +59,29 @@ torch::Tensor take(const c10::Dict<c10::IValue, c10::IValue>& dict, const std::s
 
 }  // namespace
 
+std::vector<std::string> lpips_weights_candidates() {
+  namespace fs = std::filesystem;
+  std::vector<std::string> out;
+  // The copy shipped in the source tree this binary was built from.
+  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / "assets" / kLpipsFile).string());
+  // An installed or copied tree: BIN_DIR/../assets (the binary's real location, links resolved).
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec && !exe.empty())
+    out.push_back((exe.parent_path() / ".." / "assets" / kLpipsFile).lexically_normal().string());
+  // The project's shared folder beside the repository (the fp32 original).
+  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / ".." / "shared" / "weights" / kLpipsFile)
+                    .lexically_normal()
+                    .string());
+  return out;
+}
+
 std::string default_lpips_weights_path() {
   if (const char* env = std::getenv("ABLENERF_LPIPS_WEIGHTS"); env && *env) return env;
-  const std::filesystem::path p =
-      std::filesystem::path(ABLENERF_SOURCE_DIR) / ".." / "shared" / "weights" / "lpips_alex_v0.1.pt";
   std::error_code ec;
-  return std::filesystem::is_regular_file(p, ec) ? p.lexically_normal().string() : std::string();
+  for (const std::string& p : lpips_weights_candidates())
+    if (std::filesystem::is_regular_file(p, ec)) return p;
+  return std::string();
 }
 
 Lpips::Lpips(const std::string& path) {

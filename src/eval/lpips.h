@@ -1,18 +1,24 @@
 #pragma once
 // LPIPS v0.1 with the AlexNet backbone (Zhang et al. 2018), inference only.
 // Weights: a torch.save dictionary with AlexNet's five convs (features.{0,3,6,8,10}.{weight,bias})
-// and the five linear calibration layers (lin0..lin4.weight); see shared/weights/README.md.
+// and the five linear calibration layers (lin0..lin4.weight); see assets/LPIPS_WEIGHTS.md.
 #include <torch/torch.h>
 
 #include <array>
 #include <string>
+#include <vector>
 
 namespace ablenerf {
 
-// $ABLENERF_LPIPS_WEIGHTS when set (returned even if the file is missing, so a bad setting is
-// reported rather than silently ignored); else <repo>/../shared/weights/lpips_alex_v0.1.pt when
-// that file exists; else "" (the caller should say LPIPS is skipped).
+// The default weights file: $ABLENERF_LPIPS_WEIGHTS when set (returned even if the file is missing,
+// so a bad setting is reported rather than silently ignored); else the first existing file of
+// lpips_weights_candidates(); else "" (the caller should say LPIPS is skipped).
 std::string default_lpips_weights_path();
+
+// Where default_lpips_weights_path() looks, in order: <source tree>/assets/lpips_alex_v0.1.pt (the
+// shipped fp16 copy, assets/LPIPS_WEIGHTS.md), <binary's folder>/../assets/ (an installed or
+// copied tree), <source tree>/../shared/weights/ (the project's fp32 original).
+std::vector<std::string> lpips_weights_candidates();
 
 class Lpips {
  public:

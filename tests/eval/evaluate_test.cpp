@@ -38,9 +38,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   o.progress = false;
   std::vector<std::string> notes;
   o.note = [&](const std::string& s) { notes.push_back(s); };
-  const std::string lpips_file = test::shared_weights_dir().empty()
-                                     ? std::string()
-                                     : test::shared_weights_dir() + "/lpips_alex_v0.1.pt";
+  const std::string lpips_file = default_lpips_weights_path();  // the copy in assets/ unless overridden
   const bool have_lpips = !lpips_file.empty() && fs::exists(lpips_file);
   o.lpips_weights = have_lpips ? lpips_file : "";
   const auto m = evaluate_run(run, o);

@@ -1,11 +1,15 @@
-// LPIPS (AlexNet v0.1) against the reference distances published with the shared weights
-// (computed with the LPIPS authors' code; shared/weights/README.md), and its input errors.
+// LPIPS (AlexNet v0.1) with the weights shipped in assets/ (fp16 copy) against the reference
+// distances computed with the LPIPS authors' code for the example pairs in assets/lpips_examples/
+// (assets/LPIPS_WEIGHTS.md), the default weights lookup, and the loader's input errors.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
+#include <vector>
 
 #include "eval/lpips.h"
 #include "eval/metrics.h"
@@ -18,13 +22,11 @@ namespace {
 // Tolerance of the brief; the README's references are rounded to 4 decimals.
 constexpr double kRefTolerance = 1e-3;
 
-std::string weights_file() {
-  const std::string dir = test::shared_weights_dir();
-  return dir.empty() ? std::string() : dir + "/lpips_alex_v0.1.pt";
-}
+// The copy shipped with the repository (float16 tensors; the loader converts them to float32).
+std::string weights_file() { return test::source_dir() + "/assets/lpips_alex_v0.1.pt"; }
 
 torch::Tensor example(const std::string& name) {
-  return read_rgb_for_metrics(test::shared_weights_dir() + "/lpips_examples/" + name + ".png");
+  return read_rgb_for_metrics(test::source_dir() + "/assets/lpips_examples/" + name + ".png");
 }
 
 void save_dict(const std::string& path, const c10::Dict<std::string, torch::Tensor>& dict) {
@@ -45,7 +47,6 @@ std::string error_field(const std::string& path) {
 }
 
 TEST(Lpips, MatchesPublishedReferenceDistances) {
-  if (test::shared_weights_dir().empty()) GTEST_SKIP() << "shared weights absent";
   Lpips lp(weights_file());
   const auto ref = example("ex_ref"), p0 = example("ex_p0"), p1 = example("ex_p1");
   ASSERT_EQ(ref.sizes(), (std::vector<int64_t>{64, 64, 3}));
@@ -55,7 +56,6 @@ TEST(Lpips, MatchesPublishedReferenceDistances) {
 }
 
 TEST(Lpips, BatchedEqualsSingleAndIsSymmetric) {
-  if (test::shared_weights_dir().empty()) GTEST_SKIP() << "shared weights absent";
   Lpips lp(weights_file());
   const auto ref = example("ex_ref"), p0 = example("ex_p0"), p1 = example("ex_p1");
   auto d = lp.distances(torch::stack({p0, p1}), torch::stack({ref, ref}));
@@ -66,7 +66,6 @@ TEST(Lpips, BatchedEqualsSingleAndIsSymmetric) {
 }
 
 TEST(Lpips, RejectsImagesBelowAlexNetMinimum) {
-  if (test::shared_weights_dir().empty()) GTEST_SKIP() << "shared weights absent";
   Lpips lp(weights_file());
   const int64_t s = Lpips::kMinSide;
   EXPECT_NO_THROW(lp.distance(torch::rand({s, s, 3}), torch::rand({s, s, 3})));
@@ -100,17 +99,40 @@ TEST(Lpips, WrongShapeIsNamed) {
   EXPECT_EQ(error_field(dir / "shape.pt"), "features.0.weight");
 }
 
-TEST(Lpips, DefaultPathHonoursEnvironment) {
+// The shipped weights are stored in float16: they must be the float32 originals rounded to
+// float16 (checked against the shared folder's original where it is present) and load as float32.
+TEST(Lpips, ShippedWeightsAreTheOriginalRoundedToHalf) {
+  const std::string shared = test::shared_weights_dir();
+  if (shared.empty()) GTEST_SKIP() << "no shared fp32 original (the reference distances still check the asset)";
+  auto read_dict = [](const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    return torch::pickle_load(bytes).toGenericDict();
+  };
+  const auto half = read_dict(weights_file());
+  const auto full = read_dict(shared + "/lpips_alex_v0.1.pt");
+  ASSERT_EQ(half.size(), full.size());
+  for (const auto& kv : full) {
+    const std::string key = kv.key().toStringRef();
+    ASSERT_TRUE(half.contains(kv.key())) << key;
+    const torch::Tensor h = half.at(kv.key()).toTensor(), f = kv.value().toTensor();
+    EXPECT_EQ(h.scalar_type(), torch::kHalf) << key;
+    EXPECT_TRUE(torch::equal(h, f.to(torch::kHalf))) << key;
+  }
+}
+
+TEST(Lpips, DefaultPathHonoursEnvironmentThenFindsTheShippedCopy) {
   const char* old = std::getenv("ABLENERF_LPIPS_WEIGHTS");
   const std::string saved = old ? old : "";
   ::setenv("ABLENERF_LPIPS_WEIGHTS", "/some/where/w.pt", 1);
   EXPECT_EQ(default_lpips_weights_path(), "/some/where/w.pt");
   ::unsetenv("ABLENERF_LPIPS_WEIGHTS");
-  const std::string fallback = default_lpips_weights_path();
-  if (test::shared_weights_dir().empty())
-    EXPECT_EQ(fallback, "");
-  else
-    EXPECT_NE(fallback.find("lpips_alex_v0.1.pt"), std::string::npos);
+  // The source tree's assets/ comes first, and it is present in every checkout.
+  const auto candidates = lpips_weights_candidates();
+  ASSERT_GE(candidates.size(), 2u);
+  EXPECT_EQ(std::filesystem::path(candidates.front()),
+            std::filesystem::path(ABLENERF_SOURCE_DIR) / "assets" / "lpips_alex_v0.1.pt");
+  EXPECT_EQ(default_lpips_weights_path(), candidates.front());
   if (old) ::setenv("ABLENERF_LPIPS_WEIGHTS", saved.c_str(), 1);
 }
 
