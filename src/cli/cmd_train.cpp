@@ -7,6 +7,8 @@
 #include "run/run_folder.h"
 #include "train/distributed.h"
 #include "train/trainer.h"
+#include "util/duration.h"
+#include "util/errors.h"
 
 namespace ablenerf::cli {
 namespace {
@@ -16,6 +18,7 @@ struct TrainArgs {
   bool resume = false;
   int64_t max_steps = -1;
   double time_limit = 0;
+  std::string time_budget;
   double dist_timeout = 120;
   ConfigOptions cfg;
 };
@@ -30,6 +33,9 @@ void setup(CLI::App& app) {
   app.add_option("--time-limit", a->time_limit,
                  "Checkpoint and stop after this many seconds of training in this invocation (0 = none)")
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--time-budget", a->time_budget,
+                 "Train for this wall-clock budget with the schedule laid out over it (train.time_budget_s): "
+                 "5m, 90s, 2h, 1h30m or seconds");
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
@@ -44,6 +50,14 @@ void setup(CLI::App& app) {
       config.validate();
     } else {
       config = resolve_config(a->cfg);
+    }
+    if (!a->time_budget.empty()) {
+      const auto seconds = parse_duration(a->time_budget);
+      if (!seconds || *seconds <= 0)
+        throw InputError("train", "--time-budget", "expected a duration such as 5m, 90s, 2h or 1h30m, got '" +
+                                                       a->time_budget + "'");
+      config.train.time_budget_s = *seconds;
+      config.validate();
     }
     TrainOptions o;
     o.data_dir = a->data;

@@ -158,6 +158,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["ssim_variant"] = ssim_variant_name(variant);
   const RunLog log = read_run_log(run.log_path());
   m["step"] = log.last_step >= 0 ? nlohmann::json(log.last_step) : nlohmann::json();
+  // Wall-clock seconds of training behind these weights (the log's last train record), so that
+  // quality can be compared at equal training time.
+  m["train_seconds"] = log.elapsed_s >= 0 ? nlohmann::json(log.elapsed_s) : nlohmann::json();
   m["width"] = k.width;
   m["height"] = k.height;
   m["near"] = ds.near;

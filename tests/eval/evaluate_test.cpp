@@ -48,6 +48,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   EXPECT_EQ(on_disk, m);
   EXPECT_EQ(m["split"], "test");
   EXPECT_EQ(m["step"], 500);  // last step in the fixture's log.jsonl
+  EXPECT_DOUBLE_EQ(m["train_seconds"].get<double>(), 50.0);  // its elapsed_s: step / 10
   EXPECT_EQ(m["ssim_variant"], "standard");
   ASSERT_EQ(m["images"].size(), 2u);
 
@@ -93,6 +94,10 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   const std::string html = read_file(run.report_path());
   EXPECT_NE(html.find("<svg"), std::string::npos);
   EXPECT_NE(html.find("<polyline"), std::string::npos);
+  // PSNR against wall-clock minutes too: the fixture's last record is at 50 s = 0.83 minutes.
+  const auto time_chart = html.find("PSNR against training time");
+  ASSERT_NE(time_chart, std::string::npos);
+  EXPECT_NE(html.find(">minutes<", time_chart), std::string::npos);
   EXPECT_NE(html.find("data:image/png;base64,iVBORw0KGgo"), std::string::npos);  // an embedded PNG
   EXPECT_NE(html.find("model.width"), std::string::npos);                         // config table
   // Self-contained: no scripts, no external images or stylesheets.

@@ -161,5 +161,33 @@ TEST(Attention, InitialisationFollowsPyTorchDefaults) {
   EXPECT_EQ(n, 370944);  // spec 10
 }
 
+// compute.attention = "plain" is the reference that `bench --compare` divides by: on the CPU it
+// must compute what "fused" (the packed BLAS kernel) computes, values and gradients, with the ray
+// mask and without, in self- and cross-attention.
+TEST(Attention, PlainEqualsFusedOnTheCpu) {
+  torch::manual_seed(21);
+  TransformerBlock blk(16, 2, 32);
+  blk->to(torch::kDouble);
+  const auto mask = ray_attention_mask(8).to(torch::kDouble);
+  for (const bool masked : {true, false}) {
+    std::vector<torch::Tensor> outs, grads;
+    for (const AttentionKernel k : {AttentionKernel::Plain, AttentionKernel::Fused}) {
+      blk->attn->set_kernel(k);
+      torch::manual_seed(22);
+      const auto x = torch::randn({3, 9, 16}, torch::kDouble).requires_grad_(true);
+      const auto le = torch::randn({1, 4, 16}, torch::kDouble).requires_grad_(true);
+      const auto self = blk->forward_self(x, masked ? mask : torch::Tensor());
+      const auto cross = blk->forward_cross(le, self);
+      const auto loss = (self * self).sum() + cross.sin().sum();
+      const auto g = torch::autograd::grad({loss}, {x, le});
+      outs.push_back(torch::cat({self.reshape({-1}), cross.reshape({-1})}).detach());
+      grads.push_back(torch::cat({g[0].reshape({-1}), g[1].reshape({-1})}));
+    }
+    EXPECT_LT((outs[0] - outs[1]).abs().max().item<double>(), 1e-10) << "masked " << masked;
+    EXPECT_LT((grads[0] - grads[1]).abs().max().item<double>(), 1e-9) << "masked " << masked;
+    EXPECT_GT(grads[0].abs().max().item<double>(), 1e-3);  // not a comparison of zeros
+  }
+}
+
 }  // namespace
 }  // namespace ablenerf

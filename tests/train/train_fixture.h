@@ -1,9 +1,13 @@
 #pragma once
 // A tiny dataset and model config shared by the training tests (seconds on 2 cores).
+#include <gtest/gtest.h>
+
+#include <functional>
 #include <string>
 
 #include "synth/scene.h"
 #include "test_util.h"
+#include "train/trainer.h"
 #include "util/config.h"
 
 namespace ablenerf::test {
@@ -34,6 +38,23 @@ inline const std::string& tiny_dataset() {
     written = true;
   }
   return dir.path();
+}
+
+// Trains `c` to the end in DIR/straight, and in DIR/pieces as two invocations: the first stops
+// after `first_piece` steps, then `between` runs, then a resume (data folder from run.json)
+// finishes the run. `options(out)` gives the options of a run folder. The caller compares the two.
+inline void train_straight_and_in_pieces(const Config& c, const std::function<TrainOptions(const std::string&)>& options,
+                                         const std::string& dir, int64_t first_piece,
+                                         const std::function<void()>& between = {}) {
+  ASSERT_EQ(train(c, options(dir + "/straight")), TrainResult::Finished);
+  TrainOptions o = options(dir + "/pieces");
+  o.max_steps_this_run = first_piece;
+  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
+  if (between) between();
+  o.max_steps_this_run = -1;
+  o.resume = true;
+  o.data_dir.clear();  // taken from run.json
+  ASSERT_EQ(train(c, o), TrainResult::Finished);
 }
 
 }  // namespace ablenerf::test

@@ -94,14 +94,7 @@ TEST(TrainerGpu, ResumeEqualsUninterrupted) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   test::TempDir t;
   const Config c = test::tiny_config();  // 12 steps, checkpoint every 5
-  ASSERT_EQ(train(c, gpu_options(t / "straight")), TrainResult::Finished);
-  TrainOptions o = gpu_options(t / "pieces");
-  o.max_steps_this_run = 7;
-  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
-  o.max_steps_this_run = -1;
-  o.resume = true;
-  o.data_dir.clear();
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  test::train_straight_and_in_pieces(c, gpu_options, t.path(), 7);
   auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
   for (const auto& kv : a) {
     const auto ta = kv.value().toTensor(), tb = b.at(kv.key()).toTensor();

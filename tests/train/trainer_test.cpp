@@ -120,14 +120,8 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
   const test::IntraOpThreads threads(1);
   test::TempDir t;
   const Config c = test::tiny_config();  // 12 steps, checkpoint every 5
-  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
-  TrainOptions o = options(t / "pieces");
-  o.max_steps_this_run = 7;  // stops between two periodic checkpoints
-  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
-  o.max_steps_this_run = -1;
-  o.resume = true;
-  o.data_dir.clear();  // taken from run.json
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  // Stops between two periodic checkpoints (every 5 steps).
+  test::train_straight_and_in_pieces(c, options, t.path(), 7);
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
 
@@ -138,14 +132,8 @@ TEST(Trainer, ResumeEqualsUninterruptedWithTheRaySplit) {
   if (cpu_workers(16, 8) < 2) GTEST_SKIP() << "no OpenBLAS thread control: no ray split";
   test::TempDir t;
   const Config c = test::tiny_config();  // 32 rays per step in micro-batches of 16
-  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
-  TrainOptions o = options(t / "pieces");
-  o.max_steps_this_run = 7;
-  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
-  o.max_steps_this_run = -1;
-  o.resume = true;
-  o.data_dir.clear();
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  // Stops between two periodic checkpoints (every 5 steps).
+  test::train_straight_and_in_pieces(c, options, t.path(), 7);
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
 
@@ -155,15 +143,10 @@ TEST(Trainer, ResumeEqualsUninterruptedWithStratifiedJitter) {
   test::TempDir t;
   Config c = test::tiny_config();
   c.set("model.randomized=true");
-  ASSERT_EQ(train(c, options(t / "straight")), TrainResult::Finished);
-  TrainOptions o = options(t / "pieces");
-  o.max_steps_this_run = 5;  // stops right on a periodic checkpoint
-  ASSERT_EQ(train(c, o), TrainResult::StoppedEarly);
-  // a temporary left by a kill during a checkpoint write is cleaned up on resume
-  test::write_file(t / "pieces/checkpoint.pt.tmp999_0", "partial");
-  o.max_steps_this_run = -1;
-  o.resume = true;
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  // Stops right on a periodic checkpoint; a temporary left by a kill during a checkpoint write is
+  // cleaned up on resume.
+  test::train_straight_and_in_pieces(c, options, t.path(), 5,
+                                     [&] { test::write_file(t / "pieces/checkpoint.pt.tmp999_0", "partial"); });
   EXPECT_FALSE(fs::exists(t / "pieces/checkpoint.pt.tmp999_0"));
   expect_same_weights(t / "straight", t / "pieces", 0.0);
 }
