@@ -16,7 +16,7 @@
 #include "util/errors.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_metrics {
 
 struct MetricsArgs {
   std::string ref, img, lpips_weights, ssim = "standard";
@@ -47,7 +47,7 @@ void run(const MetricsArgs& a) {
     out["psnr"] = p;
   }
   out["ssim"] = ssim(img, ref, variant);
-  out["ssim_variant"] = ssim_variant_name(variant);
+  out["ssim_variant"] = name_of(variant);
 
   const std::string weights = a.lpips_weights.empty() ? default_lpips_weights_path() : a.lpips_weights;
   if (weights.empty()) {
@@ -75,6 +75,6 @@ void setup(CLI::App& app) {
   app.callback([a] { run(*a); });
 }
 
-}  // namespace
-ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair", setup);
+}  // namespace cmd_metrics
+ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair", cmd_metrics::setup);
 }  // namespace ablenerf::cli

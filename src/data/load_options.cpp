@@ -5,7 +5,7 @@ namespace ablenerf {
 LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
   LoadOptions o;
   o.downscale = c.data.downscale;
-  o.white_background = c.data.background == "white";
+  o.white_background = c.data.background == Background::White;
   o.near = c.data.near;
   o.far = c.data.far;
   o.splits = std::move(splits);

@@ -63,7 +63,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     throw InputError("--chunk", "", "must be positive (got " + std::to_string(*opts.chunk) + ")");
   if (opts.downscale && *opts.downscale <= 0)
     throw InputError("--downscale", "", "must be positive (got " + std::to_string(*opts.downscale) + ")");
-  const SsimVariant variant = parse_ssim_variant(opts.ssim.empty() ? run.config.eval.ssim : opts.ssim, "--ssim");
+  const SsimVariant variant = opts.ssim.empty() ? run.config.eval.ssim : parse_ssim_variant(opts.ssim, "--ssim");
   const int64_t chunk = opts.chunk.value_or(run.config.eval.chunk);
 
   const auto splits = available_splits(data_dir);
@@ -155,7 +155,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["mean"] = mean;
   m["seconds_per_image"] = count ? nlohmann::json(total_seconds / static_cast<double>(count)) : nlohmann::json();
   m["lpips_weights"] = lpips ? nlohmann::json(lpips_path) : nlohmann::json();
-  m["ssim_variant"] = ssim_variant_name(variant);
+  m["ssim_variant"] = name_of(variant);
   const RunLog log = read_run_log(run.log_path());
   m["step"] = log.last_step >= 0 ? nlohmann::json(log.last_step) : nlohmann::json();
   // Wall-clock seconds of training behind these weights (the log's last train record), so that

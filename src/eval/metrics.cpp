@@ -56,13 +56,8 @@ double psnr(const torch::Tensor& img, const torch::Tensor& ref) { return psnr_fr
 
 SsimVariant parse_ssim_variant(const std::string& name, const std::string& source,
                                const std::string& field) {
-  if (name == "standard") return SsimVariant::Standard;
-  if (name == "release") return SsimVariant::Release;
+  if (const auto v = enum_from_name<SsimVariant>(name)) return *v;
   throw InputError(source, field, "unknown SSIM variant '" + name + "' (use standard or release)");
-}
-
-const char* ssim_variant_name(SsimVariant v) {
-  return v == SsimVariant::Standard ? "standard" : "release";
 }
 
 double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant variant) {

@@ -6,6 +6,8 @@
 
 #include <string>
 
+#include "util/config.h"
+
 namespace ablenerf {
 
 // PSNR in dB for data range 1: -10 log10(MSE) over every pixel and channel.
@@ -15,26 +17,14 @@ double psnr(const torch::Tensor& img, const torch::Tensor& ref);
 // The same from a mean squared error (MSE == 0 gives +infinity).
 double psnr_from_mse(double mse);
 
-// PSNR in dB for data range 1 from a mean squared error: -10 log10(mse); +infinity for 0 (as psnr).
-double psnr_from_mse(double mse);
 
 // Mean squared error over every pixel and channel (float64).
 double mse(const torch::Tensor& img, const torch::Tensor& ref);
 
-enum class SsimVariant {
-  // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
-  // the valid map and channels; variances clamped at 0 and the covariance bounded by
-  // sqrt(var_x var_y) as in multinerf. Needs images of at least 11x11.
-  Standard,
-  // The ABLE-NeRF authors' release: same window, zero padding of 5 ("same"-size map), mean over
-  // the full map including the zero-padded borders, no clamping (biased low near borders).
-  Release,
-};
 
 // Parses "standard" / "release"; throws InputError(source, field, ...) for anything else.
 SsimVariant parse_ssim_variant(const std::string& name, const std::string& source = "",
                                const std::string& field = "ssim");
-const char* ssim_variant_name(SsimVariant v);
 
 // SSIM window parameters shared by both variants (data range 1).
 constexpr int kSsimWindow = 11;

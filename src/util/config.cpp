@@ -32,10 +32,29 @@ const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>() {
   return t;
 }
 
+template <>
+const std::vector<std::pair<ViewEncoding, const char*>>& enum_names<ViewEncoding>() {
+  static const std::vector<std::pair<ViewEncoding, const char*>> t{{ViewEncoding::Release, "release"},
+                                                                    {ViewEncoding::Paper, "paper"}};
+  return t;
+}
+template <>
+const std::vector<std::pair<Background, const char*>>& enum_names<Background>() {
+  static const std::vector<std::pair<Background, const char*>> t{{Background::White, "white"},
+                                                                  {Background::Black, "black"}};
+  return t;
+}
+template <>
+const std::vector<std::pair<SsimVariant, const char*>>& enum_names<SsimVariant>() {
+  static const std::vector<std::pair<SsimVariant, const char*>> t{{SsimVariant::Standard, "standard"},
+                                                                   {SsimVariant::Release, "release"}};
+  return t;
+}
+
 namespace {
 
-using FieldRef =
-    std::variant<int*, int64_t*, double*, bool*, std::string*, AttentionKernel*, Precision*, CpuSplit*>;
+using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,
+                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -113,7 +132,6 @@ std::string value_string(const FieldRef& ref) {
         using T = std::remove_pointer_t<decltype(p)>;
         if constexpr (std::is_same_v<T, bool>) return *p ? "true" : "false";
         else if constexpr (std::is_same_v<T, double>) return format_double(*p);
-        else if constexpr (std::is_same_v<T, std::string>) return "\"" + *p + "\"";
         else if constexpr (std::is_enum_v<T>) return std::string("\"") + name_of(*p) + "\"";
         else return std::to_string(*p);
       },
@@ -129,9 +147,6 @@ void set_from_node(const FieldRef& ref, const toml::node& node, const std::strin
         if constexpr (std::is_same_v<T, bool>) {
           if (!node.is_boolean()) throw InputError(file, key, "expected true or false");
           *p = node.as_boolean()->get();
-        } else if constexpr (std::is_same_v<T, std::string>) {
-          if (!node.is_string()) throw InputError(file, key, "expected a string");
-          *p = node.as_string()->get();
         } else if constexpr (std::is_enum_v<T>) {
           const auto v = node.is_string() ? enum_from_name<T>(node.as_string()->get()) : std::nullopt;
           if (!v) throw InputError(file, key, allowed_names<T>());
@@ -195,9 +210,9 @@ void Config::set(const std::string& assignment) {
   auto fields = field_map(*this);
   auto it = fields.find(key);
   if (it == fields.end()) throw InputError("--set", key, "unknown key");
-  // Strings may be given bare (--set data.background=black).
+  // Names may be given bare (--set data.background=black).
   const bool is_string = std::visit(
-      [](auto* p) { using T = std::remove_pointer_t<decltype(p)>; return std::is_same_v<T, std::string> || std::is_enum_v<T>; },
+      [](auto* p) { return std::is_enum_v<std::remove_pointer_t<decltype(p)>>; },
       it->second);
   std::string doc = "v = " + ((is_string && (value.empty() || value[0] != '"')) ? "\"" + value + "\"" : value);
   toml::table tbl;
@@ -223,12 +238,8 @@ void Config::validate() const {
   need(m.ipe_degrees >= 1 && m.ipe_degrees <= 30, "model.ipe_degrees", "must be in 1..30");
   need(m.le_count >= 0, "model.le_count", "must be >= 0");
   need(m.le_layers >= 0, "model.le_layers", "must be >= 0");
-  need(m.view_encoding == "release" || m.view_encoding == "paper", "model.view_encoding",
-       "must be \"release\" or \"paper\"");
   need(m.resample_padding >= 0, "model.resample_padding", "must be >= 0");
   need(data.downscale >= 1, "data.downscale", "must be >= 1");
-  need(data.background == "white" || data.background == "black", "data.background",
-       "must be \"white\" or \"black\"");
   need(data.near >= 0 && data.far > data.near, "data.far", "need 0 <= near < far");
   const auto& t = train;
   need(t.steps >= 0, "train.steps", "must be >= 0");
@@ -246,8 +257,6 @@ void Config::validate() const {
   need(t.max_bad_steps >= 1, "train.max_bad_steps", "must be >= 1");
   need(t.time_budget_s >= 0 && std::isfinite(t.time_budget_s), "train.time_budget_s", "must be >= 0 seconds");
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
-  need(eval.ssim == "standard" || eval.ssim == "release", "eval.ssim",
-       "must be \"standard\" or \"release\"");
 }
 
 std::vector<std::pair<std::string, std::string>> Config::items() const {

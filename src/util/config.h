@@ -14,6 +14,19 @@ namespace ablenerf {
 enum class AttentionKernel { Fused, Plain };
 enum class Precision { Fp32, Bf16 };
 enum class CpuSplit { Rays, Ops };
+// What the run computes or reads, chosen by name in the config.
+enum class ViewEncoding { Release, Paper };  // model.view_encoding (model/view_encoding.h)
+enum class Background { White, Black };      // data.background: the colour RGBA images are composited on
+// eval.ssim (eval/metrics.h):
+enum class SsimVariant {
+  // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
+  // the valid map and channels; variances clamped at 0 and the covariance bounded by
+  // sqrt(var_x var_y) as in multinerf. Needs images of at least 11x11.
+  Standard,
+  // The ABLE-NeRF authors' release: same window, zero padding of 5 ("same"-size map), mean over
+  // the full map including the zero-padded borders, no clamping (biased low near borders).
+  Release,
+};
 
 // The names of an enum's values, one table per enum (config files, --set, logs, bench reports).
 template <class E>
@@ -24,6 +37,12 @@ template <>
 const std::vector<std::pair<Precision, const char*>>& enum_names<Precision>();
 template <>
 const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>();
+template <>
+const std::vector<std::pair<ViewEncoding, const char*>>& enum_names<ViewEncoding>();
+template <>
+const std::vector<std::pair<Background, const char*>>& enum_names<Background>();
+template <>
+const std::vector<std::pair<SsimVariant, const char*>>& enum_names<SsimVariant>();
 template <class E>
 const char* name_of(E value) {
   for (const auto& [v, n] : enum_names<E>())
@@ -49,13 +68,13 @@ struct ModelConfig {
   int le_layers = 2;         // LE self-attention blocks
   bool mask = true;          // causal volume mask of spec 4.3 (false = bidirectional ablation)
   bool randomized = false;   // stratified jitter of coarse samples and resampling (released: off)
-  std::string view_encoding = "release";  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
+  ViewEncoding view_encoding = ViewEncoding::Release;  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
   double resample_padding = 0.01;         // added to every blurred weight before inverse-CDF sampling
 };
 
 struct DataConfig {
   int downscale = 1;                  // integer box-downscale factor
-  std::string background = "white";   // "white" | "black"
+  Background background = Background::White;
   double near = 2.0;
   double far = 6.0;
 };
@@ -89,7 +108,7 @@ struct TrainConfig {
 
 struct EvalConfig {
   int64_t chunk = 4096;          // rays per forward when rendering
-  std::string ssim = "standard"; // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
+  SsimVariant ssim = SsimVariant::Standard;  // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
 };
 
 // How the arithmetic runs (model/compute.h); never changes what is computed beyond rounding.

@@ -13,9 +13,9 @@ namespace {
 
 TEST(ViewEncoding, ReleaseLayoutByHand) {
   const double d[3] = {0.5, -1.0, 2.0};
-  const auto e = encode_view(torch::tensor({d[0], d[1], d[2]}, torch::kDouble).view({1, 3}), "release")[0];
+  const auto e = encode_view(torch::tensor({d[0], d[1], d[2]}, torch::kDouble).view({1, 3}), ViewEncoding::Release)[0];
   ASSERT_EQ(e.size(0), 27);
-  EXPECT_EQ(view_encoding_width("release"), 27);
+  EXPECT_EQ(view_encoding_width(ViewEncoding::Release), 27);
   const double f[4] = {1.0, 10.0 / 3.0, 17.0 / 3.0, 8.0};  // linspace(1, 8, 4)
   for (int c = 0; c < 3; ++c) EXPECT_DOUBLE_EQ(e[c].item<double>(), d[c]);
   for (int k = 0; k < 4; ++k)
@@ -26,8 +26,8 @@ TEST(ViewEncoding, ReleaseLayoutByHand) {
 }
 
 TEST(ViewEncoding, PaperOctaves) {
-  EXPECT_EQ(view_encoding_width("paper"), 99);
-  const auto e = encode_view(torch::tensor({0.1, 0.2, 0.3}, torch::kDouble).view({1, 3}), "paper")[0];
+  EXPECT_EQ(view_encoding_width(ViewEncoding::Paper), 99);
+  const auto e = encode_view(torch::tensor({0.1, 0.2, 0.3}, torch::kDouble).view({1, 3}), ViewEncoding::Paper)[0];
   ASSERT_EQ(e.size(0), 99);
   EXPECT_NEAR(e[3 + 6 * 15 + 2].item<double>(), std::sin(32768.0 * 0.3), 1e-9);  // top band 2^15
   EXPECT_NEAR(e[3 + 6 * 15 + 5].item<double>(), std::cos(32768.0 * 0.3), 1e-9);

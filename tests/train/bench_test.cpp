@@ -20,7 +20,7 @@ ModelConfig hand_config() {
   m.ipe_degrees = 1;  // P = 6 IPE features
   m.le_count = 1;     // N = 1
   m.le_layers = 1;
-  m.view_encoding = "release";  // V = 27
+  m.view_encoding = ViewEncoding::Release;  // V = 27
   return m;
 }
 

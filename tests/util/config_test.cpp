@@ -1,0 +1,122 @@
+// The run configuration's schema: TOML and --set reach every key, names of enum values come from
+// one table per enum, and every kind of bad input names the file and the key.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "util/config.h"
+#include "util/errors.h"
+
+using namespace ablenerf;
+
+namespace {
+
+// The message of the InputError that `f` throws ("" when it throws none).
+template <class F>
+std::string input_error(F&& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Every value of an enum's table parses back to itself and prints as its name, through TOML
+// and through --set, for the key `key`.
+template <class E>
+void expect_names_round_trip(const std::string& key) {
+  for (const auto& [value, name] : enum_names<E>()) {
+    Config c;
+    c.set(key + "=" + name);  // bare, as on the command line
+    const Config back = Config::parse(c.to_toml(), "round-trip");
+    EXPECT_EQ(back.items(), c.items()) << key << " = " << name;
+    bool found = false;
+    for (const auto& [k, v] : back.items())
+      if (k == key) {
+        EXPECT_EQ(v, std::string("\"") + name + "\"");
+        found = true;
+      }
+    EXPECT_TRUE(found) << key;
+  }
+}
+
+}  // namespace
+
+TEST(Config, EnumKeysTakeEveryNameOfTheirTable) {
+  expect_names_round_trip<ViewEncoding>("model.view_encoding");
+  expect_names_round_trip<Background>("data.background");
+  expect_names_round_trip<SsimVariant>("eval.ssim");
+  expect_names_round_trip<AttentionKernel>("compute.attention");
+  expect_names_round_trip<Precision>("compute.precision");
+  expect_names_round_trip<CpuSplit>("compute.cpu_split");
+
+  Config c;
+  c.set("data.background=black");
+  c.set("model.view_encoding=\"paper\"");  // quoted works too
+  c.set("eval.ssim=release");
+  EXPECT_EQ(c.data.background, Background::Black);
+  EXPECT_EQ(c.model.view_encoding, ViewEncoding::Paper);
+  EXPECT_EQ(c.eval.ssim, SsimVariant::Release);
+}
+
+TEST(Config, NameTablesAreOneToOne) {
+  auto check = [](const auto& table) {
+    for (size_t i = 0; i < table.size(); ++i)
+      for (size_t j = i + 1; j < table.size(); ++j) {
+        EXPECT_NE(table[i].first, table[j].first);
+        EXPECT_STRNE(table[i].second, table[j].second);
+      }
+    for (const auto& [v, n] : table) {
+      EXPECT_STREQ(name_of(v), n);
+      EXPECT_EQ(enum_from_name<std::decay_t<decltype(v)>>(n), v);
+    }
+  };
+  check(enum_names<ViewEncoding>());
+  check(enum_names<Background>());
+  check(enum_names<SsimVariant>());
+  check(enum_names<AttentionKernel>());
+  check(enum_names<Precision>());
+  check(enum_names<CpuSplit>());
+  EXPECT_FALSE(enum_from_name<Background>("White").has_value());  // names are exact
+}
+
+TEST(Config, AnUnknownNameListsTheAllowedOnes) {
+  EXPECT_EQ(input_error([] { Config::parse("[data]\nbackground = \"grey\"\n", "a.toml"); }),
+            "a.toml: data.background: must be \"white\" or \"black\"");
+  EXPECT_EQ(input_error([] { Config c; c.set("model.view_encoding=octaves"); }),
+            "--set: model.view_encoding: must be \"release\" or \"paper\"");
+  EXPECT_EQ(input_error([] { Config::parse("[eval]\nssim = 3\n", "b.toml"); }),
+            "b.toml: eval.ssim: must be \"standard\" or \"release\"");
+}
+
+TEST(Config, BadInputNamesFileAndKey) {
+  EXPECT_EQ(input_error([] { Config::parse("[model]\nwidth = \"wide\"\n", "c.toml"); }),
+            "c.toml: model.width: expected an integer");
+  EXPECT_EQ(input_error([] { Config::parse("[model]\nwidht = 4\n", "c.toml"); }).rfind("c.toml: model.widht", 0), 0u);
+  EXPECT_EQ(input_error([] { Config::parse("[model]\nwidth = 5000000000\n", "c.toml"); }),
+            "c.toml: model.width: out of range");
+  EXPECT_EQ(input_error([] { Config c; c.set("train.steps"); }).rfind("--set: train.steps", 0), 0u);
+  EXPECT_EQ(input_error([] { Config c; c.set("train.stepz=3"); }), "--set: train.stepz: unknown key");
+  EXPECT_EQ(input_error([] { Config::parse("[train]\nlr_init = nan\n", "d.toml"); }),
+            "d.toml: train.lr_init: must be finite");
+}
+
+TEST(Config, ResolvedTomlReproducesEveryKey) {
+  Config c;
+  c.set("model.width=64");
+  c.set("train.lr_init=0.00123");
+  c.set("model.mask=false");
+  c.set("data.background=black");
+  const Config back = Config::parse(c.to_toml(), "resolved");
+  EXPECT_EQ(back.items(), c.items());
+  EXPECT_EQ(back.model.width, 64);
+  EXPECT_DOUBLE_EQ(back.train.lr_init, 0.00123);
+  EXPECT_FALSE(back.model.mask);
+  // Every key of the schema is written.
+  const std::string toml = c.to_toml();
+  for (const auto& [key, value] : c.items()) {
+    const std::string leaf = key.substr(key.find('.') + 1);
+    EXPECT_NE(toml.find(leaf + " = "), std::string::npos) << key;
+  }
+}
