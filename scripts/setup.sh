@@ -27,7 +27,7 @@ if [ $print_plan = 1 ]; then
 fi
 
 packages=(
-  g++ cmake make pkg-config
+  g++ cmake make ninja-build pkg-config     # Ninja keeps both cores busy through the unity build
   libcli11-dev nlohmann-json3-dev libtomlplusplus-dev libpng-dev
   libgloo-dev                             # headers for c10d's Gloo backend (multi-process training)
   libgtest-dev libgmock-dev
@@ -60,6 +60,7 @@ fi
 jobs=${ABLENERF_JOBS:-$(nproc)}
 if [ ! -f "$build_dir/CMakeCache.txt" ]; then
   cmake_args=(-DCMAKE_BUILD_TYPE=Release)
+  command -v ninja >/dev/null && cmake_args+=(-G Ninja)
   if [ "$ABLENERF_PLAN_KIND" = cuda ]; then
     ablenerf_cuda_cmake_args "$ABLENERF_TORCH_PREFIX" "$ABLENERF_CUDA_ARCH"
     cmake_args+=("${ABLENERF_CUDA_CMAKE_ARGS[@]}")
@@ -74,9 +75,10 @@ if [ ! -f "$build_dir/CMakeCache.txt" ]; then
 fi
 echo "setup: $(ablenerf_torch_summary "$build_dir"), building in $build_dir with $jobs jobs" \
      "($ABLENERF_PLAN_WHY; log: $build_dir/build.log)"
+build_start=$SECONDS
 if ! cmake --build "$build_dir" -j "$jobs" >"$build_dir/build.log" 2>&1; then
   grep -E "error|Error" "$build_dir/build.log" | head -40 >&2
   echo "setup: build failed (full log: $build_dir/build.log)" >&2
   exit 1
 fi
-echo "setup: ok ($build_dir/ablenerf)"
+echo "setup: ok ($build_dir/ablenerf; build step $((SECONDS - build_start)) s)"

@@ -8,7 +8,7 @@
 #include "util/errors.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_bench {
 
 struct BenchArgs {
   ConfigOptions cfg;
@@ -78,6 +78,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("bench", 50, "Measure training and rendering speed", setup);
+}  // namespace cmd_bench
+ABLENERF_COMMAND("bench", 50, "Measure training and rendering speed", cmd_bench::setup);
 }  // namespace ablenerf::cli

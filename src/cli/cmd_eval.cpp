@@ -11,7 +11,7 @@
 #include "util/errors.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_eval {
 
 struct EvalArgs {
   std::string run, split = "test", data, ssim, lpips_weights, device = "auto";
@@ -58,6 +58,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("eval", 30, "Evaluate a run on a split (PSNR, SSIM, LPIPS, images, report)", setup);
+}  // namespace cmd_eval
+ABLENERF_COMMAND("eval", 30, "Evaluate a run on a split (PSNR, SSIM, LPIPS, images, report)", cmd_eval::setup);
 }  // namespace ablenerf::cli

@@ -11,7 +11,7 @@
 #include "model/able_nerf.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_export {
 
 constexpr int64_t kDefaultSeed = 4;  // the release's seed
 
@@ -53,6 +53,6 @@ void setup(CLI::App& app) {
   app.callback([a] { run_export(*a); });
 }
 
-}  // namespace
-ABLENERF_COMMAND("export", 60, "Export model weights as a torch.load-able dictionary", setup);
+}  // namespace cmd_export
+ABLENERF_COMMAND("export", 60, "Export model weights as a torch.load-able dictionary", cmd_export::setup);
 }  // namespace ablenerf::cli

@@ -12,7 +12,7 @@
 #include "util/fs.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_import {
 
 struct ImportArgs {
   std::string weights, out;
@@ -40,6 +40,6 @@ void setup(CLI::App& app) {
   app.callback([a] { run_import(*a); });
 }
 
-}  // namespace
-ABLENERF_COMMAND("import", 65, "Import weights of the authors' release into a run", setup);
+}  // namespace cmd_import
+ABLENERF_COMMAND("import", 65, "Import weights of the authors' release into a run", cmd_import::setup);
 }  // namespace ablenerf::cli

@@ -9,7 +9,7 @@
 #include "data/dataset.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_info {
 
 nlohmann::json dataset_summary(const Dataset& ds) {
   nlohmann::json j;
@@ -60,6 +60,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("info", 70, "Validate and summarise a dataset (--data) and/or a config (--config)", setup);
+}  // namespace cmd_info
+ABLENERF_COMMAND("info", 70, "Validate and summarise a dataset (--data) and/or a config (--config)", cmd_info::setup);
 }  // namespace ablenerf::cli

@@ -29,7 +29,7 @@
 namespace fs = std::filesystem;
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_render {
 
 constexpr int kDefaultFrames = 120;
 constexpr double kDefaultFps = 30;
@@ -228,6 +228,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("render", 40, "Render images or a video along a camera path", setup);
+}  // namespace cmd_render
+ABLENERF_COMMAND("render", 40, "Render images or a video along a camera path", cmd_render::setup);
 }  // namespace ablenerf::cli

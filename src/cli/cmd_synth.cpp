@@ -10,7 +10,7 @@
 #include "util/errors.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_synth {
 
 struct SynthArgs {
   std::string out;
@@ -46,6 +46,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("synth", 10, "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset", setup);
+}  // namespace cmd_synth
+ABLENERF_COMMAND("synth", 10, "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset", cmd_synth::setup);
 }  // namespace ablenerf::cli

@@ -11,7 +11,7 @@
 #include "util/errors.h"
 
 namespace ablenerf::cli {
-namespace {
+namespace cmd_train {
 
 struct TrainArgs {
   std::string data, out, device = "auto", backend = "gloo";
@@ -89,6 +89,6 @@ void setup(CLI::App& app) {
   });
 }
 
-}  // namespace
-ABLENERF_COMMAND("train", 20, "Train a model on a dataset (writes a run folder: config, checkpoints, log, weights)", setup);
+}  // namespace cmd_train
+ABLENERF_COMMAND("train", 20, "Train a model on a dataset (writes a run folder: config, checkpoints, log, weights)", cmd_train::setup);
 }  // namespace ablenerf::cli

@@ -1,6 +1,8 @@
 #pragma once
 // Subcommand registry: each src/cli/cmd_*.cpp registers its subcommand with a static
 // ABLENERF_COMMAND(...) so that commands live in their own files and main.cpp stays generic.
+// Each cmd_NAME.cpp keeps its helpers in namespace cmd_NAME, not an anonymous one: the unity build
+// (CMakeLists.txt) compiles several command files as one translation unit.
 #include <CLI/CLI.hpp>
 
 #include <exception>
@@ -51,6 +53,6 @@ struct ConfigOptions {
 #define ABLENERF_CAT2(a, b) a##b
 #define ABLENERF_CAT(a, b) ABLENERF_CAT2(a, b)
 #define ABLENERF_COMMAND(name, order, help, setup_fn)                                     \
-  static const ::ablenerf::cli::CommandRegistrar ABLENERF_CAT(ablenerf_cmd_, __LINE__) { \
+  static const ::ablenerf::cli::CommandRegistrar ABLENERF_CAT(ablenerf_cmd_, __COUNTER__) { \
     ::ablenerf::cli::CommandSpec { name, help, order, setup_fn }                         \
   }

@@ -25,16 +25,16 @@ torch::Tensor bias_gelu_reference(const torch::Tensor& x, const torch::Tensor& b
 
 namespace {
 
-constexpr const char* kOp = "bias_gelu";
+constexpr const char* kBiasGeluOp = "bias_gelu";
 
 void check_inputs(const torch::Tensor& x, const torch::Tensor& b) {
   namespace check = kernel_checks;
-  check::cuda(kOp, "x", x);
-  check::activation_dtype(kOp, "x", x);
-  check::contiguous(kOp, "x", x);
-  TORCH_CHECK(x.dim() >= 1, kOp, ": x must have at least one dimension");
-  TORCH_CHECK(x.size(-1) <= std::numeric_limits<int>::max(), kOp, ": x's last dimension is too large");
-  check::parameter_vector(kOp, "b", b, x.size(-1), x);
+  check::cuda(kBiasGeluOp, "x", x);
+  check::activation_dtype(kBiasGeluOp, "x", x);
+  check::contiguous(kBiasGeluOp, "x", x);
+  TORCH_CHECK(x.dim() >= 1, kBiasGeluOp, ": x must have at least one dimension");
+  TORCH_CHECK(x.size(-1) <= std::numeric_limits<int>::max(), kBiasGeluOp, ": x's last dimension is too large");
+  check::parameter_vector(kBiasGeluOp, "b", b, x.size(-1), x);
 }
 
 // Saved for backward: x and b (x + b is recomputed; no pre-activation is stored).

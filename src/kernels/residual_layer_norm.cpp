@@ -25,26 +25,26 @@ torch::Tensor residual_layer_norm_reference(const torch::Tensor& x, const torch:
 
 namespace {
 
-constexpr const char* kOp = "residual_layer_norm";
+constexpr const char* kResidualLayerNormOp = "residual_layer_norm";
 
 void check_inputs(const torch::Tensor& x, const torch::Tensor& r, const torch::Tensor& gamma, const torch::Tensor& beta,
                   double eps) {
   namespace check = kernel_checks;
-  check::cuda(kOp, "x", x);
-  check::activation_dtype(kOp, "x", x);
-  check::contiguous(kOp, "x", x);
-  TORCH_CHECK(x.dim() >= 1, kOp, ": x must have at least one dimension");
+  check::cuda(kResidualLayerNormOp, "x", x);
+  check::activation_dtype(kResidualLayerNormOp, "x", x);
+  check::contiguous(kResidualLayerNormOp, "x", x);
+  TORCH_CHECK(x.dim() >= 1, kResidualLayerNormOp, ": x must have at least one dimension");
   const int64_t width = x.size(-1);
-  TORCH_CHECK(residual_layer_norm_width_supported(width), kOp, ": x's last dimension (", width,
+  TORCH_CHECK(residual_layer_norm_width_supported(width), kResidualLayerNormOp, ": x's last dimension (", width,
               ") must be a multiple of 32 in [32, ", kResidualLayerNormMaxWidth, "]");
-  check::cuda(kOp, "r", r);
-  check::same_device(kOp, "r", r, x);
-  TORCH_CHECK(r.sizes() == x.sizes(), kOp, ": r must have x's shape ", x.sizes(), ", got ", r.sizes());
-  check::dtype(kOp, "r", r, x.scalar_type());
-  check::contiguous(kOp, "r", r);
-  check::parameter_vector(kOp, "gamma", gamma, width, x);
-  check::parameter_vector(kOp, "beta", beta, width, x);
-  TORCH_CHECK(eps >= 0, kOp, ": eps must be >= 0, got ", eps);
+  check::cuda(kResidualLayerNormOp, "r", r);
+  check::same_device(kResidualLayerNormOp, "r", r, x);
+  TORCH_CHECK(r.sizes() == x.sizes(), kResidualLayerNormOp, ": r must have x's shape ", x.sizes(), ", got ", r.sizes());
+  check::dtype(kResidualLayerNormOp, "r", r, x.scalar_type());
+  check::contiguous(kResidualLayerNormOp, "r", r);
+  check::parameter_vector(kResidualLayerNormOp, "gamma", gamma, width, x);
+  check::parameter_vector(kResidualLayerNormOp, "beta", beta, width, x);
+  TORCH_CHECK(eps >= 0, kResidualLayerNormOp, ": eps must be >= 0, got ", eps);
 }
 
 // Saved for backward: x and r themselves (no extra memory: autograd keeps references; backward

@@ -7,8 +7,7 @@ namespace ablenerf::synth {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kDeg = kPi / 180.0;
+constexpr double kDeg = M_PI / 180.0;
 // The golden angle as a fraction of a turn: (3 - sqrt 5) / 2 gives the most even spiral.
 const double kGoldenTurn = 0.5 * (3.0 - std::sqrt(5.0));
 // Test orbit starts facing the -y side of the scene (azimuth -90 degrees).
@@ -62,7 +61,7 @@ std::vector<Camera> train_cameras(int count, int res, uint64_t seed) {
   for (int k = 0; k < count; ++k) {
     const double z = z_lo + (z_hi - z_lo) * (k + stratum_offset) / count;
     const double turn = k * kGoldenTurn + rotation;
-    const double azimuth = 2.0 * kPi * (turn - std::floor(turn));
+    const double azimuth = 2.0 * M_PI * (turn - std::floor(turn));
     cams.push_back(look_at_origin(spherical(std::asin(z), azimuth), res));
   }
   return cams;
@@ -72,7 +71,7 @@ std::vector<Camera> test_cameras(int count, int res) {
   std::vector<Camera> cams;
   cams.reserve(static_cast<size_t>(count));
   for (int k = 0; k < count; ++k) {
-    const double azimuth = kTestStartAzimuthDeg * kDeg + 2.0 * kPi * k / count;
+    const double azimuth = kTestStartAzimuthDeg * kDeg + 2.0 * M_PI * k / count;
     cams.push_back(look_at_origin(spherical(kTestElevationDeg * kDeg, azimuth), res));
   }
   return cams;

@@ -7,7 +7,6 @@ namespace ablenerf::synth {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 // Secondary rays start this far off the surface so they do not re-hit it through round-off.
 constexpr double kSurfaceOffset = 1e-7;
 // Branches whose contribution to the pixel is below this are dropped (keeps glass cheap).
@@ -55,7 +54,7 @@ double sun_visibility(const Vec3& p) {
 Vec3 shade_diffuse(const Vec3& p, const Vec3& n) {
   const Vec3 albedo = diffuse_albedo(n);
   const double cos_sun = std::max(0.0, dot(n, sun_direction()));
-  const Vec3 direct = cos_sun > 0 ? sun_irradiance() * (cos_sun * sun_visibility(p + n * kSurfaceOffset) / kPi)
+  const Vec3 direct = cos_sun > 0 ? sun_irradiance() * (cos_sun * sun_visibility(p + n * kSurfaceOffset) / M_PI)
                                   : Vec3{};
   const Vec3 ambient = mix(kAmbientGround, kAmbientSky, 0.5 * (1.0 + n.z));
   return albedo * (direct + ambient);
@@ -192,18 +191,18 @@ Hit intersect_scene(const Ray& r, double t_min) {
 Vec3 environment(const Vec3& d) {
   const Vec3 sun = sun_direction();
   const double cos_sun = dot(d, sun);
-  if (cos_sun >= std::cos(kSunAngularRadiusDeg * kPi / 180.0)) return sun_radiance();
+  if (cos_sun >= std::cos(kSunAngularRadiusDeg * M_PI / 180.0)) return sun_radiance();
   const Vec3 glow = kSunGlow * std::pow(std::max(0.0, cos_sun), kSunGlowExponent);
   if (d.z >= 0.0) {
-    const double elev_deg = std::asin(std::min(1.0, d.z)) * 180.0 / kPi;
+    const double elev_deg = std::asin(std::min(1.0, d.z)) * 180.0 / M_PI;
     Vec3 sky = mix(kHorizon, kZenith, std::sqrt(d.z));
     // Band weight: a smooth bump over [kBandLowDeg, kBandHighDeg].
     const double band = smoothstep(kBandLowDeg, kBandLowDeg + 4.0, elev_deg) *
                         (1.0 - smoothstep(kBandHighDeg - 6.0, kBandHighDeg, elev_deg));
     if (band > 0.0) {
       const double phi = std::atan2(d.y, d.x) * kBandHueCycles;
-      const Vec3 hue{0.5 + 0.5 * std::cos(phi), 0.5 + 0.5 * std::cos(phi - 2.0 * kPi / 3.0),
-                     0.5 + 0.5 * std::cos(phi + 2.0 * kPi / 3.0)};
+      const Vec3 hue{0.5 + 0.5 * std::cos(phi), 0.5 + 0.5 * std::cos(phi - 2.0 * M_PI / 3.0),
+                     0.5 + 0.5 * std::cos(phi + 2.0 * M_PI / 3.0)};
       sky = mix(sky, hue, band * kBandStrength);
     }
     return sky + glow;
@@ -217,8 +216,8 @@ Vec3 environment(const Vec3& d) {
 }
 
 Vec3 diffuse_albedo(const Vec3& n) {
-  const double u = (std::atan2(n.y, n.x) + kPi) / (2.0 * kPi);    // longitude in [0,1]
-  const double v = std::acos(std::clamp(n.z, -1.0, 1.0)) / kPi;  // colatitude in [0,1]
+  const double u = (std::atan2(n.y, n.x) + M_PI) / (2.0 * M_PI);    // longitude in [0,1]
+  const double v = std::acos(std::clamp(n.z, -1.0, 1.0)) / M_PI;  // colatitude in [0,1]
   const int iu = std::min(kCheckerLon - 1, static_cast<int>(u * kCheckerLon));
   const int iv = std::min(kCheckerLat - 1, static_cast<int>(v * kCheckerLat));
   return ((iu + iv) & 1) ? kAlbedoA : kAlbedoB;

@@ -114,7 +114,9 @@ TEST(Distributed, TwoProcessesShareATimeBudget) {
     std::ifstream lg(t.path() + "/" + r + ".log");
     const std::string log((std::istreambuf_iterator<char>(lg)), std::istreambuf_iterator<char>());
     EXPECT_EQ(code, 0) << r << ": " << log;
-    if (std::string(r) == "r0") EXPECT_NE(log.find("time budget of 4 s spent"), std::string::npos) << log;
+    if (std::string(r) == "r0") {
+      EXPECT_NE(log.find("time budget of 4 s spent"), std::string::npos) << log;
+    }
   }
   EXPECT_TRUE(fs::exists(t.path() + "/run/checkpoint.pt"));
 }

@@ -14,13 +14,13 @@ using namespace ablenerf;
 namespace {
 
 constexpr double kNear = 2.0, kFar = 6.0;
-constexpr int kSide = 8;
+constexpr int kTinySide = 8;
 
 Intrinsics tiny_intrinsics() {
   Intrinsics k;
-  k.width = k.height = kSide;
+  k.width = k.height = kTinySide;
   k.fx = k.fy = 10.0;
-  k.cx = k.cy = kSide / 2.0;
+  k.cx = k.cy = kTinySide / 2.0;
   return k;
 }
 
@@ -77,8 +77,8 @@ TEST(RenderImage, EqualsDirectForwardOverEveryRay) {
     torch::NoGradGuard ng;
     ref = model->forward(rays_for_image(pose, k), kNear, kFar, fo);
   }
-  ASSERT_EQ(r.rgb.sizes(), (std::vector<int64_t>{kSide, kSide, 3}));
-  ASSERT_EQ(r.depth_mean.sizes(), (std::vector<int64_t>{kSide, kSide}));
+  ASSERT_EQ(r.rgb.sizes(), (std::vector<int64_t>{kTinySide, kTinySide, 3}));
+  ASSERT_EQ(r.depth_mean.sizes(), (std::vector<int64_t>{kTinySide, kTinySide}));
   EXPECT_TRUE(torch::allclose(r.rgb.view({-1, 3}), ref.rgb_fine, 0, 1e-6));
   const auto d = depth_from_attention(ref.fine_weights, ref.fine_t);
   EXPECT_TRUE(torch::allclose(r.depth_mean.view({-1}), d.mean, 0, 1e-5));
@@ -89,7 +89,7 @@ TEST(RenderImage, EqualsDirectForwardOverEveryRay) {
   EXPECT_GE(r.depth_mean.min().item<double>(), kNear);
   EXPECT_LE(r.depth_mean.max().item<double>(), kFar);
   // Pixel (row 2, col 5) is ray 2*8+5 of rays_for_image (row-major layout).
-  EXPECT_TRUE(torch::allclose(r.rgb[2][5], ref.rgb_fine[2 * kSide + 5], 0, 1e-6));
+  EXPECT_TRUE(torch::allclose(r.rgb[2][5], ref.rgb_fine[2 * kTinySide + 5], 0, 1e-6));
 }
 
 TEST(RenderImage, ChunkSizeDoesNotChangeTheImage) {
@@ -100,12 +100,12 @@ TEST(RenderImage, ChunkSizeDoesNotChangeTheImage) {
                                       [&](int64_t done, int64_t total) {
                                         ++calls;
                                         EXPECT_GT(done, last_done);
-                                        EXPECT_EQ(total, kSide * kSide);
+                                        EXPECT_EQ(total, kTinySide * kTinySide);
                                         last_done = done;
                                       });
   const RenderResult b = render_image(model, test_pose(), k, kNear, kFar, 64, {}, torch::kCPU);
-  EXPECT_EQ(calls, (kSide * kSide + 6) / 7);  // one report per chunk: ceil(64 / 7) = 10
-  EXPECT_EQ(last_done, kSide * kSide);
+  EXPECT_EQ(calls, (kTinySide * kTinySide + 6) / 7);  // one report per chunk: ceil(64 / 7) = 10
+  EXPECT_EQ(last_done, kTinySide * kTinySide);
   EXPECT_TRUE(torch::allclose(a.rgb, b.rgb, 0, 1e-6));
   EXPECT_TRUE(torch::allclose(a.depth_mean, b.depth_mean, 0, 1e-5));
   // Batch size changes GEMM blocking, so values agree to float rounding, not bit for bit, and an

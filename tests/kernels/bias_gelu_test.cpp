@@ -8,17 +8,14 @@
 #include <string>
 
 #include "kernels/bias_gelu.h"
-#include "kernels/finite_difference.h"
+#include "kernels/kernel_test_util.h"
 
 namespace ablenerf {
 namespace {
 
-torch::Tensor rnd(std::vector<int64_t> sizes, uint64_t seed, double scale = 1) {
-  auto gen = at::detail::createCPUGenerator(seed);
-  return torch::randn(sizes, gen, torch::kDouble) * scale;
-}
+using test::max_abs;
+using test::seeded_randn;
 
-double max_abs(const torch::Tensor& t) { return t.abs().max().item<double>(); }
 
 // f(x[i][j] + b[j]) for every element, in double.
 template <class F>
@@ -40,7 +37,7 @@ double gelu_grad(double z) {
 }
 
 TEST(BiasGeluReference, MatchesTheErfFormulaInFloat64) {
-  const auto x = rnd({6, 10}, 1, 3), b = rnd({10}, 2);
+  const auto x = seeded_randn({6, 10}, 1, 3), b = seeded_randn({10}, 2);
   const auto got = bias_gelu_reference(x, b);
   EXPECT_EQ(got.scalar_type(), torch::kDouble);
   const auto want = elementwise(x, b, gelu);
@@ -53,7 +50,7 @@ TEST(BiasGeluReference, MatchesTheErfFormulaInFloat64) {
 }
 
 TEST(BiasGeluReference, LowerPrecisionInputsAreComputedInFloatAndReturnedInTheirDtype) {
-  const auto x = rnd({5, 40}, 3, 3), b = rnd({40}, 4).to(torch::kFloat);
+  const auto x = seeded_randn({5, 40}, 3, 3), b = seeded_randn({40}, 4).to(torch::kFloat);
   const auto xf = x.to(torch::kFloat);
   const auto yf = bias_gelu_reference(xf, b);
   EXPECT_EQ(yf.scalar_type(), torch::kFloat);
@@ -66,7 +63,7 @@ TEST(BiasGeluReference, LowerPrecisionInputsAreComputedInFloatAndReturnedInTheir
 }
 
 TEST(BiasGeluReference, GradientIsThePhiPlusZPhiClosedForm) {
-  const auto x = rnd({9, 7}, 5, 3), b = rnd({7}, 6), dy = rnd({9, 7}, 7);
+  const auto x = seeded_randn({9, 7}, 5, 3), b = seeded_randn({7}, 6), dy = seeded_randn({9, 7}, 7);
   const auto grads = test::autograd_gradients(
       [&](const std::vector<torch::Tensor>& in) { return (bias_gelu_reference(in[0], in[1]) * dy).sum(); }, {x, b});
   const auto dx = dy * elementwise(x, b, gelu_grad);
@@ -75,8 +72,8 @@ TEST(BiasGeluReference, GradientIsThePhiPlusZPhiClosedForm) {
 }
 
 TEST(BiasGeluReference, GradientsMatchFiniteDifferences) {
-  const std::vector<torch::Tensor> inputs = {rnd({4, 6}, 8, 2), rnd({6}, 9)};
-  const auto weights = rnd({4, 6}, 10);
+  const std::vector<torch::Tensor> inputs = {seeded_randn({4, 6}, 8, 2), seeded_randn({6}, 9)};
+  const auto weights = seeded_randn({4, 6}, 10);
   const test::ScalarFunction loss = [&](const std::vector<torch::Tensor>& in) {
     return (bias_gelu_reference(in[0], in[1]) * weights).sum();
   };

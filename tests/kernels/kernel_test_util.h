@@ -1,12 +1,22 @@
 #pragma once
-// Central finite differences for the kernels' CPU tests: the gradient of a scalar function of
-// several float64 tensors with respect to one of them, element by element, without autograd.
+// Shared by the kernels' CPU tests: seeded float64 inputs (the same numbers on every machine), the
+// largest magnitude of a tensor, and central finite differences (the gradient of a scalar function
+// of several float64 tensors with respect to one of them, element by element, without autograd).
 #include <torch/torch.h>
 
 #include <functional>
 #include <vector>
 
 namespace ablenerf::test {
+
+// Normal numbers * scale + offset in float64 from a generator seeded with `seed`.
+inline torch::Tensor seeded_randn(std::vector<int64_t> sizes, uint64_t seed, double scale = 1, double offset = 0) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  return torch::randn(sizes, gen, torch::kDouble) * scale + offset;
+}
+
+// max |t| as a double.
+inline double max_abs(const torch::Tensor& t) { return t.abs().max().item<double>(); }
 
 using ScalarFunction = std::function<torch::Tensor(const std::vector<torch::Tensor>&)>;
 

@@ -6,6 +6,7 @@
 
 #include <limits>
 
+#include "kernels/kernel_test_util.h"
 #include "kernels/packed_attention.h"
 #include "test_util.h"
 
@@ -70,8 +71,7 @@ void compare(const Case& c, double tol) {
 }
 
 torch::Tensor rnd(std::vector<int64_t> sizes, torch::ScalarType t, uint64_t seed) {
-  auto gen = at::detail::createCPUGenerator(seed);
-  return torch::randn(sizes, gen, torch::kDouble).to(t);
+  return test::seeded_randn(std::move(sizes), seed).to(t);
 }
 
 TEST(PackedAttention, MaskedSelfAttentionMatchesReference) {

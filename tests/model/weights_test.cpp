@@ -135,7 +135,7 @@ TEST(Weights, ReleaseMismatchesAreNamed) {
   wrong.insert_or_assign("coarse.layers.0.attn.in_proj_weight", torch::zeros({192, 576}));
   EXPECT_EQ(import_error(wrong), "w.pt: coarse.layers.0.attn.in_proj_weight: expected shape [576, 192] got [192, 576]");
   auto missing = release_dict(false);
-  missing.erase("f_spec_rgb.2.bias");
+  ASSERT_EQ(missing.erase("f_spec_rgb.2.bias"), 1u);
   EXPECT_EQ(import_error(missing), "w.pt: f_spec_rgb.2.bias: missing");
   auto extra = release_dict(false);
   extra.insert("fine.layers.6.norm1.weight", torch::zeros({192}));

@@ -68,8 +68,6 @@ bool one_error_line_containing(const std::string& out, const std::string& word) 
          out.find('\n', pos) >= out.find(word, pos) && out.find("error: ", pos + 1) == std::string::npos;
 }
 
-}  // namespace
-
 TEST_F(DamagedCheckpoint, FlippedPayloadByteIsAChecksumError) {
   std::string bad = good_;
   bad[kHeaderBytes + (bad.size() - kHeaderBytes) / 2] ^= 0x01;
@@ -114,3 +112,5 @@ TEST_F(DamagedCheckpoint, IntactCheckpointResumes) {
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("at step 3"), std::string::npos) << r.output;
 }
+
+}  // namespace

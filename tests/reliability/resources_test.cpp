@@ -99,7 +99,7 @@ std::string expect_write_failure(F&& f, const std::string& path, const SmallDisk
 
 Config model_config(int width) {
   Config c;
-  for (const std::string kv : {"model.width=" + std::to_string(width), std::string("model.heads=1"),
+  for (const std::string& kv : {"model.width=" + std::to_string(width), std::string("model.heads=1"),
                                std::string("model.ff_ratio=1"), std::string("model.coarse_layers=1"),
                                std::string("model.fine_layers=1"), std::string("model.samples=8"),
                                std::string("model.le_count=2"), std::string("model.le_layers=1")})

@@ -27,7 +27,6 @@ namespace {
 
 constexpr int kRes = 40;
 constexpr int kTrain = 6, kTest = 4;
-constexpr double kPi = 3.14159265358979323846;
 
 struct SphereRef {
   std::string material;
@@ -210,7 +209,7 @@ TEST_F(SynthDataset, LoadsWithTheBlenderLoaderAndPosesAreOnTheUpperHemisphere) {
       EXPECT_LT((r.t().matmul(r) - torch::eye(3, torch::kDouble)).abs().max().item<double>(), 1e-6);
       EXPECT_NEAR(torch::det(r).item<double>(), 1.0, 1e-6);
       EXPECT_NEAR(t.norm().item<double>(), 4.0, 1e-5);
-      const double elev = std::asin(t[2].item<double>() / 4.0) * 180.0 / kPi;
+      const double elev = std::asin(t[2].item<double>() / 4.0) * 180.0 / M_PI;
       EXPECT_GE(elev, 10.0 - 1e-6) << name << " " << n;
       EXPECT_LE(elev, 80.0 + 1e-6) << name << " " << n;
       // Looks at the origin (camera z = backwards = centre direction) with no roll (x horizontal).
@@ -221,7 +220,7 @@ TEST_F(SynthDataset, LoadsWithTheBlenderLoaderAndPosesAreOnTheUpperHemisphere) {
   }
   // Test views: an orbit at 30 degrees elevation.
   const auto tz = ds.split("test").c2w.select(2, 3).select(1, 2);
-  EXPECT_LT((tz - 4.0 * std::sin(30.0 * kPi / 180.0)).abs().max().item<double>(), 1e-5);
+  EXPECT_LT((tz - 4.0 * std::sin(30.0 * M_PI / 180.0)).abs().max().item<double>(), 1e-5);
   // Composited on white by the loader: alpha-0 pixels become white, so the corners are 1.
   EXPECT_FLOAT_EQ(ds.split("test").images[0][0][0][0].item<float>(), 1.0f);
 }

@@ -13,7 +13,6 @@ namespace st = ablenerf::synth_test;
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 int index_of(MaterialKind k) {
   const auto& s = scene_spheres();
@@ -49,7 +48,7 @@ TEST(SynthCamera, TrainViewsAreSeededAndCoverTheElevationBand) {
   for (size_t k = 0; k < a.size(); ++k) {
     EXPECT_EQ(a[k].centre().x, b[k].centre().x);
     moved = std::max(moved, length(a[k].centre() - c[k].centre()));
-    const double elev = std::asin(a[k].centre().z / 4.0) * 180.0 / kPi;
+    const double elev = std::asin(a[k].centre().z / 4.0) * 180.0 / M_PI;
     zmin = std::min(zmin, elev);
     zmax = std::max(zmax, elev);
     east += a[k].centre().x > 0;
@@ -98,7 +97,7 @@ TEST(SynthShading, MirrorIsViewDependentAndDiffuseIsNot) {
     const Vec3 up_tangent = normalize(Vec3{0, 0, 1} - n * n.z);
     Vec3 colours[2];
     for (int v = 0; v < 2; ++v) {
-      const double ang = (v == 0 ? 0.0 : 35.0) * kPi / 180.0;
+      const double ang = (v == 0 ? 0.0 : 35.0) * M_PI / 180.0;
       const Vec3 eye = p + (n * std::cos(ang) + up_tangent * std::sin(ang)) * 3.0;
       const Ray r{eye, p - eye};
       const Hit h = intersect_scene(r);
@@ -154,7 +153,7 @@ TEST(SynthShading, EnvironmentHasSunSkyAndGroundAndMissesSeeIt) {
   EXPECT_GT(zenith.z, zenith.x);  // blue sky
   EXPECT_NE(max_abs_diff(zenith, nadir_ish), 0.0);
   // The coloured band: different azimuths at 10 degrees elevation differ in hue.
-  const double e = 10.0 * kPi / 180.0;
+  const double e = 10.0 * M_PI / 180.0;
   const Vec3 b0 = environment(Vec3{std::cos(e), 0, std::sin(e)});
   const Vec3 b1 = environment(Vec3{-std::cos(e), 0, std::sin(e)});
   EXPECT_GT(max_abs_diff(b0, b1), 0.2);

@@ -78,7 +78,9 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
       }
     }
   }
-  if (blas_thread_control_available()) EXPECT_TRUE(split_ran);
+  if (blas_thread_control_available()) {
+    EXPECT_TRUE(split_ran);
+  }
   // The reference gradients are not trivially zero.
   double total = 0;
   for (const auto& g : ref) total += g.abs().sum().item<double>();
