@@ -15,42 +15,6 @@
 
 namespace ablenerf {
 
-template <>
-const std::vector<std::pair<AttentionKernel, const char*>>& enum_names<AttentionKernel>() {
-  static const std::vector<std::pair<AttentionKernel, const char*>> t{{AttentionKernel::Fused, "fused"},
-                                                                       {AttentionKernel::Plain, "plain"}};
-  return t;
-}
-template <>
-const std::vector<std::pair<Precision, const char*>>& enum_names<Precision>() {
-  static const std::vector<std::pair<Precision, const char*>> t{{Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}};
-  return t;
-}
-template <>
-const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>() {
-  static const std::vector<std::pair<CpuSplit, const char*>> t{{CpuSplit::Rays, "rays"}, {CpuSplit::Ops, "ops"}};
-  return t;
-}
-
-template <>
-const std::vector<std::pair<ViewEncoding, const char*>>& enum_names<ViewEncoding>() {
-  static const std::vector<std::pair<ViewEncoding, const char*>> t{{ViewEncoding::Release, "release"},
-                                                                    {ViewEncoding::Paper, "paper"}};
-  return t;
-}
-template <>
-const std::vector<std::pair<Background, const char*>>& enum_names<Background>() {
-  static const std::vector<std::pair<Background, const char*>> t{{Background::White, "white"},
-                                                                  {Background::Black, "black"}};
-  return t;
-}
-template <>
-const std::vector<std::pair<SsimVariant, const char*>>& enum_names<SsimVariant>() {
-  static const std::vector<std::pair<SsimVariant, const char*>> t{{SsimVariant::Standard, "standard"},
-                                                                   {SsimVariant::Release, "release"}};
-  return t;
-}
-
 namespace {
 
 using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,

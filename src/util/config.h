@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -30,19 +31,27 @@ enum class SsimVariant {
 
 // The names of an enum's values, one table per enum (config files, --set, logs, bench reports).
 template <class E>
-const std::vector<std::pair<E, const char*>>& enum_names();
+using EnumNames = std::vector<std::pair<E, const char*>>;
+template <class E>
+inline const EnumNames<E> kEnumNames;  // specialised for every enum below
 template <>
-const std::vector<std::pair<AttentionKernel, const char*>>& enum_names<AttentionKernel>();
+inline const EnumNames<AttentionKernel> kEnumNames<AttentionKernel>{{AttentionKernel::Fused, "fused"}, {AttentionKernel::Plain, "plain"}};
 template <>
-const std::vector<std::pair<Precision, const char*>>& enum_names<Precision>();
+inline const EnumNames<Precision> kEnumNames<Precision>{{Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}};
 template <>
-const std::vector<std::pair<CpuSplit, const char*>>& enum_names<CpuSplit>();
+inline const EnumNames<CpuSplit> kEnumNames<CpuSplit>{{CpuSplit::Rays, "rays"}, {CpuSplit::Ops, "ops"}};
 template <>
-const std::vector<std::pair<ViewEncoding, const char*>>& enum_names<ViewEncoding>();
+inline const EnumNames<ViewEncoding> kEnumNames<ViewEncoding>{{ViewEncoding::Release, "release"}, {ViewEncoding::Paper, "paper"}};
 template <>
-const std::vector<std::pair<Background, const char*>>& enum_names<Background>();
+inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
 template <>
-const std::vector<std::pair<SsimVariant, const char*>>& enum_names<SsimVariant>();
+inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
+
+template <class E>
+const EnumNames<E>& enum_names() {
+  static_assert(std::is_enum_v<E>, "enum_names: not an enum");
+  return kEnumNames<E>;
+}
 template <class E>
 const char* name_of(E value) {
   for (const auto& [v, n] : enum_names<E>())
