@@ -191,7 +191,7 @@ StepReport Trainer::step() {
   // The elapsed time the schedule follows: with several processes the group's mean, agreed in the
   // step's all-reduce (host form), so that every rank takes the same decisions.
   if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
-  const double lr = (*s.schedule)(schedule_step());
+  const double lr = (*s.schedule)(s.state.step, schedule_step());
   const TrainConfig& tc = config_.train;
   // Every rank draws the same global batch from one identically seeded stream and keeps its slice.
   const auto all = s.sampler->draw(tc.rays_per_step);

@@ -43,3 +43,20 @@ TEST(LrSchedule, DecayOverTheStepBudgetWhenZero) {
   EXPECT_NEAR(lr(500), std::sqrt(c.lr_init * c.lr_final), 1e-12);  // geometric midpoint
   EXPECT_NEAR(lr(1000), c.lr_final, 1e-15);
 }
+
+// With a time budget the decay runs at the budget's pace while the warm-up still counts optimiser
+// steps: at step 50 of a 100-step warm-up, halfway through the decay, the rate is the warm-up factor
+// of step 50 times the decay at its midpoint.
+TEST(LrSchedule, WarmUpCountsOptimiserStepsWhileTheDecayFollowsTheBudget) {
+  TrainConfig c;
+  c.steps = 100000;
+  c.lr_decay_steps = 0;
+  c.lr_warmup_steps = 100;
+  c.lr_warmup_mult = 0.01;
+  const LrSchedule lr(c);
+  const double warm50 = 0.01 + 0.99 * std::sin(0.5 * M_PI * 0.5);
+  EXPECT_NEAR(lr(50, 50000), warm50 * std::sqrt(c.lr_init * c.lr_final), 1e-15);
+  EXPECT_NEAR(lr(0, 99000), 0.01 * c.lr_init * std::pow(c.lr_final / c.lr_init, 0.99), 1e-15);
+  EXPECT_NEAR(lr(200, 100000), c.lr_final, 1e-15);
+  EXPECT_EQ(lr(70, 70), lr(70));  // without a budget both positions are the step
+}

@@ -116,6 +116,33 @@ TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
   EXPECT_TRUE(fs::exists(t / "run/checkpoint.pt"));
 }
 
+// A time budget lays the decay over the budget, not the warm-up: with 1e6 schedule steps a warm-up of
+// 10^5 steps still lasts 10^5 optimiser steps (it ended after a tenth of the budget, seconds into
+// the run, when the schedule's position drove it), so the short run below stays in its warm-up.
+TEST(Trainer, TimeBudgetKeepsTheWarmUpInOptimiserSteps) {
+  test::TempDir t;
+  Config c = test::tiny_config();
+  c.set("train.steps=1000000");
+  c.set("train.lr_warmup_steps=100000");
+  c.set("train.lr_warmup_mult=0.01");
+  c.set("train.lr_decay_steps=0");
+  c.set("train.lr_init=1e-3");
+  c.set("train.lr_final=1e-4");
+  c.set("train.log_every=1");
+  c.set("train.eval_every=0");
+  c.set("train.ckpt_every=0");
+  c.set("train.time_budget_s=2");
+  ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
+  const auto log = read_log(t / "run");
+  ASSERT_GE(log.size(), 3u);
+  ASSERT_LT(log.back()["step"].get<int64_t>(), 5000);  // far inside the warm-up
+  for (const auto& j : log) {
+    if (j["type"] != "train") continue;
+    // Below 8.8% of lr_init: 0.01 + 0.99 sin(pi/2 * 5000/1e5) < 0.088, times a decay factor <= 1.
+    EXPECT_LT(j["lr"].get<double>(), 0.088e-3) << j.dump();
+  }
+}
+
 TEST(Trainer, ResumeEqualsUninterrupted) {
   const test::IntraOpThreads threads(1);
   test::TempDir t;
