@@ -49,6 +49,22 @@ TrainOptions options(const std::string& out) {
   return o;
 }
 
+// A tiny run for a time budget of `seconds`: 10^6 schedule steps (the budget ends it), lr 1e-3 ->
+// 1e-4 decaying over the budget, a warm-up of `warmup_steps`, every step logged, nothing else.
+Config time_budget_config(int seconds, int warmup_steps) {
+  Config c = test::tiny_config();
+  c.set("train.steps=1000000");
+  c.set("train.lr_warmup_steps=" + std::to_string(warmup_steps));
+  c.set("train.lr_decay_steps=0");
+  c.set("train.lr_init=1e-3");
+  c.set("train.lr_final=1e-4");
+  c.set("train.log_every=1");
+  c.set("train.eval_every=0");
+  c.set("train.ckpt_every=0");
+  c.set("train.time_budget_s=" + std::to_string(seconds));
+  return c;
+}
+
 }  // namespace
 
 TEST(Trainer, LossFallsAndRunFolderIsComplete) {
@@ -90,16 +106,7 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
 // rate of the last step is at lr_final), however many of train.steps it reached.
 TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
   test::TempDir t;
-  Config c = test::tiny_config();
-  c.set("train.steps=1000000");
-  c.set("train.lr_warmup_steps=0");
-  c.set("train.lr_decay_steps=0");
-  c.set("train.lr_init=1e-3");
-  c.set("train.lr_final=1e-4");
-  c.set("train.log_every=1");
-  c.set("train.eval_every=0");
-  c.set("train.ckpt_every=0");
-  c.set("train.time_budget_s=3");
+  const Config c = time_budget_config(3, 0);
   ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
   const auto log = read_log(t / "run");
   ASSERT_GE(log.size(), 3u);
@@ -121,17 +128,8 @@ TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
 // the run, when the schedule's position drove it), so the short run below stays in its warm-up.
 TEST(Trainer, TimeBudgetKeepsTheWarmUpInOptimiserSteps) {
   test::TempDir t;
-  Config c = test::tiny_config();
-  c.set("train.steps=1000000");
-  c.set("train.lr_warmup_steps=100000");
+  Config c = time_budget_config(2, 100000);
   c.set("train.lr_warmup_mult=0.01");
-  c.set("train.lr_decay_steps=0");
-  c.set("train.lr_init=1e-3");
-  c.set("train.lr_final=1e-4");
-  c.set("train.log_every=1");
-  c.set("train.eval_every=0");
-  c.set("train.ckpt_every=0");
-  c.set("train.time_budget_s=2");
   ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
   const auto log = read_log(t / "run");
   ASSERT_GE(log.size(), 3u);
