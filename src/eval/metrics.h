@@ -17,10 +17,8 @@ double psnr(const torch::Tensor& img, const torch::Tensor& ref);
 // The same from a mean squared error (MSE == 0 gives +infinity).
 double psnr_from_mse(double mse);
 
-
 // Mean squared error over every pixel and channel (float64).
 double mse(const torch::Tensor& img, const torch::Tensor& ref);
-
 
 // Parses "standard" / "release"; throws InputError(source, field, ...) for anything else.
 SsimVariant parse_ssim_variant(const std::string& name, const std::string& source = "",
