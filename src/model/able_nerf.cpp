@@ -106,15 +106,31 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
   return p;
 }
 
-ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const ForwardOptions& opts) {
-  // Ray-parallel on the CPU when nothing is recorded for autograd and no random stream is drawn
-  // (a generator's draws would depend on the split); rays never interact inside the model.
-  const bool draws_randomness = opts.generator != nullptr || (cfg_.randomized && is_training());
+ForwardOptions ForwardOptions::slice(int64_t lo, int64_t hi) const {
+  ForwardOptions s = *this;
+  if (coarse_jitter.defined()) s.coarse_jitter = coarse_jitter.slice(0, lo, hi);
+  if (fine_jitter.defined()) s.fine_jitter = fine_jitter.slice(0, lo, hi);
+  return s;
+}
+
+ForwardOptions AbleNerfImpl::with_jitter(int64_t rays, ForwardOptions opts) const {
+  if (!cfg_.randomized || !is_training() || opts.coarse_jitter.defined()) return opts;
+  const auto options = ray_token_.options();
+  opts.coarse_jitter = uniform_like({rays, cfg_.samples + 1}, opts.generator, options);
+  opts.fine_jitter = uniform_like({rays, cfg_.samples + 1}, opts.generator, options);
+  return opts;
+}
+
+ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const ForwardOptions& given) {
+  const ForwardOptions opts = with_jitter(in.size(), given);
+  // Ray-parallel on the CPU when nothing is recorded for autograd and no generator draws LE noise
+  // (its draws would depend on the split); rays never interact inside the model.
+  const bool draws_randomness = opts.generator != nullptr && opts.le_noise > 0;
   const int64_t workers = torch::GradMode::is_enabled() ? 1 : cpu_ray_workers(in.size(), draws_randomness);
   if (workers == 1) return forward_serial(in, near, far, opts);
   std::vector<ModelOutput> parts(static_cast<size_t>(workers));
   parallel_slices(in.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
-    parts[static_cast<size_t>(w)] = forward_serial(in.slice(lo, hi), near, far, opts);
+    parts[static_cast<size_t>(w)] = forward_serial(in.slice(lo, hi), near, far, opts.slice(lo, hi));
   });
   return concat_outputs(parts);
 }
@@ -123,7 +139,6 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   const auto options = ray_token_.options();
   const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
   const int64_t b = rays.size();
-  const bool jitter = cfg_.randomized && is_training();
   const AutocastScope autocast(compute_.precision, ray_token_.device());
 
   torch::Tensor le, view, view_code;
@@ -137,12 +152,11 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   LEColourHead* head_c = has_le() ? &le_head_coarse_ : nullptr;
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
-  const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, jitter, opts.generator, options);
+  const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
                           opts.coarse_colour);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
-  const auto t_f = resample_fence_posts(t_c, c.weights.to(torch::kFloat), cfg_.resample_padding, jitter,
-                                        opts.generator);
+  const auto t_f = resample_fence_posts(t_c, c.weights.to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
   // The fine ray token is the coarse output token, not detached (spec 4.4).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
                           view_code, /*colour=*/true);

@@ -30,6 +30,14 @@ struct ForwardOptions {
   // per forward call; without a generator it comes from a fixed seed, so every chunk of an
   // image sees the same perturbed LE.
   torch::Generator* generator = nullptr;
+  // Stratified jitter (model.randomized, training only): uniform [0,1) numbers (B,S+1) for the
+  // coarse fence-posts and for the fine inverse-CDF draw. Left undefined, forward() draws both for
+  // the whole batch before splitting it (AbleNerfImpl::with_jitter), so the draws never depend on
+  // the split.
+  torch::Tensor coarse_jitter, fine_jitter;
+
+  // These options for rays [lo, hi) of the batch (the jitter rows sliced; the rest shared).
+  ForwardOptions slice(int64_t lo, int64_t hi) const;
 };
 
 struct ModelOutput {
@@ -53,7 +61,7 @@ class AbleNerfImpl : public torch::nn::Module {
  public:
   explicit AbleNerfImpl(const ModelConfig& cfg);
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
-  // training mode. On the CPU without gradient recording (rendering, evaluation) the rays are
+  // training mode, drawn for the whole batch (with_jitter) before any split. On the CPU without gradient recording (rendering, evaluation) the rays are
   // split across CPU threads (kernels/cpu_parallel.h); outputs equal the serial ones to float
   // tolerance.
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
@@ -67,6 +75,10 @@ class AbleNerfImpl : public torch::nn::Module {
   // CPU threads a batch of `rays` runs on with this model's ray split: 1 off the CPU, with
   // cpu_split = ops, or when the work draws random numbers (the draws would depend on the split).
   int64_t cpu_ray_workers(int64_t rays, bool draws_randomness) const;
+  // `opts` with the stratified jitter of a batch of `rays` drawn (from opts.generator, else
+  // LibTorch's stream on the model's device; coarse first, then fine) when the model jitters
+  // (model.randomized, training mode) and opts carries none; unchanged otherwise.
+  ForwardOptions with_jitter(int64_t rays, ForwardOptions opts) const;
 
  private:
   struct Pass {

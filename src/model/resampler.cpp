@@ -19,14 +19,16 @@ torch::Tensor uniform_like(at::IntArrayRef sizes, torch::Generator* gen, const t
   return torch::rand(sizes, *gen, options.device(gen->device())).to(options.device());
 }
 
-torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t samples, bool jitter,
-                                 torch::Generator* gen, const torch::TensorOptions& options) {
+torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t samples,
+                                 const torch::TensorOptions& options, const torch::Tensor& jitter) {
   auto t = torch::linspace(near, far, samples + 1, options).unsqueeze(0).expand({rays, samples + 1});
-  if (!jitter) return t;
+  if (!jitter.defined()) return t;
+  TORCH_CHECK(jitter.dim() == 2 && jitter.size(0) == rays && jitter.size(1) == samples + 1,
+              "coarse_fence_posts: jitter must be (rays, samples+1)");
   const auto mids = 0.5 * (t.slice(1, 1) + t.slice(1, 0, samples));
   const auto upper = torch::cat({mids, t.slice(1, samples)}, 1);
   const auto lower = torch::cat({t.slice(1, 0, 1), mids}, 1);
-  return lower + (upper - lower) * uniform_like({rays, samples + 1}, gen, options);
+  return lower + (upper - lower) * jitter.to(options);
 }
 
 torch::Tensor ray_token_attention(const RayQueryProbe& probe) {
@@ -46,7 +48,7 @@ torch::Tensor blur_weights(const torch::Tensor& w, double padding) {
 }
 
 torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights, int64_t count,
-                         bool randomized, torch::Generator* gen) {
+                         const torch::Tensor& jitter) {
   const int64_t s = weights.size(-1), b = weights.size(0);
   auto sum = weights.sum(-1, /*keepdim=*/true);
   const auto pad = torch::clamp_min(kMinWeightSum - sum, 0.0);
@@ -55,10 +57,11 @@ torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights
   const auto cdf = torch::cat({torch::zeros({b, 1}, pdf.options()), inner, torch::ones({b, 1}, pdf.options())}, -1);
 
   torch::Tensor u;
-  if (randomized) {
+  if (jitter.defined()) {
+    TORCH_CHECK(jitter.dim() == 2 && jitter.size(0) == b && jitter.size(1) == count,
+                "sample_pdf: jitter must be (B, count)");
     const double step = 1.0 / count;
-    u = torch::arange(count, cdf.options()) * step +
-        uniform_like({b, count}, gen, cdf.options()) * (step - kUnitEps);
+    u = torch::arange(count, cdf.options()) * step + jitter.to(cdf.options()) * (step - kUnitEps);
     u = torch::clamp_max(u, 1.0 - kUnitEps);
   } else {
     u = torch::linspace(0.0, 1.0 - kUnitEps, count, cdf.options()).expand({b, count}).contiguous();
@@ -73,9 +76,9 @@ torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights
 }
 
 torch::Tensor resample_fence_posts(const torch::Tensor& t, const torch::Tensor& weights, double padding,
-                                   bool randomized, torch::Generator* gen) {
+                                   const torch::Tensor& jitter) {
   torch::NoGradGuard no_grad;
-  return sample_pdf(t.contiguous(), blur_weights(weights, padding), t.size(-1), randomized, gen);
+  return sample_pdf(t.contiguous(), blur_weights(weights, padding), t.size(-1), jitter);
 }
 
 }  // namespace ablenerf

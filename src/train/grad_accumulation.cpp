@@ -26,10 +26,12 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   };
   for (int64_t b = 0; b < batch.size(); b += micro) {
     const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
-    // Slices on threads only where no random stream is drawn (jitter would depend on the split).
-    const int64_t workers = model->cpu_ray_workers(mb.size(), model->config().randomized);
+    // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
+    // before the split, so that a step does not depend on how many threads share it.
+    const ForwardOptions opts = model->with_jitter(mb.size(), {});
+    const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
-      const LossTerms t = ray_loss(model->forward(mb.rays, near, far), mb.target, tc, global_rays);
+      const LossTerms t = ray_loss(model->forward(mb.rays, near, far, opts), mb.target, tc, global_rays);
       t.loss.backward();
       add(t);
       continue;
@@ -38,7 +40,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     std::vector<LossTerms> parts(static_cast<size_t>(workers));
     parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
       const RayBatch s = mb.slice(lo, hi);
-      LossTerms t = ray_loss(model->forward(s.rays, near, far), s.target, tc, global_rays);
+      LossTerms t = ray_loss(model->forward(s.rays, near, far, opts.slice(lo, hi)), s.target, tc, global_rays);
       // Gradients returned, not accumulated, so the threads never write the same .grad.
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,

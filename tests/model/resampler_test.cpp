@@ -25,18 +25,18 @@ TEST(Resampler, InverseCdfByHand) {
   // .75 -> 2 2/3; ~1 -> 3. The empty bin [1,2] and the last bin [3,4] receive nothing.
   const auto bins = torch::tensor({0.0f, 1.0f, 2.0f, 3.0f, 4.0f}).view({1, 5});
   const auto w = torch::tensor({1.0f, 0.0f, 3.0f, 0.0f}).view({1, 4});
-  const auto t = sample_pdf(bins, w, 5, false, nullptr)[0];
+  const auto t = sample_pdf(bins, w, 5)[0];
   const std::vector<double> expected{0.0, 1.0, 2.0 + 1.0 / 3.0, 2.0 + 2.0 / 3.0, 3.0};
   for (int i = 0; i < 5; ++i) EXPECT_NEAR(t[i].item<double>(), expected[i], 2e-6) << i;
 }
 
 TEST(Resampler, ConcentratesWhereWeightsPeakAndStaysSortedInRange) {
   const int64_t s = 96;
-  const auto t = coarse_fence_posts(2, 2.0, 6.0, s, false, nullptr, torch::kFloat);
+  const auto t = coarse_fence_posts(2, 2.0, 6.0, s, torch::kFloat);
   const auto centre = torch::arange(s, torch::kFloat);
   // Ray 0 peaks at interval 60 (t ~ 4.5), ray 1 at interval 10 (t ~ 2.44).
   const auto w = torch::stack({torch::exp(-0.5 * (centre - 60).pow(2)), torch::exp(-0.5 * (centre - 10).pow(2))}) * 0.9;
-  const auto f = resample_fence_posts(t, w, 0.01, false, nullptr);
+  const auto f = resample_fence_posts(t, w, 0.01);
   ASSERT_EQ(f.sizes(), (std::vector<int64_t>{2, s + 1}));
   EXPECT_TRUE(torch::all(f.slice(1, 1) >= f.slice(1, 0, s)).item<bool>());
   EXPECT_NEAR(f.min().item<double>(), 2.0, 1e-6);
@@ -50,21 +50,47 @@ TEST(Resampler, ConcentratesWhereWeightsPeakAndStaysSortedInRange) {
   }
 }
 
-TEST(Resampler, StratifiedModeIsSeededSortedAndInRange) {
+TEST(Resampler, CoarseJitterMovesEachPostBetweenTheGridMidPoints) {
+  // Grid 2,3,4,5,6 (4 intervals); mid-points 2.5..5.5. Post k lies in [lower_k, upper_k] =
+  // [2,2.5], [2.5,3.5], [3.5,4.5], [4.5,5.5], [5.5,6] at lower + u (upper - lower).
+  const auto u = torch::stack({torch::zeros({5}), torch::full({5}, 0.5f), torch::full({5}, 0.999f)});
+  const auto t = coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat, u);
+  const std::vector<std::vector<double>> expected{{2.0, 2.5, 3.5, 4.5, 5.5},
+                                                  {2.25, 3.0, 4.0, 5.0, 5.75},
+                                                  {2.4995, 3.499, 4.499, 5.499, 5.9995}};
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 5; ++k) EXPECT_NEAR(t[r][k].item<double>(), expected[r][k], 1e-5) << r << " " << k;
+  }
+  EXPECT_TRUE(torch::equal(coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat),
+                           torch::linspace(2.0, 6.0, 5).expand({3, 5})));
+  EXPECT_THROW(coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat, torch::zeros({3, 4})), c10::Error);
+}
+
+TEST(Resampler, StratifiedInverseCdfByHand) {
+  // The setup of InverseCdfByHand (cdf 0,.25,.25,1,1 over bins 0..4) with 4 draws,
+  // u_k = (k + j (1 - eps)) / 4. j = 0: u = 0,.25,.5,.75 -> 0, 2 (u = .25 starts bin 2), 2 1/3, 2 2/3.
+  // j = 1/2: u = .125,.375,.625,.875 -> .5, 2 + .125/.75, 2 + .375/.75, 2 + .625/.75.
+  const auto bins = torch::tensor({0.0f, 1.0f, 2.0f, 3.0f, 4.0f}).view({1, 5}).expand({2, 5});
+  const auto w = torch::tensor({1.0f, 0.0f, 3.0f, 0.0f}).view({1, 4}).expand({2, 4});
+  const auto j = torch::stack({torch::zeros({4}), torch::full({4}, 0.5f)});
+  const auto t = sample_pdf(bins, w, 4, j);
+  const std::vector<std::vector<double>> expected{{0.0, 2.0, 2.0 + 1.0 / 3.0, 2.0 + 2.0 / 3.0},
+                                                  {0.5, 2.0 + 1.0 / 6.0, 2.5, 2.0 + 5.0 / 6.0}};
+  for (int r = 0; r < 2; ++r) {
+    for (int k = 0; k < 4; ++k) EXPECT_NEAR(t[r][k].item<double>(), expected[r][k], 2e-6) << r << " " << k;
+  }
+}
+
+TEST(Resampler, JitteredPostsStaySortedAndInRange) {
   const int64_t s = 32;
-  torch::Generator g1 = at::detail::createCPUGenerator(7), g2 = at::detail::createCPUGenerator(7),
-                   g3 = at::detail::createCPUGenerator(8);
-  const auto t1 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g1, torch::kFloat);
-  const auto t2 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g2, torch::kFloat);
-  const auto t3 = coarse_fence_posts(3, 2.0, 6.0, s, true, &g3, torch::kFloat);
-  EXPECT_TRUE(torch::equal(t1, t2));
-  EXPECT_FALSE(torch::equal(t1, t3));
-  EXPECT_TRUE(torch::all(t1.slice(1, 1) >= t1.slice(1, 0, s)).item<bool>());
+  auto g = at::detail::createCPUGenerator(7);
+  const auto t = coarse_fence_posts(3, 2.0, 6.0, s, torch::kFloat, uniform_like({3, s + 1}, &g, torch::kFloat));
+  EXPECT_TRUE(torch::all(t.slice(1, 1) >= t.slice(1, 0, s)).item<bool>());
   // Each post stays between its neighbours' mid-points of the regular grid.
-  const auto grid = coarse_fence_posts(3, 2.0, 6.0, s, false, nullptr, torch::kFloat);
-  EXPECT_LE((t1 - grid).abs().max().item<double>(), 0.5 * 4.0 / s + 1e-6);
-  const auto w = torch::rand({3, s}, g1);
-  const auto f = resample_fence_posts(t1, w, 0.01, true, &g1);
+  const auto grid = coarse_fence_posts(3, 2.0, 6.0, s, torch::kFloat);
+  EXPECT_LE((t - grid).abs().max().item<double>(), 0.5 * 4.0 / s + 1e-6);
+  const auto w = torch::rand({3, s}, g);
+  const auto f = resample_fence_posts(t, w, 0.01, uniform_like({3, s + 1}, &g, torch::kFloat));
   EXPECT_TRUE(torch::all(f.slice(1, 1) >= f.slice(1, 0, s)).item<bool>());
   EXPECT_GE(f.min().item<double>(), 2.0);
   EXPECT_LE(f.max().item<double>(), 6.0);

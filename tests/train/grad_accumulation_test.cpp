@@ -87,6 +87,44 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   EXPECT_GT(total, 1e-6);
 }
 
+TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
+  // model.randomized: the micro-batch's jitter is drawn once, before the split, from the global
+  // stream (coarse, then fine), exactly as one forward over the whole batch draws it. Draws made
+  // per thread would differ from the reference (and from run to run).
+  const test::IntraOpThreads threads(2);
+  auto cfg = small_model();
+  cfg.randomized = true;
+  torch::manual_seed(8);
+  AbleNerf model(cfg);
+  model->to(torch::kDouble);
+  model->train();
+  TrainConfig tc;
+  const int64_t n = 48;
+  const RayBatch batch = some_batch(n);
+  double ref_loss = 0;
+  torch::manual_seed(123);
+  const auto ref = reference_gradients(model, batch, tc, &ref_loss);
+  for (const CpuSplit mode : {CpuSplit::Ops, CpuSplit::Rays}) {
+    Compute compute;
+    compute.cpu_split = mode;
+    model->set_compute(compute);
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    torch::manual_seed(123);
+    const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+    EXPECT_NEAR(s.loss.item<double>(), ref_loss, 1e-12);
+    const auto params = model->parameters();
+    for (size_t i = 0; i < params.size(); ++i) {
+      ASSERT_TRUE(params[i].grad().defined()) << i;
+      EXPECT_LT((params[i].grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>()))
+          << "parameter " << i << ", split " << (mode == CpuSplit::Rays);
+    }
+  }
+  // The jitter is live: another stream gives another loss.
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  torch::manual_seed(124);
+  EXPECT_GT(std::abs(accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0).loss.item<double>() - ref_loss), 1e-9);
+}
+
 TEST(GradAccumulation, ReportedFineMseIsTheBatchMse) {
   torch::manual_seed(9);
   AbleNerf model(small_model());
