@@ -61,9 +61,9 @@ class AbleNerfImpl : public torch::nn::Module {
  public:
   explicit AbleNerfImpl(const ModelConfig& cfg);
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
-  // training mode, drawn for the whole batch (with_jitter) before any split. On the CPU without gradient recording (rendering, evaluation) the rays are
-  // split across CPU threads (kernels/cpu_parallel.h); outputs equal the serial ones to float
-  // tolerance.
+  // training mode, drawn for the whole batch (with_jitter) before any split. On the CPU without
+  // gradient recording (rendering, evaluation) the rays are split across CPU threads
+  // (kernels/cpu_parallel.h); outputs equal the serial ones to float tolerance.
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }

@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <string>
+
 #include "model/compute.h"
 #include "kernels/cpu_parallel.h"
 #include "test_util.h"
@@ -46,6 +48,16 @@ std::vector<torch::Tensor> reference_gradients(AbleNerf& model, const RayBatch& 
   return g;
 }
 
+// Every parameter's gradient equals the reference's to float64 summation-order tolerance.
+void expect_gradients_equal(AbleNerf& model, const std::vector<torch::Tensor>& ref, const std::string& what) {
+  const auto params = model->parameters();
+  for (size_t i = 0; i < params.size(); ++i) {
+    ASSERT_TRUE(params[i].grad().defined()) << i;
+    EXPECT_LT((params[i].grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>()))
+        << "parameter " << i << ", " << what;
+  }
+}
+
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
@@ -70,12 +82,8 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
       for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
       const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
       EXPECT_NEAR(s.loss.item<double>(), ref_loss, 1e-12) << micro;
-      const auto params = model->parameters();
-      for (size_t i = 0; i < params.size(); ++i) {
-        ASSERT_TRUE(params[i].grad().defined()) << i;
-        EXPECT_LT((params[i].grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>()))
-            << "parameter " << i << ", micro-batch " << micro << ", split " << (mode == CpuSplit::Rays);
-      }
+      expect_gradients_equal(model, ref,
+                             "micro-batch " + std::to_string(micro) + ", split " + std::to_string(mode == CpuSplit::Rays));
     }
   }
   if (blas_thread_control_available()) {
@@ -112,12 +120,7 @@ TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
     torch::manual_seed(123);
     const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
     EXPECT_NEAR(s.loss.item<double>(), ref_loss, 1e-12);
-    const auto params = model->parameters();
-    for (size_t i = 0; i < params.size(); ++i) {
-      ASSERT_TRUE(params[i].grad().defined()) << i;
-      EXPECT_LT((params[i].grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>()))
-          << "parameter " << i << ", split " << (mode == CpuSplit::Rays);
-    }
+    expect_gradients_equal(model, ref, "split " + std::to_string(mode == CpuSplit::Rays));
   }
   // The jitter is live: another stream gives another loss.
   for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
