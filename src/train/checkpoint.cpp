@@ -59,6 +59,7 @@ void save_checkpoint(const std::string& path, const Config& config, AbleNerf& mo
   archive.write("step", torch::tensor(state.step, torch::kLong));
   archive.write("elapsed_seconds", torch::tensor(state.elapsed_seconds, torch::kDouble));
   archive.write("rng_state", state.rng_state.cpu());
+  if (state.error_map.defined()) archive.write("error_map", state.error_map.cpu());
   // LibTorch's global CPU stream drives the stratified jitter (model.randomized) and the LE noise:
   // saved so that a resumed randomized run continues the same stream.
   archive.write("torch_rng_state", at::detail::getDefaultCPUGenerator().get_state());
@@ -118,6 +119,8 @@ TrainState load_checkpoint(const std::string& path, const Config& config, AbleNe
   archive.read("rng_state", st.rng_state);
   // Random-stream states are CPU byte tensors whatever device the archive was loaded onto.
   st.rng_state = st.rng_state.cpu();
+  torch::Tensor map;
+  if (archive.try_read("error_map", map)) st.error_map = map.cpu();
   torch::Tensor global_rng;
   if (archive.try_read("torch_rng_state", global_rng)) {
     at::Generator global = at::detail::getDefaultCPUGenerator();  // a handle to the global stream

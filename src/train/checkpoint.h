@@ -1,5 +1,5 @@
 #pragma once
-// Training checkpoints: model, Adam state, step, the ray stream's RNG state and the resolved config,
+// Training checkpoints: model, Adam state, step, the ray stream's RNG state (and error map) and the resolved config,
 // in one file written atomically (temp file + fsync + rename: a kill -9 at any moment leaves the
 // previous or the new checkpoint, never a partial one) and protected by a checksum (a truncated or
 // corrupted file is reported, never loaded).
@@ -19,6 +19,7 @@ namespace ablenerf {
 struct TrainState {
   int64_t step = 0;             // optimiser steps done
   torch::Tensor rng_state;      // RaySampler::rng_state()
+  torch::Tensor error_map;      // RaySampler::map_state() (undefined without an error map)
   double elapsed_seconds = 0;   // training wall time so far
 };
 

@@ -9,8 +9,9 @@ namespace ablenerf {
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays) {
   const double inv = 1.0 / (static_cast<double>(kRgbChannels) * static_cast<double>(global_rays));
   const auto se_c = (out.rgb_coarse - target).pow(2).sum();
-  const auto se_f = (out.rgb_fine - target).pow(2).sum();
-  return {(tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv, se_f.detach() * inv};
+  const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
+  const auto se_f = ray_se.sum();
+  return {(tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv, se_f.detach() * inv, ray_se.detach()};
 }
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
@@ -19,10 +20,12 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   const auto params = model->parameters();
   // In the parameters' dtype (fp32 in training; float64 in tests).
   const auto zero = torch::zeros({}, params.front().options());
-  StepSums sums{zero, zero.clone()};
+  StepSums sums{zero, zero.clone(), {}};
+  std::vector<torch::Tensor> ray_se;
   const auto add = [&](const LossTerms& t) {
     sums.loss.add_(t.loss.detach());
     sums.mse_fine.add_(t.mse_fine);
+    ray_se.push_back(t.ray_se);
   };
   for (int64_t b = 0; b < batch.size(); b += micro) {
     const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
@@ -45,7 +48,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,
                                                             /*allow_unused=*/true);
-      parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine};
+      parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se};
     });
     torch::NoGradGuard no_grad;
     for (size_t w = 0; w < grads.size(); ++w) {
@@ -62,6 +65,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       }
     }
   }
+  sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;
 }
 

@@ -19,6 +19,7 @@ namespace ablenerf {
 struct LossTerms {
   torch::Tensor loss;      // what is differentiated
   torch::Tensor mse_fine;  // this slice's share of the step's fine-colour MSE (for reporting)
+  torch::Tensor ray_se;    // (B,) each ray's fine-colour squared error summed over channels, detached
 };
 
 // The loss of some rays of a step of `global_rays` rays: (coarse_weight * SE_coarse + fine_weight *
@@ -29,6 +30,7 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
 struct StepSums {
   torch::Tensor loss;      // the step's loss (this process's share), 0-d, in the parameters' dtype and on their device, detached
   torch::Tensor mse_fine;  // the step's fine-colour MSE (this process's share), likewise
+  torch::Tensor ray_se;    // (rays,) LossTerms::ray_se of this process's rays, in batch order
 };
 
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add

@@ -2,14 +2,17 @@
 
 namespace ablenerf {
 
-RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed)
+RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed,
+                       std::optional<ErrorMapOptions> error_map)
     : k_(k), gen_(at::detail::createCPUGenerator(seed)) {
   images_ = split.images.reshape({-1, 3}).to(device);
   c2w_ = split.c2w.to(device);
   pixels_ = images_.size(0);
+  if (error_map) map_.emplace(split.c2w.size(0), k.height, k.width, *error_map);
 }
 
 torch::Tensor RaySampler::draw(int64_t global_size) {
+  if (map_) return map_->draw(global_size, gen_);
   return torch::randint(pixels_, {global_size}, gen_, torch::TensorOptions().dtype(torch::kLong));
 }
 
@@ -29,7 +32,15 @@ RayBatch RaySampler::next(int64_t global_size, int rank, int world) {
   return gather(idx.slice(0, begin, end));
 }
 
+void RaySampler::observe(const torch::Tensor& flat_indices, const torch::Tensor& squared_error) {
+  if (map_) map_->observe(flat_indices, squared_error);
+}
+
 torch::Tensor RaySampler::rng_state() const { return gen_.get_state(); }
 void RaySampler::set_rng_state(const torch::Tensor& state) { gen_.set_state(state); }
+torch::Tensor RaySampler::map_state() const { return map_ ? map_->state() : torch::Tensor(); }
+void RaySampler::set_map_state(const torch::Tensor& state) {
+  if (map_ && state.defined()) map_->set_state(state);
+}
 
 }  // namespace ablenerf

@@ -1,12 +1,16 @@
 #pragma once
-// Training batches: rays drawn uniformly across every pixel of every training image, generated on
-// the fly from the poses (spec 1.3: no table of all rays). Every process of a data-parallel group
+// Training batches: rays drawn across every pixel of every training image (uniformly, or guided by
+// an error map: train/error_map.h), generated on the fly from the poses (spec 1.3: no table of all
+// rays). Every process of a data-parallel group
 // draws the same global batch from one identically seeded stream and keeps its own slice, so a
 // run does not depend on how many processes share it.
 #include <torch/torch.h>
 
+#include <optional>
+
 #include "data/dataset.h"
 #include "data/rays.h"
+#include "train/error_map.h"
 
 namespace ablenerf {
 
@@ -20,7 +24,9 @@ struct RayBatch {
 class RaySampler {
  public:
   // images (N,H,W,3) and c2w (N,3,4) are moved to `device` once.
-  RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed);
+  // With `error_map`, pixels are drawn through an ErrorMap fed by observe(); without, uniformly.
+  RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed,
+             std::optional<ErrorMapOptions> error_map = std::nullopt);
 
   // The next global batch of `global_size` rays; returns this rank's slice
   // [rank*global/world, (rank+1)*global/world).
@@ -30,15 +36,23 @@ class RaySampler {
   torch::Tensor draw(int64_t global_size);
   RayBatch gather(const torch::Tensor& flat_indices) const;
 
-  // The random stream's state, for checkpoints.
+  // The per-ray squared errors of a drawn global batch, in the order drawn (all of it, every rank
+  // the same), for the error map; nothing without one.
+  void observe(const torch::Tensor& flat_indices, const torch::Tensor& squared_error);
+  bool error_guided() const { return map_.has_value(); }
+
+  // The random stream's state and the error map's (undefined without one), for checkpoints.
   torch::Tensor rng_state() const;
   void set_rng_state(const torch::Tensor& state);
+  torch::Tensor map_state() const;
+  void set_map_state(const torch::Tensor& state);
 
  private:
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
   Intrinsics k_;
   int64_t pixels_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
+  std::optional<ErrorMap> map_;
 };
 
 }  // namespace ablenerf

@@ -64,8 +64,9 @@ struct Trainer::State {
   // Device form.
   std::unique_ptr<CudaStep> cuda;
   torch::Tensor indices_dev;  // this step's ray indices on the device (the graph's input)
-  torch::Tensor figures_dev;  // [loss, mse_fine, found_inf] of the step (the graph's output)
+  torch::Tensor figures_dev;  // [loss, mse_fine, found_inf, ray_se...] of the step (the graph's output)
   double pending_lr = NAN;    // lr of the step whose figures are in flight
+  torch::Tensor pending_indices;  // its ray indices, until its errors reach the error map
   StepReport last;
   // Time: seconds trained before this invocation, the clock of this one, the agreed elapsed.
   double elapsed_before = 0;
@@ -136,6 +137,11 @@ void Trainer::setup() {
     s.state = load_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim());
     s.adam->from_checkpoint();
     s.sampler->set_rng_state(s.state.rng_state);
+    try {
+      s.sampler->set_map_state(s.state.error_map);
+    } catch (const std::invalid_argument&) {
+      throw InputError(s.run.checkpoint_path(), "error_map", "made for another training set (image count or size)");
+    }
     s.elapsed_before = s.state.elapsed_seconds;
     s.agreed_elapsed = s.elapsed_before;
     if (s.leader) std::cerr << "train: resumed " << s.run.checkpoint_path() << " at step " << s.state.step << "\n";
@@ -158,7 +164,9 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.model->train();
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form);
-  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed));
+  std::optional<ErrorMapOptions> map;
+  if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
+  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map);
   s.schedule.emplace(tc);
   s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
   s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
@@ -166,7 +174,7 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
     s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
     const auto dev = torch::TensorOptions().device(opts_.device);
     s.indices_dev = torch::zeros({s.local_rays}, dev.dtype(torch::kLong));
-    s.figures_dev = torch::zeros({3}, dev.dtype(torch::kFloat));
+    s.figures_dev = torch::zeros({3 + (map ? s.local_rays : 0)}, dev.dtype(torch::kFloat));
   }
   s.start = std::chrono::steady_clock::now();
 }
@@ -197,13 +205,13 @@ StepReport Trainer::step() {
   const auto all = s.sampler->draw(tc.rays_per_step);
   const int64_t begin = tc.rays_per_step * s.rank / s.world;
   const auto indices = all.slice(0, begin, begin + s.local_rays);
-  StepReport r = s.cuda ? device_step(indices, lr) : host_step(indices, lr);
+  StepReport r = s.cuda ? device_step(all, indices, lr) : host_step(all, indices, lr);
   s.state.step++;
   s.state.elapsed_seconds = s.local_elapsed();
   return r;
 }
 
-StepReport Trainer::host_step(const torch::Tensor& indices, double lr) {
+StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& indices, double lr) {
   auto& s = *s_;
   const TrainConfig& tc = config_.train;
   s.adam->set_lr(lr);
@@ -216,14 +224,25 @@ StepReport Trainer::host_step(const torch::Tensor& indices, double lr) {
   r.lr = lr;
   r.loss = sums.loss.item<double>();
   r.mse_fine = sums.mse_fine.item<double>();
+  // The error map needs every rank's per-ray errors: they travel in the all-reduce, each rank
+  // filling its slice of the global batch with zeros elsewhere.
+  const bool guided = s.sampler->error_guided();
+  torch::Tensor ray_se = guided ? sums.ray_se.to(torch::kCPU, torch::kDouble) : torch::Tensor();
   if (opts_.dist) {
-    double stats[3] = {r.loss, r.mse_fine, s.local_elapsed() / static_cast<double>(s.world)};
-    opts_.dist->all_reduce_gradients(s.model, stats, 3);
+    std::vector<double> stats(3 + (guided ? all.size(0) : 0), 0.0);
+    stats[0] = r.loss, stats[1] = r.mse_fine, stats[2] = s.local_elapsed() / static_cast<double>(s.world);
+    if (guided) {
+      const int64_t begin = tc.rays_per_step * s.rank / s.world;
+      std::copy(ray_se.data_ptr<double>(), ray_se.data_ptr<double>() + ray_se.size(0), stats.begin() + 3 + begin);
+    }
+    opts_.dist->all_reduce_gradients(s.model, stats.data(), static_cast<int>(stats.size()));
     r.loss = stats[0];
     r.mse_fine = stats[1];
     s.agreed_elapsed = stats[2];
+    if (guided) ray_se = torch::tensor(std::vector<double>(stats.begin() + 3, stats.end()), torch::kDouble);
   }
   r.finite = s.adam->step_host(r.loss);
+  if (guided && r.finite) s.sampler->observe(all, ray_se);
   if (!r.finite) s.adam->clear_grads();
   s.last = r;
   return r;
@@ -243,11 +262,25 @@ void Trainer::device_body() {
   }
   s.adam->step_device(sums.loss);
   torch::NoGradGuard no_grad;
-  s.figures_dev.copy_(torch::cat({sums.loss.reshape({1}).to(torch::kFloat), sums.mse_fine.reshape({1}).to(torch::kFloat),
-                                  s.adam->found_inf()}));
+  std::vector<torch::Tensor> figures{sums.loss.reshape({1}).to(torch::kFloat),
+                                     sums.mse_fine.reshape({1}).to(torch::kFloat), s.adam->found_inf().reshape({1})};
+  if (s.sampler->error_guided()) figures.push_back(sums.ray_se.reshape({-1}).to(torch::kFloat));
+  s.figures_dev.copy_(torch::cat(figures));
 }
 
-StepReport Trainer::device_step(const torch::Tensor& indices, double lr) {
+void Trainer::observe_pending(const std::vector<double>& figures) {
+  auto& s = *s_;
+  if (!s.pending_indices.defined()) return;  // already fed (flush, then the next step)
+  if (s.sampler->error_guided() && figures[2] == 0.0) {
+    const auto n = static_cast<int64_t>(figures.size()) - 3;
+    s.sampler->observe(s.pending_indices, torch::tensor(std::vector<double>(figures.begin() + 3, figures.end()), torch::kDouble).reshape({n}));
+  }
+  s.pending_indices = torch::Tensor();
+}
+
+// On the device the step's errors reach the host one step later, so the error map draws a step's
+// rays from the errors of the step before the previous one.
+StepReport Trainer::device_step(const torch::Tensor& all, const torch::Tensor& indices, double lr) {
   auto& s = *s_;
   s.cuda->upload(indices, s.indices_dev);
   s.adam->set_lr(lr);
@@ -255,6 +288,7 @@ StepReport Trainer::device_step(const torch::Tensor& indices, double lr) {
   // The previous step's figures (their copy was queued after that step), then this step's.
   StepReport r;
   if (auto f = s.cuda->take()) {
+    observe_pending(*f);
     r.step = s.state.step;  // the previous step, 1-based
     r.loss = (*f)[0];
     r.mse_fine = (*f)[1];
@@ -264,6 +298,7 @@ StepReport Trainer::device_step(const torch::Tensor& indices, double lr) {
   }
   s.cuda->queue(s.figures_dev);
   s.pending_lr = lr;
+  s.pending_indices = all;
   return r;
 }
 
@@ -271,6 +306,7 @@ StepReport Trainer::flush() {
   auto& s = *s_;
   if (!s.cuda) return s.last;
   if (auto f = s.cuda->drain()) {
+    observe_pending(*f);
     StepReport r;
     r.step = s.state.step;
     r.loss = (*f)[0];
@@ -288,6 +324,7 @@ void Trainer::save() {
   flush();
   s.adam->to_checkpoint();
   s.state.rng_state = s.sampler->rng_state();
+  s.state.error_map = s.sampler->map_state();
   save_weights(s.model, s.run.weights_path());
   save_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim(), s.state);
 }

@@ -101,8 +101,11 @@ class Trainer {
   void build(const Split& train, const Intrinsics& k);
   double schedule_fraction() const;
   int64_t schedule_step() const;
-  StepReport host_step(const torch::Tensor& indices, double lr);
-  StepReport device_step(const torch::Tensor& indices, double lr);
+  // `all`: the step's global ray indices; `indices`: this rank's slice of them.
+  StepReport host_step(const torch::Tensor& all, const torch::Tensor& indices, double lr);
+  StepReport device_step(const torch::Tensor& all, const torch::Tensor& indices, double lr);
+  // Feeds a finished step's figures [loss, mse_fine, found_inf, ray_se...] to the error map.
+  void observe_pending(const std::vector<double>& figures);
   void device_body();
   // Hooks of run().
   void save();

@@ -18,7 +18,7 @@ namespace ablenerf {
 namespace {
 
 using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,
-                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*>;
+                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -67,6 +67,9 @@ void visit_fields(C& c, F&& f) {
   f("train.ckpt_every", &c.train.ckpt_every);
   f("train.max_bad_steps", &c.train.max_bad_steps);
   f("train.time_budget_s", &c.train.time_budget_s);
+  f("train.ray_sampling", &c.train.ray_sampling);
+  f("train.error_tile", &c.train.error_tile);
+  f("train.error_uniform_share", &c.train.error_uniform_share);
   f("train.graph", &c.train.graph);
   f("eval.chunk", &c.eval.chunk);
   f("eval.ssim", &c.eval.ssim);
@@ -220,6 +223,8 @@ void Config::validate() const {
   need(t.ckpt_every >= 0, "train.ckpt_every", "must be >= 0");
   need(t.max_bad_steps >= 1, "train.max_bad_steps", "must be >= 1");
   need(t.time_budget_s >= 0 && std::isfinite(t.time_budget_s), "train.time_budget_s", "must be >= 0 seconds");
+  need(t.error_tile >= 1, "train.error_tile", "must be >= 1 pixel");
+  need(t.error_uniform_share >= 0 && t.error_uniform_share <= 1, "train.error_uniform_share", "must be in [0, 1]");
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
 }
 

@@ -18,6 +18,7 @@ enum class CpuSplit { Rays, Ops };
 // What the run computes or reads, chosen by name in the config.
 enum class ViewEncoding { Release, Paper };  // model.view_encoding (model/view_encoding.h)
 enum class Background { White, Black };      // data.background: the colour RGBA images are composited on
+enum class RaySampling { Uniform, Error };    // train.ray_sampling (train/error_map.h)
 // eval.ssim (eval/metrics.h):
 enum class SsimVariant {
   // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
@@ -44,6 +45,8 @@ template <>
 inline const EnumNames<ViewEncoding> kEnumNames<ViewEncoding>{{ViewEncoding::Release, "release"}, {ViewEncoding::Paper, "paper"}};
 template <>
 inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
+template <>
+inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"}, {RaySampling::Error, "error"}};
 template <>
 inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
 
@@ -110,6 +113,12 @@ struct TrainConfig {
   // finishes in its budget on a slow machine with its schedule complete. With several processes
   // the ranks agree on the elapsed time (the mean over the group, every step).
   double time_budget_s = 0;
+  // Which pixels a step's rays come from (train/error_map.h): "uniform" = every training pixel
+  // equally likely; "error" = a tile of error_tile x error_tile pixels in proportion to the recent
+  // squared error of its rays, mixed with uniform sampling at error_uniform_share.
+  RaySampling ray_sampling = RaySampling::Uniform;
+  int64_t error_tile = 4;
+  double error_uniform_share = 0.25;
   // On CUDA (one process, LibTorch >= 2): capture the training step as one CUDA graph and replay
   // it (false: the same device step, run eagerly). Ignored elsewhere.
   bool graph = true;

@@ -36,12 +36,12 @@ std::string env(int rank, int world, int port) {
 
 std::string bin() { return std::getenv("ABLENERF_BIN"); }
 
-}  // namespace
-
-TEST(Distributed, TwoProcessesEqualOneProcess) {
+// Trains 20 steps in one process and in two with `extra` settings; the weights must agree to
+// all-reduce rounding.
+void expect_two_processes_equal_one(const std::string& extra) {
   test::TempDir t;
   ASSERT_EQ(test::run_cli("synth --out " + t.path() + "/data --res 16 --train-views 4 --test-views 1").exit_code, 0);
-  const std::string common = std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=20";
+  const std::string common = std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=20" + extra;
   auto one = test::run_cli(common + " --out " + t.path() + "/one");
   ASSERT_EQ(one.exit_code, 0) << one.output;
   const int port = free_port();
@@ -69,6 +69,17 @@ TEST(Distributed, TwoProcessesEqualOneProcess) {
   std::string line, last;
   while (std::getline(lg, line)) last = line;
   EXPECT_NE(last.find("\"step\":20"), std::string::npos) << last;
+}
+
+}  // namespace
+
+TEST(Distributed, TwoProcessesEqualOneProcess) { expect_two_processes_equal_one(""); }
+
+// With the error map every rank needs every ray's error to draw the same next batch: the errors
+// travel in the gradient all-reduce. Ranks that disagreed would train on other rays than one
+// process does, far beyond the rounding bound.
+TEST(Distributed, TwoProcessesEqualOneProcessWithTheErrorMap) {
+  expect_two_processes_equal_one(" --set train.ray_sampling=error --set train.error_tile=2");
 }
 
 // Under a launcher (WORLD_SIZE set, as torchrun does even for one process) a single process joins a

@@ -1,0 +1,128 @@
+#include "train/error_map.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace ablenerf {
+
+namespace {
+// How far a tile's error moves towards a new observation.
+constexpr double kErrorBlend = 0.5;
+}  // namespace
+
+ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOptions options)
+    : images_(images), height_(height), width_(width), opt_(options) {
+  if (images < 1 || height < 1 || width < 1) throw std::invalid_argument("ErrorMap: empty image set");
+  if (opt_.tile < 1) throw std::invalid_argument("ErrorMap: tile must be >= 1");
+  if (!(opt_.uniform_share >= 0 && opt_.uniform_share <= 1))
+    throw std::invalid_argument("ErrorMap: uniform_share must be in [0, 1]");
+  tiles_x_ = (width + opt_.tile - 1) / opt_.tile;
+  tiles_y_ = (height + opt_.tile - 1) / opt_.tile;
+  error_.assign(static_cast<size_t>(images * tiles_x_ * tiles_y_), 0.0);
+}
+
+int64_t ErrorMap::tile_pixels(int64_t t) const {
+  const int64_t in_image = t % (tiles_x_ * tiles_y_);
+  const int64_t ty = in_image / tiles_x_, tx = in_image % tiles_x_;
+  return std::min(opt_.tile, height_ - ty * opt_.tile) * std::min(opt_.tile, width_ - tx * opt_.tile);
+}
+
+int64_t ErrorMap::tile_of(int64_t pixel) const {
+  const int64_t per_image = height_ * width_;
+  const int64_t image = pixel / per_image, in_image = pixel % per_image;
+  const int64_t row = in_image / width_, col = in_image % width_;
+  return (image * tiles_y_ + row / opt_.tile) * tiles_x_ + col / opt_.tile;
+}
+
+torch::Tensor ErrorMap::probabilities() const {
+  const int64_t n = tiles();
+  auto p = torch::empty({n}, torch::kDouble);
+  double* out = p.data_ptr<double>();
+  double sum = 0;
+  for (double e : error_) sum += e;
+  const double pixels = static_cast<double>(images_ * height_ * width_);
+  const bool by_error = seeded_ && sum > 0;
+  const double share = by_error ? opt_.uniform_share : 1.0;
+  for (int64_t t = 0; t < n; ++t) {
+    const double uniform = static_cast<double>(tile_pixels(t)) / pixels;
+    out[t] = share * uniform + (by_error ? (1.0 - share) * error_[static_cast<size_t>(t)] / sum : 0.0);
+  }
+  return p;
+}
+
+void ErrorMap::rebuild_cdf() {
+  const auto p = probabilities();
+  const double* pp = p.data_ptr<double>();
+  cdf_.resize(error_.size());
+  double run = 0;
+  for (size_t t = 0; t < cdf_.size(); ++t) cdf_[t] = (run += pp[t]);
+  dirty_ = false;
+}
+
+torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
+  if (dirty_) rebuild_cdf();
+  const auto u = torch::rand({n, 3}, gen, torch::kDouble);
+  const auto ua = u.accessor<double, 2>();
+  auto out = torch::empty({n}, torch::kLong);
+  int64_t* idx = out.data_ptr<int64_t>();
+  const double total = cdf_.back();
+  const int64_t per_image_tiles = tiles_x_ * tiles_y_;
+  for (int64_t i = 0; i < n; ++i) {
+    const auto it = std::upper_bound(cdf_.begin(), cdf_.end(), ua[i][0] * total);
+    const int64_t t = std::min<int64_t>(it - cdf_.begin(), tiles() - 1);
+    const int64_t image = t / per_image_tiles, in_image = t % per_image_tiles;
+    const int64_t ty = in_image / tiles_x_, tx = in_image % tiles_x_;
+    const int64_t h = std::min(opt_.tile, height_ - ty * opt_.tile), w = std::min(opt_.tile, width_ - tx * opt_.tile);
+    const int64_t row = ty * opt_.tile + std::min<int64_t>(static_cast<int64_t>(ua[i][1] * static_cast<double>(h)), h - 1);
+    const int64_t col = tx * opt_.tile + std::min<int64_t>(static_cast<int64_t>(ua[i][2] * static_cast<double>(w)), w - 1);
+    idx[i] = (image * height_ + row) * width_ + col;
+  }
+  return out;
+}
+
+void ErrorMap::observe(const torch::Tensor& pixels, const torch::Tensor& squared_error) {
+  const auto px = pixels.to(torch::kCPU, torch::kLong).contiguous().reshape({-1});
+  const auto se = squared_error.detach().to(torch::kCPU, torch::kDouble).contiguous().reshape({-1});
+  if (px.size(0) != se.size(0)) throw std::invalid_argument("ErrorMap::observe: one error per pixel");
+  const int64_t n = px.size(0);
+  if (n == 0) return;
+  const int64_t* p = px.data_ptr<int64_t>();
+  const double* e = se.data_ptr<double>();
+  if (!seeded_) {
+    double sum = 0;
+    int64_t finite = 0;
+    for (int64_t i = 0; i < n; ++i)
+      if (std::isfinite(e[i])) sum += e[i], ++finite;
+    if (finite == 0) return;
+    std::fill(error_.begin(), error_.end(), sum / static_cast<double>(finite));
+    seeded_ = true;
+  }
+  const int64_t pixel_count = images_ * height_ * width_;
+  for (int64_t i = 0; i < n; ++i) {
+    if (p[i] < 0 || p[i] >= pixel_count) throw std::invalid_argument("ErrorMap::observe: pixel index out of range");
+    if (!std::isfinite(e[i])) continue;  // a skipped (non-finite) step teaches nothing
+    double& slot = error_[static_cast<size_t>(tile_of(p[i]))];
+    slot += kErrorBlend * (e[i] - slot);
+  }
+  dirty_ = true;
+}
+
+torch::Tensor ErrorMap::state() const {
+  auto s = torch::empty({tiles() + 1}, torch::kDouble);
+  double* d = s.data_ptr<double>();
+  d[0] = seeded_ ? 1.0 : 0.0;
+  std::copy(error_.begin(), error_.end(), d + 1);
+  return s;
+}
+
+void ErrorMap::set_state(const torch::Tensor& state) {
+  const auto s = state.to(torch::kCPU, torch::kDouble).contiguous().reshape({-1});
+  if (s.size(0) != tiles() + 1) throw std::invalid_argument("ErrorMap::set_state: the map has another size");
+  const double* d = s.data_ptr<double>();
+  seeded_ = d[0] != 0.0;
+  std::copy(d + 1, d + 1 + tiles(), error_.begin());
+  dirty_ = true;
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,122 @@
+// Error-guided ray sampling: tile probabilities by hand, the blend of observed errors, draw
+// frequencies against those probabilities (a chi-square bound), pixels uniform inside their tile
+// and never outside the image, and a checkpointed state that continues the same draws.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <map>
+
+#include "train/error_map.h"
+
+using namespace ablenerf;
+
+namespace {
+
+// 2 images of 5 x 6 pixels in tiles of 4: per image a 4x4 tile (16 px), a 4x2 (8), a 1x4 (4), a
+// 1x2 (2); 60 pixels, 8 tiles.
+ErrorMap small_map(double share) { return ErrorMap(2, 5, 6, {4, share}); }
+
+torch::Generator gen(uint64_t seed) { return at::detail::createCPUGenerator(seed); }
+
+}  // namespace
+
+TEST(ErrorMap, UniformBeforeAnyErrorIsSeen) {
+  const auto map = small_map(0.25);
+  ASSERT_EQ(map.tiles(), 8);
+  const auto p = map.probabilities();
+  const double areas[8] = {16, 8, 4, 2, 16, 8, 4, 2};
+  for (int t = 0; t < 8; ++t) EXPECT_NEAR(p[t].item<double>(), areas[t] / 60.0, 1e-15) << t;
+}
+
+TEST(ErrorMap, TileOfAPixel) {
+  const auto map = small_map(0.25);
+  // image 0: (row 0, col 0) -> tile 0; (row 3, col 5) -> 1; (row 4, col 0) -> 2; (row 4, col 5) -> 3;
+  // image 1, (row 4, col 4) -> 7.
+  EXPECT_EQ(map.tile_of(0), 0);
+  EXPECT_EQ(map.tile_of(3 * 6 + 5), 1);
+  EXPECT_EQ(map.tile_of(4 * 6 + 0), 2);
+  EXPECT_EQ(map.tile_of(4 * 6 + 5), 3);
+  EXPECT_EQ(map.tile_of(30 + 4 * 6 + 4), 7);
+}
+
+TEST(ErrorMap, ObservedErrorsByHand) {
+  auto map = small_map(0.25);
+  // First batch: pixels in tiles 0 and 5 with errors 0.4 and 0.2 (mean 0.3 seeds every tile), then
+  // each tile moves halfway: tile 0 -> 0.35, tile 5 -> 0.25. Second batch: tile 0 twice, 0.05 then
+  // 0.15 -> 0.35 -> 0.2 -> 0.175.
+  map.observe(torch::tensor({0L, 30L + 5L}), torch::tensor({0.4, 0.2}));
+  map.observe(torch::tensor({7L, 6L}), torch::tensor({0.05f, 0.15f}));
+  const auto st = map.state();
+  ASSERT_EQ(st.size(0), 9);
+  EXPECT_EQ(st[0].item<double>(), 1.0);
+  const double e[8] = {0.175, 0.3, 0.3, 0.3, 0.3, 0.25, 0.3, 0.3};
+  double sum = 0;
+  for (int t = 0; t < 8; ++t) {
+    EXPECT_NEAR(st[t + 1].item<double>(), e[t], 1e-7) << t;
+    sum += e[t];
+  }
+  const double areas[8] = {16, 8, 4, 2, 16, 8, 4, 2};
+  const auto p = map.probabilities();
+  for (int t = 0; t < 8; ++t) EXPECT_NEAR(p[t].item<double>(), 0.25 * areas[t] / 60.0 + 0.75 * e[t] / sum, 1e-7) << t;
+  EXPECT_NEAR(p.sum().item<double>(), 1.0, 1e-12);
+}
+
+TEST(ErrorMap, NonFiniteErrorsAreIgnoredAndAllZeroFallsBackToUniform) {
+  auto map = small_map(0.0);
+  map.observe(torch::tensor({0L, 1L}), torch::tensor({0.0, std::nan("")}));
+  // Seeded with the mean of a batch holding a NaN: NaN everywhere would poison the map, so the
+  // seed itself must come from finite values only.
+  const auto p = map.probabilities();
+  EXPECT_FALSE(torch::isnan(p).any().item<bool>());
+  // Every error is zero: the share of error-guided draws has nothing to follow, uniform it is.
+  const double areas[8] = {16, 8, 4, 2, 16, 8, 4, 2};
+  for (int t = 0; t < 8; ++t) EXPECT_NEAR(p[t].item<double>(), areas[t] / 60.0, 1e-15) << t;
+}
+
+TEST(ErrorMap, DrawFrequenciesFollowTheProbabilities) {
+  auto map = small_map(0.25);
+  map.observe(torch::tensor({0L, 13L, 24L, 59L}), torch::tensor({0.9, 0.1, 0.02, 0.5}));
+  const auto p = map.probabilities();
+  auto g = gen(11);
+  const int64_t n = 200000;
+  const auto idx = map.draw(n, g);
+  ASSERT_EQ(idx.scalar_type(), torch::kLong);
+  std::vector<double> count(8, 0.0);
+  std::map<int64_t, int64_t> per_pixel;
+  for (int64_t i = 0; i < n; ++i) {
+    const int64_t px = idx[i].item<int64_t>();
+    ASSERT_GE(px, 0);
+    ASSERT_LT(px, 60);
+    count[static_cast<size_t>(map.tile_of(px))] += 1;
+    per_pixel[px]++;
+  }
+  // Pearson's chi-square over 8 tiles (7 degrees of freedom): the 99.99th percentile is 29.9.
+  double chi2 = 0;
+  for (int t = 0; t < 8; ++t) {
+    const double expect = p[t].item<double>() * static_cast<double>(n);
+    chi2 += (count[static_cast<size_t>(t)] - expect) * (count[static_cast<size_t>(t)] - expect) / expect;
+  }
+  EXPECT_LT(chi2, 29.9);
+  // Inside a tile every pixel is equally likely: tile 0 of image 0 is rows 0-3 x cols 0-3; the
+  // 16 counts against their mean, chi-square with 15 degrees of freedom (99.99th pct 42.6).
+  double mean = count[0] / 16.0, chi2_in = 0;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) {
+      const double k = static_cast<double>(per_pixel[r * 6 + c]);
+      chi2_in += (k - mean) * (k - mean) / mean;
+    }
+  EXPECT_LT(chi2_in, 42.6);
+  // The edge tile 3 of image 0 is the single pixel row 4, cols 4-5: nothing else lands in it.
+  EXPECT_EQ(per_pixel[4 * 6 + 4] + per_pixel[4 * 6 + 5], static_cast<int64_t>(count[3]));
+}
+
+TEST(ErrorMap, StateContinuesTheSameDraws) {
+  auto a = small_map(0.25);
+  a.observe(torch::tensor({3L, 40L}), torch::tensor({0.3, 0.6}));
+  auto b = small_map(0.25);
+  b.set_state(a.state());
+  auto ga = gen(5), gb = gen(5);
+  EXPECT_TRUE(torch::equal(a.draw(100, ga), b.draw(100, gb)));
+  EXPECT_THROW(ErrorMap(1, 5, 6, {4, 0.25}).set_state(a.state()), std::invalid_argument);
+}
