@@ -13,6 +13,7 @@
 #   peerbench  the authors' release on the same GPU (../shared/tools/peer, carried in .carry/peer)
 #   peertrain  the release's own recipe on lego for $BUDGET seconds (default 300), PSNR on test views 0-5
 #   lego5      ablenerf on lego for $BUDGET seconds with configs/budget.toml, PSNR on test views 0-5
+#              (LEGO5_SET="k=v k=v": extra settings, e.g. LEGO5_SET=train.ray_sampling=error)
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
@@ -121,10 +122,11 @@ stage_peertrain() {
 
 # ablenerf's budget recipe on lego for the same wall-clock budget, then PSNR on test views 0-5.
 stage_lego5() {
-  local run=/tmp/lego5 t0=$SECONDS
+  local run=/tmp/lego5 t0=$SECONDS extra=() kv
+  for kv in ${LEGO5_SET:-}; do extra+=(--set "$kv"); done
   rm -rf "$run"
   $bin train --data "$lego" --config configs/budget.toml --out "$run" --device cuda \
-    --set train.time_budget_s="${BUDGET:-300}" --set train.eval_views=2 > "$OUT/lego5_train.log" 2>&1
+    --set train.time_budget_s="${BUDGET:-300}" --set train.eval_views=2 "${extra[@]}" > "$OUT/lego5_train.log" 2>&1
   local rc=$?
   echo "lego5: train rc $rc, $((SECONDS - t0)) s wall (data loading included)"
   grep -m2 -E "^(error|internal error)|what\(\)|Error" "$OUT/lego5_train.log" | cut -c1-400
