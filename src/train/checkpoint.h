@@ -1,8 +1,8 @@
 #pragma once
-// Training checkpoints: model, Adam state, step, the ray stream's RNG state (and error map) and the resolved config,
-// in one file written atomically (temp file + fsync + rename: a kill -9 at any moment leaves the
-// previous or the new checkpoint, never a partial one) and protected by a checksum (a truncated or
-// corrupted file is reported, never loaded).
+// Training checkpoints: model, Adam state, step, the ray stream's RNG state and error map, and the
+// resolved config, in one file written atomically (temp file + fsync + rename: a kill -9 at any
+// moment leaves the previous or the new checkpoint, never a partial one) and protected by a
+// checksum (a truncated or corrupted file is reported, never loaded).
 //
 // File layout: "ABLECKPT" | u32 format version | u64 payload bytes | u64 FNV-1a-64 of the payload |
 // payload = a torch::serialize archive.

@@ -22,10 +22,11 @@ ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOption
   error_.assign(static_cast<size_t>(images * tiles_x_ * tiles_y_), 0.0);
 }
 
-int64_t ErrorMap::tile_pixels(int64_t t) const {
-  const int64_t in_image = t % (tiles_x_ * tiles_y_);
-  const int64_t ty = in_image / tiles_x_, tx = in_image % tiles_x_;
-  return std::min(opt_.tile, height_ - ty * opt_.tile) * std::min(opt_.tile, width_ - tx * opt_.tile);
+ErrorMap::TileRect ErrorMap::tile_rect(int64_t t) const {
+  const int64_t per_image = tiles_x_ * tiles_y_;
+  const int64_t in_image = t % per_image;
+  const int64_t row = in_image / tiles_x_ * opt_.tile, col = in_image % tiles_x_ * opt_.tile;
+  return {t / per_image, row, col, std::min(opt_.tile, height_ - row), std::min(opt_.tile, width_ - col)};
 }
 
 int64_t ErrorMap::tile_of(int64_t pixel) const {
@@ -45,7 +46,8 @@ torch::Tensor ErrorMap::probabilities() const {
   const bool by_error = seeded_ && sum > 0;
   const double share = by_error ? opt_.uniform_share : 1.0;
   for (int64_t t = 0; t < n; ++t) {
-    const double uniform = static_cast<double>(tile_pixels(t)) / pixels;
+    const TileRect r = tile_rect(t);
+    const double uniform = static_cast<double>(r.height * r.width) / pixels;
     out[t] = share * uniform + (by_error ? (1.0 - share) * error_[static_cast<size_t>(t)] / sum : 0.0);
   }
   return p;
@@ -67,16 +69,15 @@ torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
   auto out = torch::empty({n}, torch::kLong);
   int64_t* idx = out.data_ptr<int64_t>();
   const double total = cdf_.back();
-  const int64_t per_image_tiles = tiles_x_ * tiles_y_;
+  // A uniform in [0, 1) to an offset in [0, size).
+  const auto offset = [](double u, int64_t size) {
+    return std::min<int64_t>(static_cast<int64_t>(u * static_cast<double>(size)), size - 1);
+  };
   for (int64_t i = 0; i < n; ++i) {
     const auto it = std::upper_bound(cdf_.begin(), cdf_.end(), ua[i][0] * total);
-    const int64_t t = std::min<int64_t>(it - cdf_.begin(), tiles() - 1);
-    const int64_t image = t / per_image_tiles, in_image = t % per_image_tiles;
-    const int64_t ty = in_image / tiles_x_, tx = in_image % tiles_x_;
-    const int64_t h = std::min(opt_.tile, height_ - ty * opt_.tile), w = std::min(opt_.tile, width_ - tx * opt_.tile);
-    const int64_t row = ty * opt_.tile + std::min<int64_t>(static_cast<int64_t>(ua[i][1] * static_cast<double>(h)), h - 1);
-    const int64_t col = tx * opt_.tile + std::min<int64_t>(static_cast<int64_t>(ua[i][2] * static_cast<double>(w)), w - 1);
-    idx[i] = (image * height_ + row) * width_ + col;
+    const TileRect r = tile_rect(std::min<int64_t>(it - cdf_.begin(), tiles() - 1));
+    const int64_t row = r.row + offset(ua[i][1], r.height), col = r.col + offset(ua[i][2], r.width);
+    idx[i] = (r.image * height_ + row) * width_ + col;
   }
   return out;
 }

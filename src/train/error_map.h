@@ -45,7 +45,11 @@ class ErrorMap {
   void set_state(const torch::Tensor& state);  // throws std::invalid_argument on a size mismatch
 
  private:
-  int64_t tile_pixels(int64_t tile) const;
+  // A tile's image, first pixel row and column, and size (smaller at the right and bottom edges).
+  struct TileRect {
+    int64_t image, row, col, height, width;
+  };
+  TileRect tile_rect(int64_t tile) const;
   void rebuild_cdf();
 
   int64_t images_, height_, width_;
