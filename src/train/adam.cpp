@@ -2,6 +2,7 @@
 
 #include <torch/version.h>
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -42,7 +43,12 @@ Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form)
     : params_(std::move(params)),
       optim_(params_, torch::optim::AdamOptions(lr).betas({kBeta1, kBeta2}).eps(kEps).weight_decay(kWeightDecay)),
       device_form_(device_form) {
-  if (!device_form_) return;
+  if (!device_form_) {
+    host_loops_ = !params_.empty() && std::all_of(params_.begin(), params_.end(), [](const torch::Tensor& p) {
+      return p.device().is_cpu() && p.scalar_type() == torch::kFloat && p.is_contiguous();
+    });
+    return;
+  }
   if (params_.empty() || !device_form_available(params_.front().device()))
     throw std::invalid_argument("the device form of Adam needs CUDA parameters and a CUDA LibTorch >= 2");
   const auto dev = params_.front().device();
@@ -90,12 +96,75 @@ void Adam::clear_grads() {
 
 bool Adam::step_host(double loss) {
   if (!std::isfinite(loss)) return false;
+  if (host_loops_) {
+    if (!gradients_finite_loop()) return false;
+    update_loop();
+    return true;
+  }
   std::vector<torch::Tensor> norms;
   for (const auto& p : params_)
     if (p.grad().defined()) norms.push_back(p.grad().abs().max());
   if (!norms.empty() && !torch::stack(norms).isfinite().all().item<bool>()) return false;
   optim_.step();
   return true;
+}
+
+bool Adam::gradients_finite_loop() const {
+  for (const auto& p : params_) {
+    const auto& g = p.grad();
+    if (!g.defined()) continue;
+    const auto gc = g.contiguous();
+    const float* x = gc.data_ptr<float>();
+    const int64_t n = gc.numel();
+    // x * 0 is 0 for a finite x and NaN for an infinite or NaN one: one branch-free sum per tensor.
+    float probe = 0.0f;
+    for (int64_t i = 0; i < n; ++i) probe += x[i] * 0.0f;
+    if (probe != 0.0f) return false;
+  }
+  return true;
+}
+
+// torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element: the
+// same per-parameter state (created on a parameter's first gradient, step counted per parameter)
+// and the same operations in the same order, in float32.
+void Adam::update_loop() {
+  torch::NoGradGuard no_grad;
+  auto& group = optim_.param_groups().front();
+  const double lr = static_cast<torch::optim::AdamOptions&>(group.options()).lr();
+  auto& state = optim_.state();
+  for (auto& p : params_) {
+    const auto& grad = p.grad();
+    if (!grad.defined()) continue;
+    const auto key = state_key(state, p);
+    if (state.find(key) == state.end()) {
+      auto st = std::make_unique<torch::optim::AdamParamState>();
+      st->step(0);
+      st->exp_avg(torch::zeros_like(p, torch::MemoryFormat::Contiguous));
+      st->exp_avg_sq(torch::zeros_like(p, torch::MemoryFormat::Contiguous));
+      state[key] = std::move(st);
+    }
+    auto& st = static_cast<torch::optim::AdamParamState&>(*state.at(key));
+    st.step(st.step() + 1);
+    const double bias1 = 1.0 - std::pow(kBeta1, static_cast<double>(st.step()));
+    const double bias2 = 1.0 - std::pow(kBeta2, static_cast<double>(st.step()));
+    // The scalars as the tensor ops see them: cast to float once.
+    const float b1 = static_cast<float>(kBeta1), one_b1 = static_cast<float>(1.0 - kBeta1);
+    const float b2 = static_cast<float>(kBeta2), one_b2 = static_cast<float>(1.0 - kBeta2);
+    const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2)), eps = static_cast<float>(kEps);
+    const float neg_step = static_cast<float>(-(lr / bias1));
+    const auto gc = grad.contiguous();
+    const float* g = gc.data_ptr<float>();
+    float* m = st.exp_avg().data_ptr<float>();
+    float* v = st.exp_avg_sq().data_ptr<float>();
+    float* w = p.data_ptr<float>();
+    const int64_t n = p.numel();
+    for (int64_t i = 0; i < n; ++i) {
+      m[i] = m[i] * b1 + one_b1 * g[i];
+      v[i] = v[i] * b2 + one_b2 * (g[i] * g[i]);
+      const float denom = std::sqrt(v[i]) / sqrt_bias2 + eps;
+      w[i] = w[i] + neg_step * (m[i] / denom);
+    }
+  }
 }
 
 void Adam::step_device(const torch::Tensor& loss) {

@@ -51,16 +51,27 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se};
     });
     torch::NoGradGuard no_grad;
-    for (size_t w = 0; w < grads.size(); ++w) {
-      add(parts[w]);
-      for (size_t i = 0; i < params.size(); ++i) {
+    for (size_t w = 0; w < grads.size(); ++w) add(parts[w]);
+    // In slice order. A parameter's first sum is a new tensor (g0 + g1 + ...): the gradients
+    // autograd returns may share memory between parameters (an addition hands both operands the
+    // same tensor), so none of them becomes a .grad that a later add_ would write through.
+    for (size_t i = 0; i < params.size(); ++i) {
+      auto& acc = params[i].mutable_grad();
+      for (size_t w = 0; w < grads.size(); ++w) {
         const auto& g = grads[w][i];
         if (!g.defined()) continue;
-        auto& acc = params[i].mutable_grad();
         if (acc.defined()) {
           acc.add_(g);
+          continue;
+        }
+        // The first two defined slices in one op when there are two; a lone one is copied.
+        size_t next = w + 1;
+        while (next < grads.size() && !grads[next][i].defined()) ++next;
+        if (next < grads.size()) {
+          acc = g + grads[next][i];
+          w = next;
         } else {
-          acc = g.clone();
+          acc = g.clone(torch::MemoryFormat::Contiguous);
         }
       }
     }

@@ -1,0 +1,106 @@
+// The host form of the training step's Adam (train/adam.h) against torch::optim::Adam, the plain
+// LibTorch reference: with CPU float32 parameters it runs its own loops, which must follow the
+// reference step for step (moments, per-parameter step counts, parameters that get no gradient on
+// some steps, a learning-rate change) and skip non-finite steps without touching anything.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <vector>
+
+#include "train/adam.h"
+
+using namespace ablenerf;
+
+namespace {
+
+std::vector<torch::Tensor> make_params(torch::Dtype dtype) {
+  torch::manual_seed(21);
+  std::vector<torch::Tensor> p;
+  for (const auto& shape : std::vector<std::vector<int64_t>>{{7, 5}, {5}, {3, 4, 2}, {1}})
+    p.push_back(torch::randn(shape, torch::TensorOptions().dtype(dtype)).requires_grad_(true));
+  return p;
+}
+
+std::vector<torch::Tensor> clone_params(const std::vector<torch::Tensor>& ps) {
+  std::vector<torch::Tensor> out;
+  for (const auto& p : ps) out.push_back(p.detach().clone().requires_grad_(true));
+  return out;
+}
+
+// Gradients of step `s`: parameter 2 gets none on odd steps (its state must not advance then).
+void set_grads(std::vector<torch::Tensor>& ps, int s) {
+  auto gen = at::detail::createCPUGenerator(100 + s);
+  for (size_t i = 0; i < ps.size(); ++i) {
+    if (i == 2 && s % 2 == 1) {
+      ps[i].mutable_grad() = torch::Tensor();
+      continue;
+    }
+    // Scales over several decades, so that eps and the bias corrections matter.
+    ps[i].mutable_grad() = torch::randn(ps[i].sizes(), gen).to(ps[i].scalar_type()) * std::pow(10.0, -double(i) - s % 3);
+  }
+}
+
+}  // namespace
+
+TEST(Adam, HostLoopsOnlyForCpuFloat32) {
+  EXPECT_TRUE(Adam(make_params(torch::kFloat), 1e-3, false).host_loops());
+  EXPECT_FALSE(Adam(make_params(torch::kDouble), 1e-3, false).host_loops());
+}
+
+TEST(Adam, HostLoopsFollowTorchOptimAdam) {
+  auto mine = make_params(torch::kFloat);
+  auto ref = clone_params(mine);
+  Adam adam(mine, 2e-3, false);
+  ASSERT_TRUE(adam.host_loops());
+  torch::optim::Adam reference(ref, torch::optim::AdamOptions(2e-3).betas({0.9, 0.999}).eps(1e-8));
+  for (int s = 0; s < 12; ++s) {
+    if (s == 6) {
+      adam.set_lr(5e-4);
+      static_cast<torch::optim::AdamOptions&>(reference.param_groups().front().options()).lr(5e-4);
+    }
+    set_grads(mine, s);
+    set_grads(ref, s);
+    ASSERT_TRUE(adam.step_host(1.0));
+    reference.step();
+    for (size_t i = 0; i < mine.size(); ++i)
+      ASSERT_TRUE(torch::allclose(mine[i], ref[i], 1e-5, 1e-7)) << "parameter " << i << " after step " << s;
+  }
+  // The state lives where checkpoints read it: per-parameter moments and step counts.
+  for (size_t i = 0; i < mine.size(); ++i) {
+    const auto key = [](const torch::Tensor& p) {
+      std::ostringstream os;
+      os << p.unsafeGetTensorImpl();
+      return os.str();
+    };
+    auto& a = static_cast<torch::optim::AdamParamState&>(*adam.optim().state().at(key(mine[i])));
+    auto& b = static_cast<torch::optim::AdamParamState&>(*reference.state().at(key(ref[i])));
+    EXPECT_EQ(a.step(), b.step()) << "parameter " << i;
+    EXPECT_TRUE(torch::allclose(a.exp_avg(), b.exp_avg(), 1e-5, 1e-12)) << "parameter " << i;
+    EXPECT_TRUE(torch::allclose(a.exp_avg_sq(), b.exp_avg_sq(), 1e-5, 1e-20)) << "parameter " << i;
+  }
+}
+
+TEST(Adam, NonFiniteGradientOrLossSkipsTheStep) {
+  for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(),
+                          -std::numeric_limits<float>::infinity()}) {
+    auto ps = make_params(torch::kFloat);
+    Adam adam(ps, 1e-2, false);
+    set_grads(ps, 0);
+    ASSERT_TRUE(adam.step_host(1.0));  // a first finite step creates the state
+    const auto before = clone_params(ps);
+    set_grads(ps, 2);
+    ps[2].mutable_grad().view(-1)[5] = bad;
+    EXPECT_FALSE(adam.step_host(1.0));
+    for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
+    set_grads(ps, 2);
+    EXPECT_FALSE(adam.step_host(std::numeric_limits<double>::quiet_NaN()));
+    for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
+    // The next finite step is the second step of every state (the skipped ones did not count).
+    EXPECT_TRUE(adam.step_host(1.0));
+    for (const auto& kv : adam.optim().state())
+      EXPECT_EQ(static_cast<torch::optim::AdamParamState&>(*kv.second).step(), 2);
+  }
+}
