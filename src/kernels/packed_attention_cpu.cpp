@@ -78,8 +78,10 @@ Operand<const T> operand(const torch::Tensor& x, int64_t offset) {
 
 // Softmax of each of the `items` x lq rows of s (lk scores each) in place, after adding the
 // additive (lq, lk) mask when given. The steps of ATen's CPU softmax (max, exp of the difference,
-// sum, multiply by its reciprocal) in one pass per row: rows are 17 to 33 long here, where
-// at::_softmax spent ~6 ns per element in a demo-size step, more than the products around it.
+// sum, multiply by its reciprocal) in one pass per row, in the probabilities' own memory (no
+// scores scratch). Measured at the demo preset's shape (256 x 17 x 17, one core): as fast as
+// at::_softmax_out (~0.5 ms; scalar expf bounds both); the backward loop below takes half the
+// time of the four tensor ops it replaces (~0.06 against ~0.11 ms).
 template <class T>
 void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
   for (int64_t it = 0; it < items; ++it) {
