@@ -378,7 +378,14 @@ void Trainer::log_step(const StepReport& r) {
   }
 }
 
-// Mean PSNR of the fine colour on the first train.eval_views images of the held-out split.
+std::vector<int64_t> held_out_views(int64_t size, int64_t count) {
+  std::vector<int64_t> views;
+  const int64_t n = std::min(std::max<int64_t>(count, 0), std::max<int64_t>(size, 0));
+  for (int64_t i = 0; i < n; ++i) views.push_back(i * size / n);
+  return views;
+}
+
+// Mean PSNR of the fine colour on train.eval_views images spread over the held-out split.
 void Trainer::held_out_check() {
   auto& s = *s_;
   const TrainConfig& tc = config_.train;
@@ -388,16 +395,16 @@ void Trainer::held_out_check() {
   const Split& split = s.ds->split(s.held_out);
   s.model->eval();
   double sum = 0;
-  const int64_t n = std::min<int64_t>(tc.eval_views, split.size());
-  for (int64_t i = 0; i < n; ++i) {
+  const std::vector<int64_t> views = held_out_views(split.size(), tc.eval_views);
+  for (const int64_t i : views) {
     RenderResult img = render_image(s.model, split.c2w[i], s.ds->intrinsics, config_.data.near, config_.data.far,
                                     config_.eval.chunk, {}, opts_.device);
     sum += psnr(img.rgb.cpu(), split.images[i]);
   }
   s.model->train();
-  const double p = n > 0 ? sum / static_cast<double>(n) : NAN;
+  const double p = views.empty() ? NAN : sum / static_cast<double>(views.size());
   append_run_log(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
-                              {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
+                              {"view_indices", views}, {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
   if (!opts_.quiet) std::cerr << "\ntrain: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB\n";
 }
 

@@ -19,6 +19,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "data/dataset.h"
 #include "model/able_nerf.h"
@@ -123,5 +124,10 @@ TrainResult train(const Config& config, const TrainOptions& opts);
 
 // Installs SIGINT/SIGTERM handlers that ask the training loop to checkpoint and stop.
 void install_interrupt_handlers();
+
+// The views of a held-out split of `size` images that the training-time check renders: `count`
+// of them spread evenly over the split (index floor(i * size / count)), so that on an orbit such as
+// Blender's test path the curve sees every side of the scene, not the first few neighbouring views.
+std::vector<int64_t> held_out_views(int64_t size, int64_t count);
 
 }  // namespace ablenerf

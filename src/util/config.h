@@ -105,7 +105,7 @@ struct TrainConfig {
   int64_t seed = 4;
   int64_t log_every = 100;       // steps between log.jsonl lines
   int64_t eval_every = 5000;     // steps between held-out PSNR checks (0 = never)
-  int64_t eval_views = 4;        // held-out views used for that check
+  int64_t eval_views = 4;        // held-out views used for that check, spread evenly over the split
   int64_t ckpt_every = 5000;     // steps between checkpoints (0 = only at the end)
   int64_t max_bad_steps = 5;     // consecutive non-finite losses before the run stops
   // Wall-clock budget in seconds (0 = none). With one, the learning-rate schedule advances by

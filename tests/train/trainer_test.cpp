@@ -87,6 +87,7 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
     if (j["type"] == "eval") {
       ++evals;
       EXPECT_TRUE(std::isfinite(j["psnr"].get<double>()));
+      EXPECT_EQ(j["view_indices"], nlohmann::json::array({0}));
     }
   }
   ASSERT_EQ(losses.size(), 60u);
@@ -100,6 +101,17 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   RunFolder r = RunFolder::open(t / "run");
   EXPECT_EQ(r.config.to_toml(), c.to_toml());
   EXPECT_EQ(r.data_dir, fs::absolute(test::tiny_dataset()).lexically_normal().string());
+}
+
+TEST(Trainer, HeldOutViewsSpreadOverTheSplit) {
+  // Lego's 200-view test orbit with 3 views: one from each third of the orbit.
+  EXPECT_EQ(held_out_views(200, 3), (std::vector<int64_t>{0, 66, 133}));
+  EXPECT_EQ(held_out_views(20, 4), (std::vector<int64_t>{0, 5, 10, 15}));
+  EXPECT_EQ(held_out_views(5, 5), (std::vector<int64_t>{0, 1, 2, 3, 4}));
+  // More views asked than the split holds: each view once.
+  EXPECT_EQ(held_out_views(2, 4), (std::vector<int64_t>{0, 1}));
+  EXPECT_TRUE(held_out_views(10, 0).empty());
+  EXPECT_TRUE(held_out_views(0, 3).empty());
 }
 
 // With train.time_budget_s the run ends in its budget with the schedule run to its end (the learning
