@@ -1,14 +1,19 @@
 // `ablenerf bench`: training and rendering throughput, achieved FLOP/s against the device's
 // measured sgemm peak, and peak memory, printed as one JSON object (measuring code: train/bench.h).
+#include <filesystem>
 #include <iostream>
 
 #include "cli/command.h"
 #include "cli/common.h"
 #include "train/bench.h"
 #include "util/errors.h"
+#include "util/fs.h"
 
 namespace ablenerf::cli {
 namespace cmd_bench {
+
+namespace fs = std::filesystem;
+constexpr size_t kTraceTopOps = 15;
 
 struct BenchArgs {
   ConfigOptions cfg;
@@ -16,6 +21,7 @@ struct BenchArgs {
   int64_t rays = 64, micro_batch = 0, render_rays = 0, steps = 5, warmup = 1, matmul = 2048, image = 800;
   int threads = 0;
   bool compare = false;
+  std::string trace;
 };
 
 void setup(CLI::App& app) {
@@ -31,6 +37,9 @@ void setup(CLI::App& app) {
   app.add_option("--matmul", a->matmul, "n of the n^3 sgemm measuring the peak")->capture_default_str();
   app.add_option("--image", a->image, "Side of the square image for seconds/image")->capture_default_str();
   app.add_option("--threads", a->threads, "Intra-op CPU threads (0 = LibTorch default)")->capture_default_str();
+  app.add_option("--trace", a->trace,
+                 "After the timed steps, run --steps more under LibTorch's profiler: write their operator trace "
+                 "(Chrome trace JSON, for Perfetto) to this file and add the ops of largest self time to the report");
   app.add_flag("--compare", a->compare,
                "Also measure the same model with every fast path off (compute.precision=fp32, "
                "compute.attention=plain, compute.cpu_split=ops, train.graph=false) in this run, and report the ratios");
@@ -56,8 +65,23 @@ void setup(CLI::App& app) {
     o.image_side = a->image;
     o.near = c.data.near;
     o.far = c.data.far;
+    if (!a->trace.empty()) {
+      if (a->compare) throw InputError("bench", "--trace", "cannot be combined with --compare");
+      const auto dir = fs::absolute(a->trace).parent_path();
+      if (!fs::is_directory(dir)) throw InputError(a->trace, "--trace", "folder " + dir.string() + " does not exist");
+      o.trace_steps = a->steps;
+    }
     if (!a->compare) {
-      std::cout << bench_report(c, o, measure(c, o)).dump(2) << std::endl;
+      const BenchMeasurements m = measure(c, o);
+      auto report = bench_report(c, o, m);
+      if (!a->trace.empty()) {
+        write_file_atomic(a->trace, m.trace_json);
+        report["trace"] = trace_summary(m.trace_json, o.trace_steps, kTraceTopOps);
+        report["trace"]["file"] = a->trace;
+        report["trace"]["note"] = "profiled steps, run after the timed ones; the calling thread's ops only (with the "
+                                  "CPU ray split: the first slice's forward/backward and the rest of the step)";
+      }
+      std::cout << report.dump(2) << std::endl;
       return;
     }
     Config base = c;

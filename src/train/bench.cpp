@@ -2,11 +2,15 @@
 
 #include <sys/resource.h>
 #include <torch/cuda.h>
+#include <torch/csrc/autograd/profiler_legacy.h>
 #include <torch/version.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <map>
+#include <sstream>
+#include <string>
 #include <stdexcept>
 
 #include "model/able_nerf.h"
@@ -232,6 +236,15 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   m.graph = trainer.graph_captured();
   m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
   trainer.flush();
+  if (o.trace_steps > 0) {
+    std::ostringstream trace;
+    {
+      torch::autograd::profiler::RecordProfile record(trace);
+      for (int64_t i = 0; i < o.trace_steps; ++i) trainer.step();
+      trainer.flush();
+    }
+    m.trace_json = trace.str();
+  }
   {
     const auto rays = bench_rays(render_rays, o.seed + 1, d);
     model->eval();
@@ -288,6 +301,63 @@ nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, d
 }
 
 }  // namespace
+
+nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top) {
+  if (steps < 1) throw std::invalid_argument("trace_summary: steps must be >= 1");
+  const auto parsed = nlohmann::json::parse(trace_json, nullptr, /*allow_exceptions=*/false);
+  const auto& events = parsed.is_object() && parsed.contains("traceEvents") ? parsed["traceEvents"] : parsed;
+  if (!events.is_array()) throw std::invalid_argument("trace_summary: not a Chrome trace (no array of events)");
+  struct Event {
+    double start, end;
+    std::string name;
+  };
+  std::map<std::string, std::vector<Event>> by_thread;
+  for (const auto& e : events) {
+    if (!e.is_object() || e.value("ph", "") != "X") continue;
+    if (!e.contains("ts") || !e.contains("dur") || !e["ts"].is_number() || !e["dur"].is_number())
+      throw std::invalid_argument("trace_summary: an \"X\" event without numeric ts and dur");
+    const double ts = e["ts"].get<double>();
+    by_thread[e.contains("tid") ? e["tid"].dump() : ""].push_back({ts, ts + e["dur"].get<double>(), e.value("name", "?")});
+  }
+  std::map<std::string, double> self_us;
+  std::map<std::string, int64_t> calls;
+  int64_t ops = 0;
+  double total_us = 0;
+  for (auto& [tid, list] : by_thread) {
+    // Parents first: earlier start, and the longer of two that start together.
+    std::sort(list.begin(), list.end(), [](const Event& a, const Event& b) {
+      return a.start != b.start ? a.start < b.start : a.end > b.end;
+    });
+    std::vector<double> child_us(list.size(), 0.0);
+    std::vector<size_t> open;  // indices of the enclosing events
+    for (size_t i = 0; i < list.size(); ++i) {
+      while (!open.empty() && list[open.back()].end <= list[i].start) open.pop_back();
+      if (!open.empty()) child_us[open.back()] += list[i].end - list[i].start;
+      open.push_back(i);
+    }
+    for (size_t i = 0; i < list.size(); ++i) {
+      const double self = std::max(0.0, list[i].end - list[i].start - child_us[i]);
+      self_us[list[i].name] += self;
+      calls[list[i].name] += 1;
+      total_us += self;
+      ++ops;
+    }
+  }
+  std::vector<std::pair<std::string, double>> ranked(self_us.begin(), self_us.end());
+  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second > b.second : a.first < b.first;
+  });
+  const double per_step = static_cast<double>(steps);
+  nlohmann::json out{{"steps", steps},
+                     {"ops_per_step", static_cast<double>(ops) / per_step},
+                     {"self_ms_per_step", total_us / 1000.0 / per_step},
+                     {"top", nlohmann::json::array()}};
+  for (size_t i = 0; i < std::min(top, ranked.size()); ++i)
+    out["top"].push_back({{"op", ranked[i].first},
+                          {"self_ms_per_step", ranked[i].second / 1000.0 / per_step},
+                          {"calls_per_step", static_cast<double>(calls[ranked[i].first]) / per_step}});
+  return out;
+}
 
 nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const BenchMeasurements& m) {
   const FlopCount f = model_flops_per_ray(cfg.model);

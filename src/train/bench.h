@@ -35,6 +35,9 @@ struct BenchOptions {
   int64_t matmul_reps = 5;
   double near = 2.0, far = 6.0;
   uint64_t seed = 4;
+  // After the timed steps, this many more training steps under LibTorch's autograd profiler
+  // (BenchMeasurements::trace_json); 0 = none. They are not part of any reported timing.
+  int64_t trace_steps = 0;
 };
 
 // One timed quantity: per-repetition wall and process-CPU seconds.
@@ -53,7 +56,18 @@ struct BenchMeasurements {
   std::string matmul_dtype;       // dtype of the peak-measuring product ("fp32" | "bf16")
   bool device_step = false;       // the trainer ran its device form (CUDA, one process)
   bool graph = false;             // ... captured as a CUDA graph
+  // The operator trace of BenchOptions::trace_steps training steps (Chrome trace JSON, one "X"
+  // event per LibTorch op with its start and duration in microseconds), or empty. The legacy
+  // profiler records the calling thread only: with the CPU ray split (compute.cpu_split = "rays")
+  // it holds the first slice's forward and backward and the whole rest of the step.
+  std::string trace_json;
 };
+
+// What a trace spends per step: every op's self time (its duration less that of the ops nested
+// in it on the same thread) summed by name, divided by `steps`. Returns {"steps", "ops_per_step",
+// "self_ms_per_step", "top": [{"op", "self_ms_per_step", "calls_per_step"}, ...]} with the `top`
+// ops of largest self time first. Throws std::invalid_argument when the trace is not such JSON.
+nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top);
 
 // Median of a non-empty list (mean of the middle two for an even count).
 double median(std::vector<double> values);

@@ -123,5 +123,59 @@ TEST(BenchRun, TinyRunReportsEveryField) {
   EXPECT_EQ(j["render"]["rays"].get<double>(), 4.0);  // render chunk defaults to the train batch
 }
 
+TEST(BenchTrace, SelfTimesFromNestedEvents) {
+  // Two steps on two threads. Thread 1: "step" 0-100 holding "mm" 10-40 (holding "copy" 20-25)
+  // and "add" 50-60, then "mm" 200-230 on its own; thread 2: "add" 0-7. Self times, us:
+  // step 100 - 30 - 10 = 60; mm (30 - 5) + 30 = 55; copy 5; add 10 + 7 = 17. Total 137.
+  const std::string trace = R"([
+    {"name": "mm", "ph": "X", "ts": 10, "dur": 30, "tid": 1},
+    {"name": "step", "ph": "X", "ts": 0, "dur": 100, "tid": 1},
+    {"name": "copy", "ph": "X", "ts": 20, "dur": 5, "tid": 1},
+    {"name": "add", "ph": "X", "ts": 50, "dur": 10, "tid": 1},
+    {"name": "mm", "ph": "X", "ts": 200, "dur": 30, "tid": 1},
+    {"name": "add", "ph": "X", "ts": 0, "dur": 7, "tid": 2},
+    {"name": "marker", "ph": "i", "ts": 5, "tid": 1}
+  ])";
+  const auto j = trace_summary(trace, 2, 3);
+  EXPECT_EQ(j["steps"].get<int64_t>(), 2);
+  EXPECT_DOUBLE_EQ(j["ops_per_step"].get<double>(), 3.0);
+  EXPECT_NEAR(j["self_ms_per_step"].get<double>(), 0.137 / 2, 1e-12);
+  ASSERT_EQ(j["top"].size(), 3u);
+  EXPECT_EQ(j["top"][0]["op"], "step");
+  EXPECT_NEAR(j["top"][0]["self_ms_per_step"].get<double>(), 0.030, 1e-12);
+  EXPECT_EQ(j["top"][1]["op"], "mm");
+  EXPECT_NEAR(j["top"][1]["self_ms_per_step"].get<double>(), 0.0275, 1e-12);
+  EXPECT_DOUBLE_EQ(j["top"][1]["calls_per_step"].get<double>(), 1.0);
+  EXPECT_EQ(j["top"][2]["op"], "add");
+  EXPECT_NEAR(j["top"][2]["self_ms_per_step"].get<double>(), 0.0085, 1e-12);
+  // The {"traceEvents": [...]} form reads alike; anything else is refused.
+  EXPECT_EQ(trace_summary(R"({"traceEvents": )" + trace + "}", 2, 3), j);
+  EXPECT_THROW(trace_summary("{}", 1, 3), std::invalid_argument);
+  EXPECT_THROW(trace_summary("not json", 1, 3), std::invalid_argument);
+  EXPECT_THROW(trace_summary(R"([{"name": "x", "ph": "X", "ts": "a", "dur": 1}])", 1, 3), std::invalid_argument);
+}
+
+TEST(BenchTrace, TinyRunRecordsTheStepsOps) {
+  Config cfg;
+  cfg.model = hand_config();
+  BenchOptions o;
+  o.train_rays = 4;
+  o.steps = 1;
+  o.warmup = 0;
+  o.matmul_size = 16;
+  o.matmul_reps = 1;
+  o.trace_steps = 2;
+  const auto m = measure(cfg, o);
+  const auto j = trace_summary(m.trace_json, o.trace_steps, 5);
+  // A training step runs products (the linear layers) and their backward.
+  EXPECT_GT(j["ops_per_step"].get<double>(), 20.0);
+  bool has_product = false;
+  for (const auto& e : nlohmann::json::parse(m.trace_json))
+    has_product = has_product || e.value("name", "") == "aten::addmm" || e.value("name", "") == "aten::mm";
+  EXPECT_TRUE(has_product);
+  o.trace_steps = 0;
+  EXPECT_TRUE(measure(cfg, o).trace_json.empty());
+}
+
 }  // namespace
 }  // namespace ablenerf
