@@ -116,10 +116,16 @@ bool Adam::gradients_finite_loop() const {
     const auto gc = g.contiguous();
     const float* x = gc.data_ptr<float>();
     const int64_t n = gc.numel();
-    // x * 0 is 0 for a finite x and NaN for an infinite or NaN one: one branch-free sum per tensor.
-    float probe = 0.0f;
-    for (int64_t i = 0; i < n; ++i) probe += x[i] * 0.0f;
-    if (probe != 0.0f) return false;
+    // x * 0 is 0 for a finite x and NaN for an infinite or NaN one: branch-free sums per tensor,
+    // in 8 independent lanes so that the compiler can keep them in vector registers.
+    constexpr int64_t kLanes = 8;
+    float probe[kLanes] = {};
+    int64_t i = 0;
+    for (; i + kLanes <= n; i += kLanes)
+      for (int64_t k = 0; k < kLanes; ++k) probe[k] += x[i + k] * 0.0f;
+    for (; i < n; ++i) probe[0] += x[i] * 0.0f;
+    for (const float lane : probe)
+      if (lane != 0.0f) return false;
   }
   return true;
 }
@@ -152,7 +158,13 @@ void Adam::update_loop() {
     const float b2 = static_cast<float>(kBeta2), one_b2 = static_cast<float>(1.0 - kBeta2);
     const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2)), eps = static_cast<float>(kEps);
     const float neg_step = static_cast<float>(-(lr / bias1));
+    TORCH_CHECK(st.exp_avg().is_contiguous() && st.exp_avg_sq().is_contiguous() &&
+                    st.exp_avg().scalar_type() == torch::kFloat && st.exp_avg_sq().scalar_type() == torch::kFloat &&
+                    st.exp_avg().numel() == p.numel() && st.exp_avg_sq().numel() == p.numel(),
+                "Adam: the moments of a ", p.sizes(), " parameter are not contiguous float32 tensors of its size");
     const auto gc = grad.contiguous();
+    TORCH_CHECK(gc.scalar_type() == torch::kFloat && gc.numel() == p.numel(), "Adam: the gradient of a ", p.sizes(),
+                " parameter is ", gc.scalar_type(), " ", gc.sizes());
     const float* g = gc.data_ptr<float>();
     float* m = st.exp_avg().data_ptr<float>();
     float* v = st.exp_avg_sq().data_ptr<float>();

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <utility>
 #include <vector>
 
 #include "train/adam.h"
@@ -91,10 +92,14 @@ TEST(Adam, NonFiniteGradientOrLossSkipsTheStep) {
     set_grads(ps, 0);
     ASSERT_TRUE(adam.step_host(1.0));  // a first finite step creates the state
     const auto before = clone_params(ps);
-    set_grads(ps, 2);
-    ps[2].mutable_grad().view(-1)[5] = bad;
-    EXPECT_FALSE(adam.step_host(1.0));
-    for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
+    // Inside the checks' 8-wide lanes (parameter 2, 24 values) and in their tails (parameter 1,
+    // 5 values; parameter 0, 35 values).
+    for (const auto& [param, index] : std::vector<std::pair<size_t, int64_t>>{{2, 5}, {1, 3}, {0, 34}}) {
+      set_grads(ps, 2);
+      ps[param].mutable_grad().view(-1)[index] = bad;
+      EXPECT_FALSE(adam.step_host(1.0)) << "parameter " << param << " value " << index;
+      for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
+    }
     set_grads(ps, 2);
     EXPECT_FALSE(adam.step_host(std::numeric_limits<double>::quiet_NaN()));
     for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
