@@ -35,6 +35,16 @@ torch::optim::AdamParamState& adam_state(Map& state, const torch::Tensor& p) {
   return static_cast<torch::optim::AdamParamState&>(*state.at(state_key(state, p)));
 }
 
+// The state torch::optim::Adam creates on a parameter's first step: step 0, zero moments.
+template <class Map>
+void add_zero_state(Map& state, const torch::Tensor& p) {
+  auto st = std::make_unique<torch::optim::AdamParamState>();
+  st->step(0);
+  st->exp_avg(torch::zeros_like(p, torch::MemoryFormat::Preserve));
+  st->exp_avg_sq(torch::zeros_like(p, torch::MemoryFormat::Preserve));
+  state[state_key(state, p)] = std::move(st);
+}
+
 }  // namespace
 
 bool Adam::device_form_available(const torch::Device& device) { return kDeviceFormCompiled && device.is_cuda(); }
@@ -58,13 +68,7 @@ Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form)
   found_inf_ = torch::zeros({1}, f32);
   // The per-parameter state torch::optim::Adam would create on its first step, created now so
   // that the kernel and checkpoints share the same tensors.
-  for (auto& p : params_) {
-    auto st = std::make_unique<torch::optim::AdamParamState>();
-    st->step(0);
-    st->exp_avg(torch::zeros_like(p, torch::MemoryFormat::Preserve));
-    st->exp_avg_sq(torch::zeros_like(p, torch::MemoryFormat::Preserve));
-    optim_.state()[state_key(optim_.state(), p)] = std::move(st);
-  }
+  for (auto& p : params_) add_zero_state(optim_.state(), p);
   bind_state();
 }
 
@@ -97,8 +101,11 @@ void Adam::clear_grads() {
 bool Adam::step_host(double loss) {
   if (!std::isfinite(loss)) return false;
   if (host_loops_) {
-    if (!gradients_finite_loop()) return false;
-    update_loop();
+    // Each gradient made contiguous once (most already are), for both loops.
+    std::vector<torch::Tensor> grads;
+    for (const auto& p : params_) grads.push_back(p.grad().defined() ? p.grad().contiguous() : torch::Tensor());
+    if (!gradients_finite_loop(grads)) return false;
+    update_loop(grads);
     return true;
   }
   std::vector<torch::Tensor> norms;
@@ -109,13 +116,11 @@ bool Adam::step_host(double loss) {
   return true;
 }
 
-bool Adam::gradients_finite_loop() const {
-  for (const auto& p : params_) {
-    const auto& g = p.grad();
+bool Adam::gradients_finite_loop(const std::vector<torch::Tensor>& grads) {
+  for (const auto& g : grads) {
     if (!g.defined()) continue;
-    const auto gc = g.contiguous();
-    const float* x = gc.data_ptr<float>();
-    const int64_t n = gc.numel();
+    const float* x = g.data_ptr<float>();
+    const int64_t n = g.numel();
     // x * 0 is 0 for a finite x and NaN for an infinite or NaN one: branch-free sums per tensor,
     // in 8 independent lanes so that the compiler can keep them in vector registers.
     constexpr int64_t kLanes = 8;
@@ -133,36 +138,31 @@ bool Adam::gradients_finite_loop() const {
 // torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element: the
 // same per-parameter state (created on a parameter's first gradient, step counted per parameter)
 // and the same operations in the same order, in float32.
-void Adam::update_loop() {
+void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
   torch::NoGradGuard no_grad;
   auto& group = optim_.param_groups().front();
   const double lr = static_cast<torch::optim::AdamOptions&>(group.options()).lr();
   auto& state = optim_.state();
-  for (auto& p : params_) {
-    const auto& grad = p.grad();
-    if (!grad.defined()) continue;
+  // The scalars as the tensor ops see them: cast to float once.
+  const float b1 = static_cast<float>(kBeta1), one_b1 = static_cast<float>(1.0 - kBeta1);
+  const float b2 = static_cast<float>(kBeta2), one_b2 = static_cast<float>(1.0 - kBeta2);
+  const float eps = static_cast<float>(kEps);
+  for (size_t i = 0; i < params_.size(); ++i) {
+    auto& p = params_[i];
+    const auto& gc = grads[i];
+    if (!gc.defined()) continue;
     const auto key = state_key(state, p);
-    if (state.find(key) == state.end()) {
-      auto st = std::make_unique<torch::optim::AdamParamState>();
-      st->step(0);
-      st->exp_avg(torch::zeros_like(p, torch::MemoryFormat::Contiguous));
-      st->exp_avg_sq(torch::zeros_like(p, torch::MemoryFormat::Contiguous));
-      state[key] = std::move(st);
-    }
+    if (state.count(key) == 0) add_zero_state(state, p);
     auto& st = static_cast<torch::optim::AdamParamState&>(*state.at(key));
     st.step(st.step() + 1);
     const double bias1 = 1.0 - std::pow(kBeta1, static_cast<double>(st.step()));
     const double bias2 = 1.0 - std::pow(kBeta2, static_cast<double>(st.step()));
-    // The scalars as the tensor ops see them: cast to float once.
-    const float b1 = static_cast<float>(kBeta1), one_b1 = static_cast<float>(1.0 - kBeta1);
-    const float b2 = static_cast<float>(kBeta2), one_b2 = static_cast<float>(1.0 - kBeta2);
-    const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2)), eps = static_cast<float>(kEps);
+    const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2));
     const float neg_step = static_cast<float>(-(lr / bias1));
     TORCH_CHECK(st.exp_avg().is_contiguous() && st.exp_avg_sq().is_contiguous() &&
                     st.exp_avg().scalar_type() == torch::kFloat && st.exp_avg_sq().scalar_type() == torch::kFloat &&
                     st.exp_avg().numel() == p.numel() && st.exp_avg_sq().numel() == p.numel(),
                 "Adam: the moments of a ", p.sizes(), " parameter are not contiguous float32 tensors of its size");
-    const auto gc = grad.contiguous();
     TORCH_CHECK(gc.scalar_type() == torch::kFloat && gc.numel() == p.numel(), "Adam: the gradient of a ", p.sizes(),
                 " parameter is ", gc.scalar_type(), " ", gc.sizes());
     const float* g = gc.data_ptr<float>();
@@ -170,11 +170,11 @@ void Adam::update_loop() {
     float* v = st.exp_avg_sq().data_ptr<float>();
     float* w = p.data_ptr<float>();
     const int64_t n = p.numel();
-    for (int64_t i = 0; i < n; ++i) {
-      m[i] = m[i] * b1 + one_b1 * g[i];
-      v[i] = v[i] * b2 + one_b2 * (g[i] * g[i]);
-      const float denom = std::sqrt(v[i]) / sqrt_bias2 + eps;
-      w[i] = w[i] + neg_step * (m[i] / denom);
+    for (int64_t j = 0; j < n; ++j) {
+      m[j] = m[j] * b1 + one_b1 * g[j];
+      v[j] = v[j] * b2 + one_b2 * (g[j] * g[j]);
+      const float denom = std::sqrt(v[j]) / sqrt_bias2 + eps;
+      w[j] = w[j] + neg_step * (m[j] / denom);
     }
   }
 }

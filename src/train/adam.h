@@ -51,8 +51,9 @@ class Adam {
 
  private:
   void bind_state();
-  bool gradients_finite_loop() const;
-  void update_loop();
+  // grads: each parameter's gradient, contiguous, or undefined where it has none.
+  static bool gradients_finite_loop(const std::vector<torch::Tensor>& grads);
+  void update_loop(const std::vector<torch::Tensor>& grads);
 
   std::vector<torch::Tensor> params_;
   torch::optim::Adam optim_;

@@ -97,15 +97,25 @@ TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
   EXPECT_DOUBLE_EQ(j["flops_per_ray"]["forward"].get<double>(), 4984.0);
 }
 
-TEST(BenchRun, TinyRunReportsEveryField) {
+// A run of the hand-counted model small enough for a test: 4 rays, 2 timed steps.
+Config tiny_bench_config() {
   Config cfg;
   cfg.model = hand_config();
+  return cfg;
+}
+BenchOptions tiny_bench_options() {
   BenchOptions o;
   o.train_rays = 4;
   o.steps = 2;
   o.warmup = 1;
   o.matmul_size = 32;
   o.matmul_reps = 2;
+  return o;
+}
+
+TEST(BenchRun, TinyRunReportsEveryField) {
+  const Config cfg = tiny_bench_config();
+  const BenchOptions o = tiny_bench_options();
   const auto m = measure(cfg, o);
   ASSERT_EQ(m.train.wall_s.size(), 2u);
   ASSERT_EQ(m.render.cpu_s.size(), 2u);
@@ -156,14 +166,8 @@ TEST(BenchTrace, SelfTimesFromNestedEvents) {
 }
 
 TEST(BenchTrace, TinyRunRecordsTheStepsOps) {
-  Config cfg;
-  cfg.model = hand_config();
-  BenchOptions o;
-  o.train_rays = 4;
-  o.steps = 1;
-  o.warmup = 0;
-  o.matmul_size = 16;
-  o.matmul_reps = 1;
+  const Config cfg = tiny_bench_config();
+  BenchOptions o = tiny_bench_options();
   o.trace_steps = 2;
   const auto m = measure(cfg, o);
   const auto j = trace_summary(m.trace_json, o.trace_steps, 5);
