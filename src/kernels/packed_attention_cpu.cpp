@@ -5,8 +5,11 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include "kernels/cpu_parallel.h"
+#include "kernels/small_gemm.h"
+#include "kernels/vector_exp.h"
 
 namespace ablenerf {
 
@@ -50,6 +53,21 @@ void gemm(bool ta, bool tb, int64_t m, int64_t n, int64_t k, double alpha, const
             alpha, a, int(lda), b, int(ldb), beta, c, int(ldc));
 }
 
+// One product of the attention core, C = alpha op(A) op(B): written out in registers when small
+// (kernels/small_gemm.h; B^T then goes through `scratch`), BLAS otherwise.
+template <class T>
+void product(bool ta, bool tb, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b,
+             int64_t ldb, T* c, int64_t ldc, std::vector<T>& scratch) {
+  if (!small_gemm_fits(m, n, k)) return gemm(ta, tb, m, n, k, alpha, a, lda, b, ldb, T(0), c, ldc);
+  if (tb) {
+    scratch.resize(static_cast<size_t>(k * n));
+    transpose_into(b, n, k, ldb, scratch.data());
+    b = scratch.data();
+    ldb = n;
+  }
+  small_gemm(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+
 // Where one operand's heads live: the (lq or lk) x dh matrix of ray b, head h starts at
 // base + b * batch + h * dh, with `row` elements between consecutive tokens.
 template <class T>
@@ -80,8 +98,8 @@ Operand<const T> operand(const torch::Tensor& x, int64_t offset) {
 // additive (lq, lk) mask when given. The steps of ATen's CPU softmax (max, exp of the difference,
 // sum, multiply by its reciprocal) in one pass per row, in the probabilities' own memory (no
 // scores scratch). Measured at the demo preset's shape (256 x 17 x 17, one core): as fast as
-// at::_softmax_out (~0.5 ms; scalar expf bounds both); the backward loop below takes half the
-// time of the four tensor ops it replaces (~0.06 against ~0.11 ms).
+// at::_softmax_out (~0.5 ms; scalar exp bounds both), hence the float form below; the backward
+// loop further down takes half the time of the four tensor ops it replaces (~0.06 against ~0.11 ms).
 template <class T>
 void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
   for (int64_t it = 0; it < items; ++it) {
@@ -104,6 +122,30 @@ void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
   }
 }
 
+// The float form: the same steps in three passes over the block, the exponentials of all its rows
+// in one vector pass (kernels/vector_exp.h) instead of one scalar expf each.
+void softmax_rows(float* s, const float* mask, int64_t items, int64_t lq, int64_t lk) {
+  const int64_t rows = items * lq;
+  for (int64_t q = 0; q < rows; ++q) {
+    float* row = s + q * lk;
+    const float* m = mask ? mask + (q % lq) * lk : nullptr;
+    float max = -std::numeric_limits<float>::infinity();
+    for (int64_t j = 0; j < lk; ++j) {
+      if (m) row[j] += m[j];
+      max = std::max(max, row[j]);
+    }
+    for (int64_t j = 0; j < lk; ++j) row[j] -= max;
+  }
+  exp_inplace(s, rows * lk);
+  for (int64_t q = 0; q < rows; ++q) {
+    float* row = s + q * lk;
+    float sum = 0;
+    for (int64_t j = 0; j < lk; ++j) sum += row[j];
+    const float inv = 1.0f / sum;
+    for (int64_t j = 0; j < lk; ++j) row[j] *= inv;
+  }
+}
+
 // Softmax backward of each row in place: dp <- p * (dp - sum(dp * p)) (the scale is applied by
 // the products that follow).
 template <class T>
@@ -122,17 +164,18 @@ template <class T>
 void forward_items(const Problem<T>& pr, int64_t lo, int64_t hi, torch::Tensor p, const Operand<T>& out) {
   T* s = p.data_ptr<T>();
   const int64_t plane = pr.lq * pr.lk;
+  std::vector<T> scratch;
   for (int64_t it = lo; it < hi; ++it) {
     const int64_t b = it / pr.heads, h = it % pr.heads;
-    gemm(false, true, pr.lq, pr.lk, pr.dh, T(pr.scale), pr.q.at(b, h, pr.dh), pr.q.row, pr.k.at(b, h, pr.dh),
-         pr.k.row, T(0), s + (it - lo) * plane, pr.lk);
+    product(false, true, pr.lq, pr.lk, pr.dh, T(pr.scale), pr.q.at(b, h, pr.dh), pr.q.row, pr.k.at(b, h, pr.dh),
+            pr.k.row, s + (it - lo) * plane, pr.lk, scratch);
   }
   softmax_rows(s, pr.mask.defined() ? pr.mask.template data_ptr<T>() : nullptr, hi - lo, pr.lq, pr.lk);
   const T* pp = p.data_ptr<T>();
   for (int64_t it = lo; it < hi; ++it) {
     const int64_t b = it / pr.heads, h = it % pr.heads;
-    gemm(false, false, pr.lq, pr.dh, pr.lk, T(1), pp + (it - lo) * plane, pr.lk, pr.v.at(b, h, pr.dh), pr.v.row,
-         T(0), out.at(b, h, pr.dh), out.row);
+    product(false, false, pr.lq, pr.dh, pr.lk, T(1), pp + (it - lo) * plane, pr.lk, pr.v.at(b, h, pr.dh),
+            pr.v.row, out.at(b, h, pr.dh), out.row, scratch);
   }
 }
 
@@ -159,13 +202,14 @@ void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::T
   const int64_t plane = pr.lq * pr.lk;
   const T* pp = p.data_ptr<T>();
   T* dpp = dp.data_ptr<T>();
+  std::vector<T> scratch;
   for (int64_t it = lo; it < hi; ++it) {
     const int64_t b = it / pr.heads, h = it % pr.heads;
     // dP = dO V^T;  dV = P^T dO.
-    gemm(false, true, pr.lq, pr.lk, pr.dh, T(1), go.at(b, h, pr.dh), go.row, pr.v.at(b, h, pr.dh), pr.v.row, T(0),
-         dpp + (it - lo) * plane, pr.lk);
-    gemm(true, false, pr.lk, pr.dh, pr.lq, T(1), pp + (it - lo) * plane, pr.lk, go.at(b, h, pr.dh), go.row, T(0),
-         dv.at(b, h, pr.dh), dv.row);
+    product(false, true, pr.lq, pr.lk, pr.dh, T(1), go.at(b, h, pr.dh), go.row, pr.v.at(b, h, pr.dh), pr.v.row,
+            dpp + (it - lo) * plane, pr.lk, scratch);
+    product(true, false, pr.lk, pr.dh, pr.lq, T(1), pp + (it - lo) * plane, pr.lk, go.at(b, h, pr.dh), go.row,
+            dv.at(b, h, pr.dh), dv.row, scratch);
   }
   // Softmax backward: dS = P * (dP - rowsum(dP * P)), in place; the scale multiplies dQ and dK below.
   softmax_backward_rows(dpp, pp, (hi - lo) * pr.lq, pr.lk);
@@ -173,10 +217,10 @@ void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::T
   for (int64_t it = lo; it < hi; ++it) {
     const int64_t b = it / pr.heads, h = it % pr.heads;
     // dQ = s dS K;  dK = s dS^T Q.
-    gemm(false, false, pr.lq, pr.dh, pr.lk, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.k.at(b, h, pr.dh),
-         pr.k.row, T(0), dq.at(b, h, pr.dh), dq.row);
-    gemm(true, false, pr.lk, pr.dh, pr.lq, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.q.at(b, h, pr.dh),
-         pr.q.row, T(0), dk.at(b, h, pr.dh), dk.row);
+    product(false, false, pr.lq, pr.dh, pr.lk, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.k.at(b, h, pr.dh),
+            pr.k.row, dq.at(b, h, pr.dh), dq.row, scratch);
+    product(true, false, pr.lk, pr.dh, pr.lq, T(pr.scale), dsp + (it - lo) * plane, pr.lk, pr.q.at(b, h, pr.dh),
+            pr.q.row, dk.at(b, h, pr.dh), dk.row, scratch);
   }
 }
 

@@ -1,0 +1,170 @@
+#include "kernels/small_gemm.h"
+
+#include <algorithm>
+#include <cstring>
+
+namespace ablenerf {
+
+namespace {
+
+// 32-byte vectors (GCC/Clang vector extensions): one AVX register, two SSE registers without AVX.
+// `unaligned`: the same vector at any element address (loads and stores of rows of C and B).
+struct F8 {
+  using scalar = float;
+  typedef float vec __attribute__((vector_size(32)));
+  typedef float unaligned __attribute__((vector_size(32), aligned(4), may_alias));
+  static constexpr int lanes = 8;
+};
+struct D4 {
+  using scalar = double;
+  typedef double vec __attribute__((vector_size(32)));
+  typedef double unaligned __attribute__((vector_size(32), aligned(8), may_alias));
+  static constexpr int lanes = 4;
+};
+
+#define ABLENERF_GEMM_INLINE inline __attribute__((always_inline))
+
+// NR rows x NV vectors of C, accumulated over the whole reduction in registers. Row r of op(A)
+// starts at a + r * si; consecutive p are sp apart. b and c point at the block's first column.
+template <class S, int NR, int NV>
+ABLENERF_GEMM_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp, int64_t si,
+                          const typename S::scalar* b, int64_t ldb, typename S::scalar* c, int64_t ldc) {
+  using T = typename S::scalar;
+  using V = typename S::vec;
+  using U = typename S::unaligned;
+  V acc[NR][NV];
+  for (int r = 0; r < NR; ++r)
+    for (int v = 0; v < NV; ++v) acc[r][v] = V{};
+  for (int64_t p = 0; p < k; ++p) {
+    V bv[NV];
+    for (int v = 0; v < NV; ++v) bv[v] = *reinterpret_cast<const U*>(b + p * ldb + v * S::lanes);
+    for (int r = 0; r < NR; ++r) {
+      const T x = a[r * si + p * sp];
+      for (int v = 0; v < NV; ++v) acc[r][v] += x * bv[v];
+    }
+  }
+  for (int r = 0; r < NR; ++r)
+    for (int v = 0; v < NV; ++v) *reinterpret_cast<U*>(c + r * ldc + v * S::lanes) = acc[r][v] * alpha;
+}
+
+// NR rows x the last r < lanes columns of C, from bt: those columns of B packed k x lanes with
+// zeros after column r (so that whole vectors load); only the r columns are stored.
+template <class S, int NR>
+ABLENERF_GEMM_INLINE void tail_tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp,
+                                    int64_t si, const typename S::scalar* bt, typename S::scalar* c, int64_t ldc,
+                                    int64_t r) {
+  using T = typename S::scalar;
+  T out[NR][S::lanes];
+  tile<S, NR, 1>(k, alpha, a, sp, si, bt, S::lanes, &out[0][0], S::lanes);
+  for (int i = 0; i < NR; ++i) std::memcpy(c + i * ldc, out[i], static_cast<size_t>(r) * sizeof(T));
+}
+
+// NR rows of C, all n columns: blocks of four vectors (three for four rows: twelve accumulators,
+// three B vectors and a broadcast fill the sixteen AVX registers), then one of three, two or one,
+// then the columns left over (through bt, see tail_tile).
+template <class S, int NR>
+ABLENERF_GEMM_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
+                               int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
+                               const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
+  constexpr int64_t W = S::lanes;
+  constexpr int kBlock = NR >= 4 ? 3 : 4;
+  int64_t j = 0;
+  for (; j + kBlock * W <= n; j += kBlock * W) tile<S, NR, kBlock>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
+  switch ((n - j) / W) {
+    case 3:
+      tile<S, NR, 3>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
+      j += 3 * W;
+      break;
+    case 2:
+      tile<S, NR, 2>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
+      j += 2 * W;
+      break;
+    case 1:
+      tile<S, NR, 1>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
+      j += W;
+      break;
+    default:
+      break;
+  }
+  if (j < n) tail_tile<S, NR>(k, alpha, a, sp, si, bt, c + j, ldc, n - j);
+}
+
+template <class S>
+ABLENERF_GEMM_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_t k, typename S::scalar alpha,
+                               const typename S::scalar* a, int64_t lda, const typename S::scalar* b, int64_t ldb,
+                               typename S::scalar* c, int64_t ldc) {
+  using T = typename S::scalar;
+  constexpr int64_t W = S::lanes;
+  const int64_t sp = trans_a ? lda : 1, si = trans_a ? 1 : lda;
+  // The columns after the last whole vector, packed once for every row (zeros after them).
+  const int64_t tail = n % W, first = n - tail;
+  T bt[kSmallGemmMaxDim * W];
+  if (tail > 0) {
+    std::fill(bt, bt + k * W, T(0));
+    for (int64_t p = 0; p < k; ++p)
+      for (int64_t j = 0; j < tail; ++j) bt[p * W + j] = b[p * ldb + first + j];
+  }
+  // Four rows at a time (independent accumulators hide the FMA latency), then two, then one.
+  int64_t i = 0;
+  for (; i + 4 <= m; i += 4) rows<S, 4>(n, k, alpha, a + i * si, sp, si, b, ldb, bt, c + i * ldc, ldc);
+  if (i + 2 <= m) {
+    rows<S, 2>(n, k, alpha, a + i * si, sp, si, b, ldb, bt, c + i * ldc, ldc);
+    i += 2;
+  }
+  if (i < m) rows<S, 1>(n, k, alpha, a + i * si, sp, si, b, ldb, bt, c + i * ldc, ldc);
+}
+
+void gemm_base(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
+               int64_t ldb, float* c, int64_t ldc) {
+  gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+void gemm_base(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda, const double* b,
+               int64_t ldb, double* c, int64_t ldc) {
+  gemm_body<D4>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define ABLENERF_SMALL_GEMM_AVX2 1
+__attribute__((target("avx2,fma"))) void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha,
+                                                   const float* a, int64_t lda, const float* b, int64_t ldb, float* c,
+                                                   int64_t ldc) {
+  gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+__attribute__((target("avx2,fma"))) void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, double alpha,
+                                                   const double* a, int64_t lda, const double* b, int64_t ldb,
+                                                   double* c, int64_t ldc) {
+  gemm_body<D4>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+bool gemm_cpu_has_avx2() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
+#else
+bool gemm_cpu_has_avx2() { return false; }
+#endif
+
+bool avx2() {
+  static const bool yes = gemm_cpu_has_avx2();
+  return yes;
+}
+
+template <class T>
+void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b, int64_t ldb,
+              T* c, int64_t ldc) {
+#ifdef ABLENERF_SMALL_GEMM_AVX2
+  if (avx2()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+#endif
+  gemm_base(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+
+}  // namespace
+
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                const float* b, int64_t ldb, float* c, int64_t ldc) {
+  dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+                const double* b, int64_t ldb, double* c, int64_t ldc) {
+  dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+
+bool small_gemm_uses_avx2() { return avx2(); }
+
+}  // namespace ablenerf

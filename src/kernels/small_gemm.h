@@ -1,0 +1,42 @@
+#pragma once
+// Products of small row-major matrices on the CPU, written out in registers: the attention core's
+// per-(ray, head) products at the demo preset are 17 x 17 x 24, where one BLAS call costs ~1 us of
+// argument checks and packing against ~0.1 us of arithmetic, and the backward makes four of them
+// per ray and head.
+//
+//   C (m x n, row stride ldc) = alpha * op(A) * B
+//   op(A)(i, p) = A[i * lda + p], or with trans_a A[p * lda + i]  (m x k)
+//   B (k x n): B[p * ldb + j]
+//
+// C is overwritten (no beta). The column blocks of C are held in SIMD registers over the whole
+// reduction; on x86-64 CPUs with AVX2 and FMA the 256-bit form is chosen at run time, elsewhere the
+// same code runs with the baseline instructions. Each element is sum_p op(A)(i, p) B(p, j) in
+// increasing p, then times alpha: only rounding (FMA contraction) can differ from a plain loop.
+#include <cstdint>
+
+namespace ablenerf {
+
+// The sizes the register blocks are written for: every dimension at most this. Larger products
+// belong to BLAS.
+constexpr int64_t kSmallGemmMaxDim = 64;
+inline bool small_gemm_fits(int64_t m, int64_t n, int64_t k) {
+  return m > 0 && n > 0 && k > 0 && m <= kSmallGemmMaxDim && n <= kSmallGemmMaxDim && k <= kSmallGemmMaxDim;
+}
+
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                const float* b, int64_t ldb, float* c, int64_t ldc);
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+                const double* b, int64_t ldb, double* c, int64_t ldc);
+
+// Row-major transpose: dst (cols x rows, row stride rows) = src (rows x cols, row stride lds)^T.
+// For C = A B^T with small_gemm: transpose B once into a scratch.
+template <class T>
+void transpose_into(const T* src, int64_t rows, int64_t cols, int64_t lds, T* dst) {
+  for (int64_t r = 0; r < rows; ++r)
+    for (int64_t c = 0; c < cols; ++c) dst[c * rows + r] = src[r * lds + c];
+}
+
+// True when the 256-bit (AVX2 + FMA) form runs on this CPU.
+bool small_gemm_uses_avx2();
+
+}  // namespace ablenerf

@@ -1,0 +1,89 @@
+// The register-blocked small products (kernels/small_gemm.h) against LibTorch's matmul on the same
+// operands: every width from 1 to 40 columns (whole blocks of four, three, two and one vectors and
+// the leftover columns, for 8 floats and 4 doubles per vector), odd and even row counts, A as stored
+// and transposed, operands inside wider rows (strides larger than the widths), in float64 to 1e-12
+// and in float32 to float tolerance; C's elements outside the m x n block are left untouched.
+#include <gtest/gtest.h>
+
+#include "kernels/kernel_test_util.h"
+#include "kernels/small_gemm.h"
+
+namespace ablenerf {
+namespace {
+
+struct Shape {
+  int64_t m, n, k;
+  bool trans_a;
+};
+
+// Runs one product with padded strides and checks it against the reference; returns the max error.
+template <class T>
+double check(const Shape& s, uint64_t seed, double tol) {
+  const auto dtype = std::is_same<T, float>::value ? torch::kFloat : torch::kDouble;
+  constexpr int64_t kPad = 3;  // extra elements at the end of every row of A, B and C
+  const int64_t a_rows = s.trans_a ? s.k : s.m, a_cols = s.trans_a ? s.m : s.k;
+  const auto a_full = test::seeded_randn({a_rows, a_cols + kPad}, seed).to(dtype);
+  const auto b_full = test::seeded_randn({s.k, s.n + kPad}, seed + 1).to(dtype);
+  const double alpha = 0.75;
+  const auto a = a_full.narrow(1, 0, a_cols), b = b_full.narrow(1, 0, s.n);
+  const auto want = (s.trans_a ? a.t() : a).to(torch::kDouble).matmul(b.to(torch::kDouble)) * alpha;
+
+  const T sentinel = T(12345);
+  auto c_full = torch::full({s.m, s.n + kPad}, sentinel, dtype);
+  small_gemm(s.trans_a, s.m, s.n, s.k, T(alpha), a_full.template data_ptr<T>(), a_cols + kPad, b_full.template data_ptr<T>(),
+             s.n + kPad, c_full.template data_ptr<T>(), s.n + kPad);
+  const auto got = c_full.narrow(1, 0, s.n).to(torch::kDouble);
+  EXPECT_TRUE(c_full.narrow(1, s.n, kPad).eq(sentinel).all().template item<bool>())
+      << "wrote outside C: m " << s.m << " n " << s.n << " k " << s.k;
+  const double err = (got - want).abs().max().template item<double>();
+  EXPECT_LT(err, tol) << "m " << s.m << " n " << s.n << " k " << s.k << " trans_a " << s.trans_a;
+  return err;
+}
+
+std::vector<Shape> shapes() {
+  std::vector<Shape> out;
+  for (int64_t n = 1; n <= 40; ++n)
+    for (const int64_t m : {1, 2, 5, 17})
+      for (const bool t : {false, true}) out.push_back({m, n, n % 7 + 1, t});
+  // The attention core at the demo preset: S = Q K^T (17 x 17 x 24), O = P V (17 x 24 x 17), the
+  // transposed-A products of the backward (17 x 24 x 17), and the largest size allowed.
+  out.push_back({17, 17, 24, false});
+  out.push_back({17, 24, 17, false});
+  out.push_back({17, 24, 17, true});
+  out.push_back({kSmallGemmMaxDim, kSmallGemmMaxDim, kSmallGemmMaxDim, true});
+  out.push_back({kSmallGemmMaxDim, kSmallGemmMaxDim, kSmallGemmMaxDim, false});
+  return out;
+}
+
+TEST(SmallGemm, Float64MatchesMatmul) {
+  uint64_t seed = 10;
+  for (const auto& s : shapes()) check<double>(s, seed += 2, 1e-12);
+}
+
+TEST(SmallGemm, Float32MatchesMatmul) {
+  uint64_t seed = 500;
+  double worst = 0;
+  // float32 operands; the reference multiplies them in float64: the error is the float32
+  // accumulation's, a few ulps of sqrt(k)-sized sums.
+  for (const auto& s : shapes()) worst = std::max(worst, check<float>(s, seed += 2, 2e-5 * double(s.k)));
+  EXPECT_GT(worst, 0.0) << "float32 sums agreeing exactly with float64 ones: the float path did not run";
+}
+
+TEST(SmallGemm, FitsOnlySmallPositiveSizes) {
+  EXPECT_TRUE(small_gemm_fits(17, 17, 24));
+  EXPECT_TRUE(small_gemm_fits(kSmallGemmMaxDim, 1, kSmallGemmMaxDim));
+  EXPECT_FALSE(small_gemm_fits(kSmallGemmMaxDim + 1, 1, 1));
+  EXPECT_FALSE(small_gemm_fits(97, 64, 97));
+  EXPECT_FALSE(small_gemm_fits(0, 4, 4));
+}
+
+TEST(SmallGemm, TransposeIntoMatchesTranspose) {
+  const auto src = test::seeded_randn({5, 9}, 77).to(torch::kFloat);  // rows of 9, the first 7 used
+  std::vector<float> dst(7 * 5);
+  transpose_into(src.data_ptr<float>(), 5, 7, 9, dst.data());
+  const auto got = torch::from_blob(dst.data(), {7, 5}, torch::kFloat);
+  EXPECT_TRUE(got.equal(src.narrow(1, 0, 7).t().contiguous()));
+}
+
+}  // namespace
+}  // namespace ablenerf
