@@ -26,67 +26,73 @@ struct D4 {
 
 // NR rows x NV vectors of C, accumulated over the whole reduction in registers. Row r of op(A)
 // starts at a + r * si; consecutive p are sp apart. b and c point at the block's first column.
-template <class S, int NR, int NV>
+// With TAIL the last vector holds the r < lanes columns left after the whole vectors: it loads
+// from bt (those columns of B packed k x lanes, zeros after column r) and stores r columns only.
+template <class S, int NR, int NV, bool TAIL>
 ABLENERF_GEMM_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp, int64_t si,
-                          const typename S::scalar* b, int64_t ldb, typename S::scalar* c, int64_t ldc) {
+                               const typename S::scalar* b, int64_t ldb, const typename S::scalar* bt,
+                               typename S::scalar* c, int64_t ldc, int64_t r) {
   using T = typename S::scalar;
   using V = typename S::vec;
   using U = typename S::unaligned;
+  constexpr int64_t W = S::lanes;
   V acc[NR][NV];
-  for (int r = 0; r < NR; ++r)
-    for (int v = 0; v < NV; ++v) acc[r][v] = V{};
+  for (int i = 0; i < NR; ++i)
+    for (int v = 0; v < NV; ++v) acc[i][v] = V{};
   for (int64_t p = 0; p < k; ++p) {
     V bv[NV];
-    for (int v = 0; v < NV; ++v) bv[v] = *reinterpret_cast<const U*>(b + p * ldb + v * S::lanes);
-    for (int r = 0; r < NR; ++r) {
-      const T x = a[r * si + p * sp];
-      for (int v = 0; v < NV; ++v) acc[r][v] += x * bv[v];
+    for (int v = 0; v < NV; ++v)
+      bv[v] = TAIL && v == NV - 1 ? *reinterpret_cast<const U*>(bt + p * W)
+                                  : *reinterpret_cast<const U*>(b + p * ldb + v * W);
+    for (int i = 0; i < NR; ++i) {
+      const T x = a[i * si + p * sp];
+      for (int v = 0; v < NV; ++v) acc[i][v] += x * bv[v];
     }
   }
-  for (int r = 0; r < NR; ++r)
-    for (int v = 0; v < NV; ++v) *reinterpret_cast<U*>(c + r * ldc + v * S::lanes) = acc[r][v] * alpha;
+  for (int i = 0; i < NR; ++i)
+    for (int v = 0; v < NV; ++v) {
+      if (TAIL && v == NV - 1) {
+        T out[W];
+        *reinterpret_cast<U*>(out) = acc[i][v] * alpha;
+        std::memcpy(c + i * ldc + v * W, out, static_cast<size_t>(r) * sizeof(T));
+      } else {
+        *reinterpret_cast<U*>(c + i * ldc + v * W) = acc[i][v] * alpha;
+      }
+    }
 }
 
-// NR rows x the last r < lanes columns of C, from bt: those columns of B packed k x lanes with
-// zeros after column r (so that whole vectors load); only the r columns are stored.
-template <class S, int NR>
-ABLENERF_GEMM_INLINE void tail_tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp,
-                                    int64_t si, const typename S::scalar* bt, typename S::scalar* c, int64_t ldc,
-                                    int64_t r) {
-  using T = typename S::scalar;
-  T out[NR][S::lanes];
-  tile<S, NR, 1>(k, alpha, a, sp, si, bt, S::lanes, &out[0][0], S::lanes);
-  for (int i = 0; i < NR; ++i) std::memcpy(c + i * ldc, out[i], static_cast<size_t>(r) * sizeof(T));
-}
-
-// NR rows of C, all n columns: blocks of four vectors (three for four rows: twelve accumulators,
-// three B vectors and a broadcast fill the sixteen AVX registers), then one of three, two or one,
-// then the columns left over (through bt, see tail_tile).
+// NR rows of C, all n columns, in blocks of up to four vectors (three for four rows: twelve
+// accumulators, three B vectors and a broadcast fill the sixteen AVX registers); the columns after
+// the last whole vector join the last block (see tile's TAIL).
 template <class S, int NR>
 ABLENERF_GEMM_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
                                int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
                                const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
   constexpr int64_t W = S::lanes;
-  constexpr int kBlock = NR >= 4 ? 3 : 4;
-  int64_t j = 0;
-  for (; j + kBlock * W <= n; j += kBlock * W) tile<S, NR, kBlock>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
-  switch ((n - j) / W) {
-    case 3:
-      tile<S, NR, 3>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
-      j += 3 * W;
-      break;
-    case 2:
-      tile<S, NR, 2>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
-      j += 2 * W;
-      break;
-    case 1:
-      tile<S, NR, 1>(k, alpha, a, sp, si, b + j, ldb, c + j, ldc);
-      j += W;
-      break;
-    default:
-      break;
+  constexpr int64_t kBlock = NR >= 4 ? 3 : 4;
+  const int64_t tail = n % W, vectors = n / W + (tail > 0 ? 1 : 0);
+  for (int64_t v0 = 0; v0 < vectors; v0 += kBlock) {
+    const int64_t nv = std::min(kBlock, vectors - v0);
+    const bool last = v0 + nv == vectors && tail > 0;
+    const int64_t j = v0 * W;
+    switch (nv * 2 + (last ? 1 : 0)) {
+#define ABLENERF_GEMM_CASE(NV, TAIL) \
+  case NV * 2 + TAIL:                 \
+    tile<S, NR, NV, TAIL>(k, alpha, a, sp, si, b + j, ldb, bt, c + j, ldc, tail); \
+    break;
+      ABLENERF_GEMM_CASE(1, 0)
+      ABLENERF_GEMM_CASE(1, 1)
+      ABLENERF_GEMM_CASE(2, 0)
+      ABLENERF_GEMM_CASE(2, 1)
+      ABLENERF_GEMM_CASE(3, 0)
+      ABLENERF_GEMM_CASE(3, 1)
+      ABLENERF_GEMM_CASE(4, 0)
+      ABLENERF_GEMM_CASE(4, 1)
+#undef ABLENERF_GEMM_CASE
+      default:
+        break;
+    }
   }
-  if (j < n) tail_tile<S, NR>(k, alpha, a, sp, si, bt, c + j, ldc, n - j);
 }
 
 template <class S>

@@ -12,7 +12,7 @@
 namespace ablenerf {
 
 namespace {
-constexpr double kBeta1 = 0.9, kBeta2 = 0.999, kEps = 1e-8, kWeightDecay = 0.0;
+constexpr double kWeightDecay = 0.0;
 #if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
 constexpr bool kDeviceFormCompiled = true;
 #else
@@ -49,9 +49,13 @@ void add_zero_state(Map& state, const torch::Tensor& p) {
 
 bool Adam::device_form_available(const torch::Device& device) { return kDeviceFormCompiled && device.is_cuda(); }
 
-Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form)
+Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form, const AdamSettings& settings)
     : params_(std::move(params)),
-      optim_(params_, torch::optim::AdamOptions(lr).betas({kBeta1, kBeta2}).eps(kEps).weight_decay(kWeightDecay)),
+      settings_(settings),
+      optim_(params_, torch::optim::AdamOptions(lr)
+                          .betas({settings.beta1, settings.beta2})
+                          .eps(settings.eps)
+                          .weight_decay(kWeightDecay)),
       device_form_(device_form) {
   if (!device_form_) {
     host_loops_ = !params_.empty() && std::all_of(params_.begin(), params_.end(), [](const torch::Tensor& p) {
@@ -144,9 +148,10 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
   const double lr = static_cast<torch::optim::AdamOptions&>(group.options()).lr();
   auto& state = optim_.state();
   // The scalars as the tensor ops see them: cast to float once.
-  const float b1 = static_cast<float>(kBeta1), one_b1 = static_cast<float>(1.0 - kBeta1);
-  const float b2 = static_cast<float>(kBeta2), one_b2 = static_cast<float>(1.0 - kBeta2);
-  const float eps = static_cast<float>(kEps);
+  const double beta1 = settings_.beta1, beta2 = settings_.beta2;
+  const float b1 = static_cast<float>(beta1), one_b1 = static_cast<float>(1.0 - beta1);
+  const float b2 = static_cast<float>(beta2), one_b2 = static_cast<float>(1.0 - beta2);
+  const float eps = static_cast<float>(settings_.eps);
   for (size_t i = 0; i < params_.size(); ++i) {
     auto& p = params_[i];
     const auto& gc = grads[i];
@@ -155,8 +160,8 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     if (state.count(key) == 0) add_zero_state(state, p);
     auto& st = static_cast<torch::optim::AdamParamState&>(*state.at(key));
     st.step(st.step() + 1);
-    const double bias1 = 1.0 - std::pow(kBeta1, static_cast<double>(st.step()));
-    const double bias2 = 1.0 - std::pow(kBeta2, static_cast<double>(st.step()));
+    const double bias1 = 1.0 - std::pow(beta1, static_cast<double>(st.step()));
+    const double bias2 = 1.0 - std::pow(beta2, static_cast<double>(st.step()));
     const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2));
     const float neg_step = static_cast<float>(-(lr / bias1));
     TORCH_CHECK(st.exp_avg().is_contiguous() && st.exp_avg_sq().is_contiguous() &&
@@ -197,8 +202,8 @@ void Adam::step_device(const torch::Tensor& loss) {
   // skipped step leaves it where it was.
   step_.add_(1.0 - found_inf_.squeeze(0));
   const std::vector<torch::Tensor> steps(params.size(), step_);
-  at::_fused_adam_(params, grads, exp_avg, exp_avg_sq, /*max_exp_avg_sqs=*/{}, steps, lr_, kBeta1, kBeta2,
-                   kWeightDecay, kEps, /*amsgrad=*/false, /*maximize=*/false, /*grad_scale=*/std::nullopt, found_inf_);
+  at::_fused_adam_(params, grads, exp_avg, exp_avg_sq, /*max_exp_avg_sqs=*/{}, steps, lr_, settings_.beta1,
+                   settings_.beta2, kWeightDecay, settings_.eps, /*amsgrad=*/false, /*maximize=*/false, /*grad_scale=*/std::nullopt, found_inf_);
 #else
   (void)loss;
   throw std::logic_error("Adam::step_device: not compiled in (needs a CUDA LibTorch >= 2)");
@@ -212,6 +217,10 @@ void Adam::to_checkpoint() {
 }
 
 void Adam::from_checkpoint() {
+  for (auto& g : optim_.param_groups())
+    static_cast<torch::optim::AdamOptions&>(g.options())
+        .betas({settings_.beta1, settings_.beta2})
+        .eps(settings_.eps);
   if (device_form_) bind_state();
 }
 

@@ -1,6 +1,6 @@
 #pragma once
-// The optimiser of a training step: Adam with betas (0.9, 0.999), eps 1e-8, no weight decay
-// (spec 8), in one of two forms over one state:
+// The optimiser of a training step: Adam without weight decay, betas (0.9, 0.999) and eps 1e-8 by
+// default (spec 8; train.adam_beta1 / adam_beta2 / adam_eps), in one of two forms over one state:
 //  - host form (any device, any LibTorch): the learning rate and step count live on the host, and
 //    a step whose loss or gradients are not finite is skipped by a check that synchronises with
 //    the device. With CPU float32 parameters the check and the update are two plain loops over
@@ -22,9 +22,14 @@
 
 namespace ablenerf {
 
+// Adam's constants (TrainConfig's adam_* keys).
+struct AdamSettings {
+  double beta1 = 0.9, beta2 = 0.999, eps = 1e-8;
+};
+
 class Adam {
  public:
-  Adam(std::vector<torch::Tensor> params, double lr, bool device_form);
+  Adam(std::vector<torch::Tensor> params, double lr, bool device_form, const AdamSettings& settings = {});
 
   // True when the device form is available here (CUDA parameters, LibTorch >= 2 with CUDA).
   static bool device_form_available(const torch::Device& device);
@@ -47,7 +52,9 @@ class Adam {
   const torch::Tensor& found_inf() const { return found_inf_; }
 
   void to_checkpoint();    // device form: the step count into optim()'s per-parameter state
-  void from_checkpoint();  // device form: rebind the state tensors optim() holds after a load
+  // After a load: this run's settings over the ones the checkpoint's options carried (a resumed
+  // run follows its own config); device form: rebind the state tensors optim() holds.
+  void from_checkpoint();
 
  private:
   void bind_state();
@@ -56,6 +63,7 @@ class Adam {
   void update_loop(const std::vector<torch::Tensor>& grads);
 
   std::vector<torch::Tensor> params_;
+  AdamSettings settings_;
   torch::optim::Adam optim_;
   bool device_form_;
   bool host_loops_ = false;

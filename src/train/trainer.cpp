@@ -163,7 +163,8 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
   s.model->train();
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
-  s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form);
+  s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
+                                  AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});
   std::optional<ErrorMapOptions> map;
   if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
   s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map);

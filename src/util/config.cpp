@@ -58,6 +58,9 @@ void visit_fields(C& c, F&& f) {
   f("train.lr_warmup_steps", &c.train.lr_warmup_steps);
   f("train.lr_warmup_mult", &c.train.lr_warmup_mult);
   f("train.lr_decay_steps", &c.train.lr_decay_steps);
+  f("train.adam_beta1", &c.train.adam_beta1);
+  f("train.adam_beta2", &c.train.adam_beta2);
+  f("train.adam_eps", &c.train.adam_eps);
   f("train.coarse_weight", &c.train.coarse_weight);
   f("train.fine_weight", &c.train.fine_weight);
   f("train.seed", &c.train.seed);
@@ -216,6 +219,9 @@ void Config::validate() const {
   need(t.lr_warmup_steps >= 0, "train.lr_warmup_steps", "must be >= 0");
   need(t.lr_warmup_mult > 0 && t.lr_warmup_mult <= 1, "train.lr_warmup_mult", "must be in (0, 1]");
   need(t.lr_decay_steps >= 0, "train.lr_decay_steps", "must be >= 0");
+  need(t.adam_beta1 >= 0 && t.adam_beta1 < 1, "train.adam_beta1", "must be in [0, 1)");
+  need(t.adam_beta2 >= 0 && t.adam_beta2 < 1, "train.adam_beta2", "must be in [0, 1)");
+  need(t.adam_eps > 0 && std::isfinite(t.adam_eps), "train.adam_eps", "must be > 0");
   need(t.coarse_weight >= 0 && t.fine_weight >= 0, "train.fine_weight", "loss weights must be >= 0");
   need(t.log_every >= 1, "train.log_every", "must be >= 1");
   need(t.eval_every >= 0, "train.eval_every", "must be >= 0");

@@ -100,6 +100,10 @@ struct TrainConfig {
   int64_t lr_warmup_steps = 1250;
   double lr_warmup_mult = 0.01;
   int64_t lr_decay_steps = 250000;  // log-linear decay length; 0 = the step budget
+  // Adam's constants (train/adam.h). The release's: (0.9, 0.999), 1e-8.
+  double adam_beta1 = 0.9;
+  double adam_beta2 = 0.999;
+  double adam_eps = 1e-8;
   double coarse_weight = 1.0;
   double fine_weight = 1.0;
   int64_t seed = 4;

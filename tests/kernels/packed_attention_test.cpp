@@ -1,7 +1,8 @@
 // The CPU attention kernels over packed projections (kernels/packed_attention.h) against the plain
 // per-head autograd formula softmax(Q K^T * scale + mask) V: same values and same gradients, in
 // float64 to 1e-10 and in float32 to float tolerance, for self-attention with the causal mask
-// and for cross-attention with per-ray and with shared (batch-1) queries.
+// and for cross-attention with per-ray and with shared (batch-1) queries, on rays short enough for
+// the register-blocked products and long enough for BLAS.
 #include <gtest/gtest.h>
 
 #include <limits>
@@ -81,6 +82,20 @@ TEST(PackedAttention, MaskedSelfAttentionMatchesReference) {
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 1), {}, mask}, 1e-10);
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kDouble, 2), {}, {}}, 1e-10);  // bidirectional
   compare({rnd({kBatch, kTokens, 3 * kWidth}, torch::kFloat, 3), {}, mask.to(torch::kFloat)}, 1e-4);
+}
+
+// 17 tokens (the demo preset's: score rows of two whole float vectors and one left over) and 70
+// (above the register-blocked products' 64, so through BLAS).
+TEST(PackedAttention, LongerRaysMatchReference) {
+  if (!packed_attention_available(torch::zeros({1}, torch::kDouble))) GTEST_SKIP() << "no CBLAS in this process";
+  for (const int64_t tokens : {17, 70}) {
+    const auto mask = ray_mask(tokens, torch::kDouble);
+    compare({rnd({4, tokens, 3 * kWidth}, torch::kDouble, 20 + tokens), {}, mask}, 1e-10);
+    compare({rnd({4, tokens, 3 * kWidth}, torch::kFloat, 21 + tokens), {}, mask.to(torch::kFloat)}, 1e-4);
+    compare({rnd({4, 3, kWidth}, torch::kFloat, 22 + tokens), rnd({4, tokens, 2 * kWidth}, torch::kFloat, 23 + tokens),
+             {}},
+            1e-4);
+  }
 }
 
 TEST(PackedAttention, CrossAttentionMatchesReference) {

@@ -51,12 +51,16 @@ TEST(Adam, HostLoopsOnlyForCpuFloat32) {
   EXPECT_FALSE(Adam(make_params(torch::kDouble), 1e-3, false).host_loops());
 }
 
-TEST(Adam, HostLoopsFollowTorchOptimAdam) {
+namespace {
+
+// Twelve steps of the host loops and of torch::optim::Adam with the same constants.
+void follow_reference(const AdamSettings& settings) {
   auto mine = make_params(torch::kFloat);
   auto ref = clone_params(mine);
-  Adam adam(mine, 2e-3, false);
+  Adam adam(mine, 2e-3, false, settings);
   ASSERT_TRUE(adam.host_loops());
-  torch::optim::Adam reference(ref, torch::optim::AdamOptions(2e-3).betas({0.9, 0.999}).eps(1e-8));
+  torch::optim::Adam reference(
+      ref, torch::optim::AdamOptions(2e-3).betas({settings.beta1, settings.beta2}).eps(settings.eps));
   for (int s = 0; s < 12; ++s) {
     if (s == 6) {
       adam.set_lr(5e-4);
@@ -82,6 +86,25 @@ TEST(Adam, HostLoopsFollowTorchOptimAdam) {
     EXPECT_TRUE(torch::allclose(a.exp_avg(), b.exp_avg(), 1e-5, 1e-12)) << "parameter " << i;
     EXPECT_TRUE(torch::allclose(a.exp_avg_sq(), b.exp_avg_sq(), 1e-5, 1e-20)) << "parameter " << i;
   }
+}
+
+}  // namespace
+
+TEST(Adam, HostLoopsFollowTorchOptimAdam) { follow_reference(AdamSettings{}); }
+
+// Other constants (instant-ngp's beta2 0.99, a larger eps) reach the loops' arithmetic.
+TEST(Adam, HostLoopsFollowTorchOptimAdamWithOtherConstants) { follow_reference(AdamSettings{0.8, 0.99, 1e-6}); }
+
+// A loaded checkpoint brings the options it was saved with; the run's own settings win.
+TEST(Adam, FromCheckpointRestoresTheRunsConstants) {
+  auto ps = make_params(torch::kFloat);
+  Adam adam(ps, 1e-3, false, AdamSettings{0.85, 0.95, 1e-7});
+  auto& opts = static_cast<torch::optim::AdamOptions&>(adam.optim().param_groups().front().options());
+  opts.betas({0.9, 0.999}).eps(1e-8);  // what a checkpoint of a default run would load
+  adam.from_checkpoint();
+  EXPECT_EQ(std::get<0>(opts.betas()), 0.85);
+  EXPECT_EQ(std::get<1>(opts.betas()), 0.95);
+  EXPECT_EQ(opts.eps(), 1e-7);
 }
 
 TEST(Adam, NonFiniteGradientOrLossSkipsTheStep) {

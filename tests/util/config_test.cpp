@@ -100,6 +100,10 @@ TEST(Config, BadInputNamesFileAndKey) {
   EXPECT_EQ(input_error([] { Config c; c.set("train.stepz=3"); }), "--set: train.stepz: unknown key");
   EXPECT_EQ(input_error([] { Config::parse("[train]\nlr_init = nan\n", "d.toml"); }),
             "d.toml: train.lr_init: must be finite");
+  EXPECT_EQ(input_error([] { Config::parse("[train]\nadam_beta2 = 1.0\n", "e.toml").validate(); }),
+            "e.toml: train.adam_beta2: must be in [0, 1)");
+  EXPECT_EQ(input_error([] { Config::parse("[train]\nadam_eps = 0.0\n", "e.toml").validate(); }),
+            "e.toml: train.adam_eps: must be > 0");
 }
 
 TEST(Config, ResolvedTomlReproducesEveryKey) {
