@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cstring>
 
+#include "kernels/cpu_features.h"
+
 namespace ablenerf {
 
 namespace {
@@ -22,14 +24,12 @@ struct D4 {
   static constexpr int lanes = 4;
 };
 
-#define ABLENERF_GEMM_INLINE inline __attribute__((always_inline))
-
 // NR rows x NV vectors of C, accumulated over the whole reduction in registers. Row r of op(A)
 // starts at a + r * si; consecutive p are sp apart. b and c point at the block's first column.
 // With TAIL the last vector holds the r < lanes columns left after the whole vectors: it loads
 // from bt (those columns of B packed k x lanes, zeros after column r) and stores r columns only.
 template <class S, int NR, int NV, bool TAIL>
-ABLENERF_GEMM_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp, int64_t si,
+ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp, int64_t si,
                                const typename S::scalar* b, int64_t ldb, const typename S::scalar* bt,
                                typename S::scalar* c, int64_t ldc, int64_t r) {
   using T = typename S::scalar;
@@ -65,7 +65,7 @@ ABLENERF_GEMM_INLINE void tile(int64_t k, typename S::scalar alpha, const typena
 // accumulators, three B vectors and a broadcast fill the sixteen AVX registers); the columns after
 // the last whole vector join the last block (see tile's TAIL).
 template <class S, int NR>
-ABLENERF_GEMM_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
+ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
                                int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
                                const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
   constexpr int64_t W = S::lanes;
@@ -96,7 +96,7 @@ ABLENERF_GEMM_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, c
 }
 
 template <class S>
-ABLENERF_GEMM_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_t k, typename S::scalar alpha,
+ABLENERF_ALWAYS_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_t k, typename S::scalar alpha,
                                const typename S::scalar* a, int64_t lda, const typename S::scalar* b, int64_t ldb,
                                typename S::scalar* c, int64_t ldc) {
   using T = typename S::scalar;
@@ -129,33 +129,22 @@ void gemm_base(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const dou
   gemm_body<D4>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-#define ABLENERF_SMALL_GEMM_AVX2 1
-__attribute__((target("avx2,fma"))) void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha,
-                                                   const float* a, int64_t lda, const float* b, int64_t ldb, float* c,
-                                                   int64_t ldc) {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
+                                    int64_t lda, const float* b, int64_t ldb, float* c, int64_t ldc) {
   gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
-__attribute__((target("avx2,fma"))) void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, double alpha,
-                                                   const double* a, int64_t lda, const double* b, int64_t ldb,
-                                                   double* c, int64_t ldc) {
+ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const double* a,
+                                    int64_t lda, const double* b, int64_t ldb, double* c, int64_t ldc) {
   gemm_body<D4>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
-bool gemm_cpu_has_avx2() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
-#else
-bool gemm_cpu_has_avx2() { return false; }
 #endif
-
-bool avx2() {
-  static const bool yes = gemm_cpu_has_avx2();
-  return yes;
-}
 
 template <class T>
 void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b, int64_t ldb,
               T* c, int64_t ldc) {
-#ifdef ABLENERF_SMALL_GEMM_AVX2
-  if (avx2()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (cpu_has_avx2_fma()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 #endif
   gemm_base(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
@@ -171,6 +160,13 @@ void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, con
   dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 
-bool small_gemm_uses_avx2() { return avx2(); }
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                         const float* b, int64_t ldb, float* c, int64_t ldc) {
+  gemm_base(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+                         const double* b, int64_t ldb, double* c, int64_t ldc) {
+  gemm_base(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
 
 }  // namespace ablenerf

@@ -36,7 +36,11 @@ void transpose_into(const T* src, int64_t rows, int64_t cols, int64_t lds, T* ds
     for (int64_t c = 0; c < cols; ++c) dst[c * rows + r] = src[r * lds + c];
 }
 
-// True when the 256-bit (AVX2 + FMA) form runs on this CPU.
-bool small_gemm_uses_avx2();
+// The same products with the baseline instructions whatever the CPU (the tests check both forms;
+// small_gemm picks the AVX2 + FMA one where kernels/cpu_features.h finds it).
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                         const float* b, int64_t ldb, float* c, int64_t ldc);
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+                         const double* b, int64_t ldb, double* c, int64_t ldc);
 
 }  // namespace ablenerf

@@ -3,6 +3,8 @@
 #include <cstring>
 #include <limits>
 
+#include "kernels/cpu_features.h"
+
 namespace ablenerf {
 
 namespace {
@@ -10,10 +12,8 @@ namespace {
 typedef float ExpF8 __attribute__((vector_size(32)));
 typedef int32_t ExpI8 __attribute__((vector_size(32)));
 
-#define ABLENERF_EXP_INLINE inline __attribute__((always_inline))
-
 // Eight exponentials in place (no vector crosses a call: its ABI would differ with and without AVX).
-ABLENERF_EXP_INLINE void exp8(float* p) {
+ABLENERF_ALWAYS_INLINE void exp8(float* p) {
   const ExpF8 zero = {};
   ExpF8 x;
   std::memcpy(&x, p, sizeof(ExpF8));
@@ -49,7 +49,7 @@ ABLENERF_EXP_INLINE void exp8(float* p) {
   std::memcpy(p, &out, sizeof(ExpF8));
 }
 
-ABLENERF_EXP_INLINE void exp_body(float* x, int64_t n) {
+ABLENERF_ALWAYS_INLINE void exp_body(float* x, int64_t n) {
   int64_t i = 0;
   for (; i + 8 <= n; i += 8) exp8(x + i);
   if (i < n) {
@@ -63,20 +63,19 @@ ABLENERF_EXP_INLINE void exp_body(float* x, int64_t n) {
 
 void exp_base(float* x, int64_t n) { exp_body(x, n); }
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-#define ABLENERF_VECTOR_EXP_AVX2 1
-__attribute__((target("avx2,fma"))) void exp_avx2(float* x, int64_t n) { exp_body(x, n); }
-bool exp_cpu_has_avx2() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
+#ifdef ABLENERF_HAVE_AVX2_FORM
+ABLENERF_TARGET_AVX2 void exp_avx2(float* x, int64_t n) { exp_body(x, n); }
 #endif
 
 }  // namespace
 
 void exp_inplace(float* x, int64_t n) {
-#ifdef ABLENERF_VECTOR_EXP_AVX2
-  static const bool avx2 = exp_cpu_has_avx2();
-  if (avx2) return exp_avx2(x, n);
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (cpu_has_avx2_fma()) return exp_avx2(x, n);
 #endif
   exp_base(x, n);
 }
+
+void exp_inplace_baseline(float* x, int64_t n) { exp_base(x, n); }
 
 }  // namespace ablenerf

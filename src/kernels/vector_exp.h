@@ -15,4 +15,8 @@ namespace ablenerf {
 // x[i] <- exp(x[i]) for i < n.
 void exp_inplace(float* x, int64_t n);
 
+// The same with the baseline instructions whatever the CPU (the tests check both forms;
+// exp_inplace picks the AVX2 + FMA one where kernels/cpu_features.h finds it).
+void exp_inplace_baseline(float* x, int64_t n);
+
 }  // namespace ablenerf

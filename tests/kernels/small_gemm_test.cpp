@@ -2,7 +2,8 @@
 // operands: every width from 1 to 40 columns (whole blocks of four, three, two and one vectors and
 // the leftover columns, for 8 floats and 4 doubles per vector), odd and even row counts, A as stored
 // and transposed, operands inside wider rows (strides larger than the widths), in float64 to 1e-12
-// and in float32 to float tolerance; C's elements outside the m x n block are left untouched.
+// and in float32 to float tolerance; C's elements outside the m x n block are left untouched. Both
+// the form chosen for this CPU and the baseline-instruction form.
 #include <gtest/gtest.h>
 
 #include "kernels/kernel_test_util.h"
@@ -17,8 +18,9 @@ struct Shape {
 };
 
 // Runs one product with padded strides and checks it against the reference; returns the max error.
+// baseline: the baseline-instruction form instead of the one small_gemm picks for this CPU.
 template <class T>
-double check(const Shape& s, uint64_t seed, double tol) {
+double check(const Shape& s, uint64_t seed, double tol, bool baseline) {
   const auto dtype = std::is_same<T, float>::value ? torch::kFloat : torch::kDouble;
   constexpr int64_t kPad = 3;  // extra elements at the end of every row of A, B and C
   const int64_t a_rows = s.trans_a ? s.k : s.m, a_cols = s.trans_a ? s.m : s.k;
@@ -30,8 +32,12 @@ double check(const Shape& s, uint64_t seed, double tol) {
 
   const T sentinel = T(12345);
   auto c_full = torch::full({s.m, s.n + kPad}, sentinel, dtype);
-  small_gemm(s.trans_a, s.m, s.n, s.k, T(alpha), a_full.template data_ptr<T>(), a_cols + kPad, b_full.template data_ptr<T>(),
-             s.n + kPad, c_full.template data_ptr<T>(), s.n + kPad);
+  auto* product = baseline ? static_cast<void (*)(bool, int64_t, int64_t, int64_t, T, const T*, int64_t, const T*,
+                                                  int64_t, T*, int64_t)>(&small_gemm_baseline)
+                           : static_cast<void (*)(bool, int64_t, int64_t, int64_t, T, const T*, int64_t, const T*,
+                                                  int64_t, T*, int64_t)>(&small_gemm);
+  product(s.trans_a, s.m, s.n, s.k, T(alpha), a_full.template data_ptr<T>(), a_cols + kPad,
+          b_full.template data_ptr<T>(), s.n + kPad, c_full.template data_ptr<T>(), s.n + kPad);
   const auto got = c_full.narrow(1, 0, s.n).to(torch::kDouble);
   EXPECT_TRUE(c_full.narrow(1, s.n, kPad).eq(sentinel).all().template item<bool>())
       << "wrote outside C: m " << s.m << " n " << s.n << " k " << s.k;
@@ -56,17 +62,21 @@ std::vector<Shape> shapes() {
 }
 
 TEST(SmallGemm, Float64MatchesMatmul) {
-  uint64_t seed = 10;
-  for (const auto& s : shapes()) check<double>(s, seed += 2, 1e-12);
+  for (const bool baseline : {false, true}) {
+    uint64_t seed = 10;
+    for (const auto& s : shapes()) check<double>(s, seed += 2, 1e-12, baseline);
+  }
 }
 
 TEST(SmallGemm, Float32MatchesMatmul) {
-  uint64_t seed = 500;
-  double worst = 0;
-  // float32 operands; the reference multiplies them in float64: the error is the float32
-  // accumulation's, a few ulps of sqrt(k)-sized sums.
-  for (const auto& s : shapes()) worst = std::max(worst, check<float>(s, seed += 2, 2e-5 * double(s.k)));
-  EXPECT_GT(worst, 0.0) << "float32 sums agreeing exactly with float64 ones: the float path did not run";
+  for (const bool baseline : {false, true}) {
+    uint64_t seed = 500;
+    double worst = 0;
+    // float32 operands; the reference multiplies them in float64: the error is the float32
+    // accumulation's, a few ulps of sqrt(k)-sized sums.
+    for (const auto& s : shapes()) worst = std::max(worst, check<float>(s, seed += 2, 2e-5 * double(s.k), baseline));
+    EXPECT_GT(worst, 0.0) << "float32 sums agreeing exactly with float64 ones: the float path did not run";
+  }
 }
 
 TEST(SmallGemm, FitsOnlySmallPositiveSizes) {

@@ -1,0 +1,29 @@
+#pragma once
+// What the CPU kernels with a vector form share: the run-time check for AVX2 + FMA, the attribute
+// that compiles one function for them (next to a baseline build of the same code), and forced
+// inlining, so that a body written once with GCC/Clang vector extensions is compiled into both.
+//
+//   ABLENERF_TARGET_AVX2 void f_avx2(...) { body(...); }   // only where ABLENERF_HAVE_AVX2_FORM
+//   void f_base(...) { body(...); }
+//   if (cpu_has_avx2_fma()) f_avx2(...); else f_base(...);
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define ABLENERF_HAVE_AVX2_FORM 1
+#define ABLENERF_TARGET_AVX2 __attribute__((target("avx2,fma")))
+#endif
+
+#define ABLENERF_ALWAYS_INLINE inline __attribute__((always_inline))
+
+namespace ablenerf {
+
+// True when this CPU runs AVX2 and FMA instructions (checked once).
+inline bool cpu_has_avx2_fma() {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return yes;
+#else
+  return false;
+#endif
+}
+
+}  // namespace ablenerf
