@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <vector>
 
 #include "kernels/cpu_features.h"
 
@@ -104,7 +105,9 @@ ABLENERF_ALWAYS_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_
   const int64_t sp = trans_a ? lda : 1, si = trans_a ? 1 : lda;
   // The columns after the last whole vector, packed once for every row (zeros after them).
   const int64_t tail = n % W, first = n - tail;
-  T bt[kSmallGemmMaxDim * W];
+  T stack_bt[kSmallGemmMaxDim * W];
+  std::vector<T> heap_bt(tail > 0 && k > kSmallGemmMaxDim ? static_cast<size_t>(k * W) : 0);
+  T* bt = heap_bt.empty() ? stack_bt : heap_bt.data();
   if (tail > 0) {
     std::fill(bt, bt + k * W, T(0));
     for (int64_t p = 0; p < k; ++p)

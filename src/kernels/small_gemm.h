@@ -1,23 +1,27 @@
 #pragma once
-// Products of small row-major matrices on the CPU, written out in registers: the attention core's
-// per-(ray, head) products at the demo preset are 17 x 17 x 24, where one BLAS call costs ~1 us of
-// argument checks and packing against ~0.1 us of arithmetic, and the backward makes four of them
-// per ray and head.
+// Products of row-major matrices with few columns on the CPU, written out in registers:
 //
 //   C (m x n, row stride ldc) = alpha * op(A) * B
 //   op(A)(i, p) = A[i * lda + p], or with trans_a A[p * lda + i]  (m x k)
 //   B (k x n): B[p * ldb + j]
 //
-// C is overwritten (no beta). The column blocks of C are held in SIMD registers over the whole
-// reduction; on x86-64 CPUs with AVX2 and FMA the 256-bit form is chosen at run time, elsewhere the
-// same code runs with the baseline instructions. Each element is sum_p op(A)(i, p) B(p, j) in
-// increasing p, then times alpha: only rounding (FMA contraction) can differ from a plain loop.
+// C is overwritten (no beta). Rows of C are taken four at a time, their columns in blocks of up to
+// three or four SIMD vectors held in registers over the whole reduction; on x86-64 CPUs with AVX2
+// and FMA the 256-bit form is chosen at run time, elsewhere the same code runs with the baseline
+// instructions. Each element is sum_p op(A)(i, p) B(p, j) in increasing p, then times alpha: only
+// rounding (FMA contraction) can differ from a plain loop.
+//
+// Any sizes >= 1 are computed; it pays off where n and k are small:
+//  - the attention core's per-(ray, head) products (17 x 17 x 24 at the demo preset), where one BLAS
+//    call costs ~1 us of argument checks and packing against ~0.1 us of arithmetic
+//    (small_gemm_fits: every dimension <= 64);
+//  - the token linear layers' forward and input gradient (kernels/linear_cpu.h: m in the
+//    thousands, n and k 48-192), where it measured ~1.4x OpenBLAS's sgemm.
 #include <cstdint>
 
 namespace ablenerf {
 
-// The sizes the register blocks are written for: every dimension at most this. Larger products
-// belong to BLAS.
+// Attention's criterion: every dimension at most this (larger products go to BLAS).
 constexpr int64_t kSmallGemmMaxDim = 64;
 inline bool small_gemm_fits(int64_t m, int64_t n, int64_t k) {
   return m > 0 && n > 0 && k > 0 && m <= kSmallGemmMaxDim && n <= kSmallGemmMaxDim && k <= kSmallGemmMaxDim;

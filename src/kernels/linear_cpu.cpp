@@ -1,0 +1,73 @@
+#include "kernels/linear_cpu.h"
+
+#include "kernels/small_gemm.h"
+
+namespace ablenerf {
+
+namespace {
+
+// y (M, N) = x (M, K) W^T (+ b), everything contiguous.
+torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+  const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
+  const auto wt = weight.t().contiguous();  // (K, N): B of the product
+  auto y = torch::empty({m, n}, x.options());
+  small_gemm(false, m, n, k, 1.0f, x.data_ptr<float>(), k, wt.data_ptr<float>(), n, y.data_ptr<float>(), n);
+  if (bias.defined()) {
+    const float* b = bias.data_ptr<float>();
+    float* out = y.data_ptr<float>();
+    for (int64_t i = 0; i < m; ++i)
+      for (int64_t j = 0; j < n; ++j) out[i * n + j] += b[j];
+  }
+  return y;
+}
+
+class LinearFunction : public torch::autograd::Function<LinearFunction> {
+ public:
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
+                               const torch::Tensor& weight, const torch::Tensor& bias) {
+    const bool has_bias = bias.numel() > 0;
+    ctx->save_for_backward({x, weight});
+    ctx->saved_data["bias"] = has_bias;
+    return forward_product(x, weight, has_bias ? bias : torch::Tensor());
+  }
+
+  static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
+                                                 torch::autograd::variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const auto &x = saved[0], &weight = saved[1];
+    const auto dy = grads[0].contiguous();
+    const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
+    torch::Tensor dx, dw, db;
+    if (ctx->needs_input_grad(0)) {
+      dx = torch::empty({m, k}, x.options());
+      small_gemm(false, m, k, n, 1.0f, dy.data_ptr<float>(), n, weight.data_ptr<float>(), k, dx.data_ptr<float>(), k);
+    }
+    if (ctx->needs_input_grad(1)) dw = dy.t().mm(x);
+    if (ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(2)) db = dy.sum(0);
+    return {dx, dw, db};
+  }
+};
+
+}  // namespace
+
+bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight) {
+  return x.device().is_cpu() && weight.device().is_cpu() && x.scalar_type() == torch::kFloat &&
+         weight.scalar_type() == torch::kFloat && x.dim() == 2 && weight.dim() == 2 && x.size(1) == weight.size(1) &&
+         x.size(0) > 0 && weight.size(0) > 0 && x.size(1) > 0;
+}
+
+torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+  TORCH_CHECK(linear_cpu_available(x, weight), "linear_cpu: expected CPU float32 x (M, K) and weight (N, K), got ",
+              x.sizes(), " ", x.scalar_type(), " and ", weight.sizes(), " ", weight.scalar_type());
+  TORCH_CHECK(!bias.defined() || (bias.dim() == 1 && bias.size(0) == weight.size(0) &&
+                                  bias.scalar_type() == torch::kFloat && bias.device().is_cpu()),
+              "linear_cpu: bias must be a CPU float32 (", weight.size(0), ") tensor");
+  const auto xc = x.contiguous(), wc = weight.contiguous();
+  const auto bc = bias.defined() ? bias.contiguous() : torch::Tensor();
+  const bool needs_graph = torch::GradMode::is_enabled() &&
+                           (xc.requires_grad() || wc.requires_grad() || (bc.defined() && bc.requires_grad()));
+  if (!needs_graph) return forward_product(xc, wc, bc);
+  return LinearFunction::apply(xc, wc, bc.defined() ? bc : torch::empty({0}, x.options()));
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,22 @@
+#pragma once
+// y = x W^T + b for the model's token matrices on the CPU in float32, differentiable, as one
+// autograd node:
+//   forward      y  = x W^T (+ b)  register-blocked loops (kernels/small_gemm.h) over W^T, bias added
+//                                  per row;
+//   backward     dx = dy W         the same loops;
+//                dW = dy^T x       BLAS (a reduction over all tokens, where BLAS is faster);
+//                db = column sums of dy.
+// Why: at the demo preset (2,176 tokens per 128-ray slice, 48-144 features) OpenBLAS's sgemm spends
+// a large share of each call packing operands (measured ~1.4x slower than the loops for x W^T), and
+// LibTorch's addmm path adds reshape / t / view nodes to every layer's forward and backward.
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+// True when linear_cpu runs on these: CPU float32 x (M, K) and weight (N, K).
+bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight);
+
+// x (M, K), weight (N, K), bias (N) or undefined -> (M, N). Differentiable in all three.
+torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias);
+
+}  // namespace ablenerf

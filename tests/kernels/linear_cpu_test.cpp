@@ -1,0 +1,73 @@
+// The CPU token linear layer (kernels/linear_cpu.h) against LibTorch's torch::linear, the plain
+// reference: the same values and the same gradients for x, W and b, with and without a bias,
+// with widths that fill whole SIMD vectors and widths that leave columns over (including a
+// reduction longer than 64 with such columns), and with only some inputs requiring gradients.
+#include <gtest/gtest.h>
+
+#include "kernels/kernel_test_util.h"
+#include "kernels/linear_cpu.h"
+
+namespace ablenerf {
+namespace {
+
+struct LinearCase {
+  int64_t m, k, n;
+  bool bias;
+};
+
+// Values and gradients of linear_cpu and torch::linear for one upstream gradient; float32 inputs,
+// errors relative to the size of the sums (k or m terms of unit scale).
+void compare_linear(const LinearCase& c, uint64_t seed) {
+  const auto x0 = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat);
+  const auto w0 = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat);
+  const auto b0 = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat);
+  const auto up = test::seeded_randn({c.m, c.n}, seed + 3).to(torch::kFloat);
+  std::vector<torch::Tensor> got, want;
+  for (auto* out : {&got, &want}) {
+    auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
+    const auto bias = c.bias ? b : torch::Tensor();
+    const auto y = out == &got ? linear_cpu(x, w, bias) : torch::linear(x, w, bias);
+    (y * up).sum().backward();
+    *out = {y.detach(), x.grad(), w.grad()};
+    if (c.bias) out->push_back(b.grad());
+  }
+  const double scale[] = {double(c.k), double(c.n), double(c.m), double(c.m)};  // terms per sum
+  for (size_t i = 0; i < got.size(); ++i) {
+    ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
+    EXPECT_LT((got[i] - want[i]).abs().max().item<double>(), 2e-6 * scale[i] + 1e-5)
+        << "output/gradient " << i << " m " << c.m << " k " << c.k << " n " << c.n;
+  }
+}
+
+TEST(LinearCpu, MatchesTorchLinear) {
+  uint64_t seed = 1;
+  for (const LinearCase& c : std::vector<LinearCase>{{2176, 48, 144, true},  // the demo preset's QKV projection
+                                         {300, 48, 48, false},
+                                         {37, 60, 48, true},     // an embedding layer's odd input width
+                                         {50, 100, 13, true},    // columns over, reduction > 64
+                                         {5, 7, 3, true}})
+    compare_linear(c, seed += 4);
+}
+
+TEST(LinearCpu, GradientsOnlyWhereRequired) {
+  const auto x = test::seeded_randn({20, 16}, 5).to(torch::kFloat);
+  auto w = test::seeded_randn({8, 16}, 6).to(torch::kFloat).requires_grad_();
+  const auto y = linear_cpu(x, w, torch::Tensor());
+  y.sum().backward();
+  ASSERT_TRUE(w.grad().defined());
+  EXPECT_LT((w.grad() - x.sum(0).expand({8, 16})).abs().max().item<double>(), 1e-4);  // d/dW of sum(x W^T)
+  EXPECT_FALSE(x.requires_grad());
+  // Without gradients anywhere no graph is recorded.
+  torch::NoGradGuard no_grad;
+  EXPECT_FALSE(linear_cpu(x, w, torch::Tensor()).requires_grad());
+}
+
+TEST(LinearCpu, AvailableOnlyForCpuFloat32Matrices) {
+  EXPECT_TRUE(linear_cpu_available(torch::zeros({3, 4}), torch::zeros({5, 4})));
+  EXPECT_FALSE(linear_cpu_available(torch::zeros({3, 4}, torch::kDouble), torch::zeros({5, 4}, torch::kDouble)));
+  EXPECT_FALSE(linear_cpu_available(torch::zeros({3, 4}), torch::zeros({5, 3})));
+  EXPECT_FALSE(linear_cpu_available(torch::zeros({2, 3, 4}), torch::zeros({5, 4})));
+}
+
+}  // namespace
+}  // namespace ablenerf
