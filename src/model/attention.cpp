@@ -55,7 +55,7 @@ bool MultiHeadAttentionImpl::is_ray_mask(const torch::Tensor& mask) {
 torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                                                    RayQueryProbe* probe) {
   const int64_t b = x.size(0), l = x.size(1), dh = width_ / heads_;
-  const auto packed = torch::addmm(in_proj_bias, x.reshape({-1, width_}), in_proj_weight.t()).view({b, l, 3 * width_});
+  const auto packed = linear_tokens(x, in_proj_weight, in_proj_bias);  // (B, L, 3E)
 #ifdef ABLENERF_CUDA_KERNELS
   // The project's fused kernel for rays of up to 128 tokens with 64-wide heads, under the ray
   // mask or none; it also returns the ray token's attention row the resampler needs.
@@ -83,9 +83,8 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const int64_t dh = width_ / heads_;
   const auto wq = in_proj_weight.slice(0, 0, width_), bq = in_proj_bias.slice(0, 0, width_);
   const auto wkv = in_proj_weight.slice(0, width_), bkv = in_proj_bias.slice(0, width_);
-  const auto q = torch::addmm(bq, q_in.reshape({-1, width_}), wq.t()).view({q_in.size(0), q_in.size(1), width_});
-  const auto kv =
-      torch::addmm(bkv, kv_in.reshape({-1, width_}), wkv.t()).view({kv_in.size(0), kv_in.size(1), 2 * width_});
+  const auto q = linear_tokens(q_in, wq, bq);      // (Bq, Lq, E)
+  const auto kv = linear_tokens(kv_in, wkv, bkv);  // (B, Lk, 2E)
   const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});
   const auto q_heads = q.view({q_in.size(0), q_in.size(1), heads_, dh}).transpose(1, 2);
   if (probe) {

@@ -4,17 +4,19 @@
 
 namespace ablenerf {
 
-torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x, bool with_bias) {
+torch::Tensor linear_tokens(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
   auto sizes = x.sizes().vec();
   const auto flat = x.reshape({-1, sizes.back()});
-  const auto& w = layer->weight;
-  const auto bias = with_bias && layer->bias.defined() ? layer->bias : torch::Tensor();
   // CPU float32: one node of register-blocked products (kernels/linear_cpu.h); elsewhere ATen's.
-  auto y = linear_cpu_available(flat, w) ? linear_cpu(flat, w, bias)
-           : bias.defined()              ? torch::addmm(bias, flat, w.t())
-                                         : flat.mm(w.t());
-  sizes.back() = w.size(0);
+  auto y = linear_cpu_available(flat, weight) ? linear_cpu(flat, weight, bias)
+           : bias.defined()                   ? torch::addmm(bias, flat, weight.t())
+                                              : flat.mm(weight.t());
+  sizes.back() = weight.size(0);
   return y.view(sizes);
+}
+
+torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x, bool with_bias) {
+  return linear_tokens(x, layer->weight, with_bias && layer->bias.defined() ? layer->bias : torch::Tensor());
 }
 
 }  // namespace ablenerf
