@@ -94,54 +94,39 @@ Operand<const T> operand(const torch::Tensor& x, int64_t offset) {
   return {x.data_ptr<T>() + offset, x.size(0) == 1 ? 0 : x.size(1) * x.size(2), x.size(2)};
 }
 
-// Softmax of each of the `items` x lq rows of s (lk scores each) in place, after adding the
-// additive (lq, lk) mask when given. The steps of ATen's CPU softmax (max, exp of the difference,
-// sum, multiply by its reciprocal) in one pass per row, in the probabilities' own memory (no
-// scores scratch). Measured at the demo preset's shape (256 x 17 x 17, one core): as fast as
-// at::_softmax_out (~0.5 ms; scalar exp bounds both), hence the float form below; the backward
-// loop further down takes half the time of the four tensor ops it replaces (~0.06 against ~0.11 ms).
-template <class T>
-void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
-  for (int64_t it = 0; it < items; ++it) {
-    for (int64_t r = 0; r < lq; ++r) {
-      T* row = s + (it * lq + r) * lk;
-      const T* m = mask ? mask + r * lk : nullptr;
-      T max = -std::numeric_limits<T>::infinity();
-      for (int64_t j = 0; j < lk; ++j) {
-        if (m) row[j] += m[j];
-        max = std::max(max, row[j]);
-      }
-      T sum = 0;
-      for (int64_t j = 0; j < lk; ++j) {
-        row[j] = std::exp(row[j] - max);
-        sum += row[j];
-      }
-      const T inv = T(1) / sum;
-      for (int64_t j = 0; j < lk; ++j) row[j] *= inv;
-    }
-  }
+// exp in place over a block: float through the vector exp (kernels/vector_exp.h), double through
+// the C library's.
+void exp_block(float* x, int64_t n) { exp_inplace(x, n); }
+void exp_block(double* x, int64_t n) {
+  for (int64_t i = 0; i < n; ++i) x[i] = std::exp(x[i]);
 }
 
-// The float form: the same steps in three passes over the block, the exponentials of all its rows
-// in one vector pass (kernels/vector_exp.h) instead of one scalar expf each.
-void softmax_rows(float* s, const float* mask, int64_t items, int64_t lq, int64_t lk) {
+// Softmax of each of the `items` x lq rows of s (lk scores each) in place, after adding the
+// additive (lq, lk) mask when given: the steps of ATen's CPU softmax (max, exp of the difference,
+// sum, multiply by its reciprocal) in the probabilities' own memory (no scores scratch), the
+// exponentials of the whole block in one pass. Measured at the demo preset's shape (256 x 17 x 17,
+// one core): with scalar expf as fast as at::_softmax_out (~0.5 ms; exp bounds both), hence the
+// vector exp for float; the backward loop below takes half the time of the four tensor ops it
+// replaces (~0.06 against ~0.11 ms).
+template <class T>
+void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
   const int64_t rows = items * lq;
   for (int64_t q = 0; q < rows; ++q) {
-    float* row = s + q * lk;
-    const float* m = mask ? mask + (q % lq) * lk : nullptr;
-    float max = -std::numeric_limits<float>::infinity();
+    T* row = s + q * lk;
+    const T* m = mask ? mask + (q % lq) * lk : nullptr;
+    T max = -std::numeric_limits<T>::infinity();
     for (int64_t j = 0; j < lk; ++j) {
       if (m) row[j] += m[j];
       max = std::max(max, row[j]);
     }
     for (int64_t j = 0; j < lk; ++j) row[j] -= max;
   }
-  exp_inplace(s, rows * lk);
+  exp_block(s, rows * lk);
   for (int64_t q = 0; q < rows; ++q) {
-    float* row = s + q * lk;
-    float sum = 0;
+    T* row = s + q * lk;
+    T sum = 0;
     for (int64_t j = 0; j < lk; ++j) sum += row[j];
-    const float inv = 1.0f / sum;
+    const T inv = T(1) / sum;
     for (int64_t j = 0; j < lk; ++j) row[j] *= inv;
   }
 }

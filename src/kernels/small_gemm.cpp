@@ -123,14 +123,19 @@ ABLENERF_ALWAYS_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_
   if (i < m) rows<S, 1>(n, k, alpha, a + i * si, sp, si, b, ldb, bt, c + i * ldc, ldc);
 }
 
-void gemm_base(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
-               int64_t ldb, float* c, int64_t ldc) {
-  gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}  // namespace
+
+// The baseline-instruction form (small_gemm's fallback, and tested on its own).
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                         const float* b, int64_t ldb, float* c, int64_t ldc) {
+  gemm_body<F8>(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
-void gemm_base(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda, const double* b,
-               int64_t ldb, double* c, int64_t ldc) {
-  gemm_body<D4>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
+                         const double* b, int64_t ldb, double* c, int64_t ldc) {
+  gemm_body<D4>(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
+
+namespace {
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
 ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
@@ -149,7 +154,7 @@ void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (cpu_has_avx2_fma()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 #endif
-  gemm_base(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+  small_gemm_baseline(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 
 }  // namespace
@@ -161,15 +166,6 @@ void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, cons
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
                 const double* b, int64_t ldb, double* c, int64_t ldc) {
   dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
-}
-
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
-                         const float* b, int64_t ldb, float* c, int64_t ldc) {
-  gemm_base(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
-}
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
-                         const double* b, int64_t ldb, double* c, int64_t ldc) {
-  gemm_base(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 
 }  // namespace ablenerf

@@ -61,7 +61,11 @@ ABLENERF_ALWAYS_INLINE void exp_body(float* x, int64_t n) {
   }
 }
 
-void exp_base(float* x, int64_t n) { exp_body(x, n); }
+}  // namespace
+
+void exp_inplace_baseline(float* x, int64_t n) { exp_body(x, n); }
+
+namespace {
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
 ABLENERF_TARGET_AVX2 void exp_avx2(float* x, int64_t n) { exp_body(x, n); }
@@ -73,9 +77,7 @@ void exp_inplace(float* x, int64_t n) {
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (cpu_has_avx2_fma()) return exp_avx2(x, n);
 #endif
-  exp_base(x, n);
+  exp_inplace_baseline(x, n);
 }
-
-void exp_inplace_baseline(float* x, int64_t n) { exp_base(x, n); }
 
 }  // namespace ablenerf
