@@ -1,18 +1,35 @@
 #pragma once
 // Cameras and rays (spec 1.2): pixel centres, unnormalised directions whose camera-frame z is
-// exactly -1 (so t is depth along the optical axis), mip-NeRF base radius per ray.
+// exactly -1 (so t is depth along the optical axis), mip-NeRF base radius per ray. A distorted
+// lens (camera.h, lens.h) is undone per pixel: the pixel centre is undistorted before it becomes a
+// direction, and the radius follows the undistorted pixel's height.
 #include <torch/torch.h>
+
+#include <vector>
+
+#include "data/camera.h"
 
 namespace ablenerf {
 
 // Colour channels of a pixel, a ray's target and every colour output.
 constexpr int64_t kRgbChannels = 3;
 
-// Pinhole intrinsics in pixels. Blender scenes: fx = fy = 0.5 W / tan(0.5 camera_angle_x),
-// cx = W/2, cy = H/2.
-struct Intrinsics {
-  double fx = 1, fy = 1, cx = 0, cy = 0;
-  int width = 0, height = 0;
+// Cameras as tensors for batched ray generation, one row per image (or per ray after index()).
+struct CameraTable {
+  torch::Tensor params;  // (N, 4 + kLensCoeffs) float64: fx fy cx cy k1 k2 k3 k4 p1 p2
+  torch::Tensor model;   // (N) int64 LensModel
+  // The distinct models in the table, known on the host: ray generation picks its code path from
+  // this instead of reading `model` back from the device (no sync, so it can be graph-captured).
+  std::vector<LensModel> models;
+
+  static CameraTable of(const std::vector<Intrinsics>& cams, const torch::Device& device = torch::kCPU);
+  int64_t size() const { return model.defined() ? model.size(0) : 0; }
+  // Rows `rows` (the models list is kept: a superset of the rows' models is harmless).
+  CameraTable index(const torch::Tensor& rows) const;
+  // The first row repeated n times (one camera for a whole image's rays).
+  CameraTable repeat_first(int64_t n) const;
+  bool all_pinhole() const { return models.size() == 1 && models[0] == LensModel::Pinhole; }
+  CameraTable to(const torch::Device& device) const;
 };
 
 // A batch of rays. origins, directions: (B,3); radii: (B,1) (cone radius at t = 1).
@@ -25,12 +42,17 @@ struct Rays {
   }
 };
 
-// mip-NeRF base radius: the distance between the directions of vertically adjacent pixels
-// (exactly 1/fy for a pinhole camera) times 2/sqrt(12).
+// mip-NeRF base radius of a pinhole: the distance between the directions of vertically adjacent
+// pixels (exactly 1/fy) times 2/sqrt(12). With a distorted lens the distance is that of the
+// undistorted pixel's top and bottom edges (to first order), per pixel.
 double pixel_radius(const Intrinsics& k);
 
 // Rays through pixel centres (col + 0.5, row + 0.5). c2w: (B,3,4) or (B,4,4) camera-to-world
-// (OpenGL axes); col,row: (B) integer or float pixel indices. All on the same device.
+// (OpenGL axes); col,row: (B) integer or float pixel indices; cams: one camera row per ray
+// (CameraTable::index). All on the same device.
+Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
+                     const CameraTable& cams);
+// Every ray through the same camera.
 Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
                      const Intrinsics& k);
 
