@@ -18,7 +18,7 @@
 #include "data/transforms_json.h"
 #include "fuzz_common.h"
 #include "util/errors.h"
-#include "util/png_codec.h"
+#include "util/image_codec.h"
 
 namespace {
 
@@ -59,7 +59,6 @@ bool finite_pose(const ablenerf::Pose34& pose) {
 }
 
 void check_dataset(const ablenerf::DatasetJson& ds, const std::string& dir) {
-  if (!(std::isfinite(ds.fx) && std::isfinite(ds.fy) && ds.fx > 0 && ds.fy > 0)) finding("bad focal length");
   if (ds.width < 1 || ds.height < 1) finding("image size below 1");
   size_t decoded = 0;
   for (const auto& split : ds.splits) {
@@ -68,9 +67,12 @@ void check_dataset(const ablenerf::DatasetJson& ds, const std::string& dir) {
       if (!inside(fr.image, dir)) finding("an image path resolved outside the dataset folder");
       if (!fr.depth.empty() && !inside(fr.depth, dir)) finding("a depth path resolved outside the dataset folder");
       if (!finite_pose(fr.pose)) finding("a non-finite pose");
+      const auto& k = fr.camera;
+      if (!(std::isfinite(k.fx) && std::isfinite(k.fy) && k.fx > 0 && k.fy > 0)) finding("bad focal length");
+      if (k.width != ds.width || k.height != ds.height) finding("a frame's camera size differs from the capture's");
       if (decoded++ < kMaxDecodedFrames) {
         try {
-          (void)ablenerf::decode_png_file(fr.image);  // what Dataset::load does next
+          (void)ablenerf::decode_image_file(fr.image);  // what Dataset::load does next
         } catch (const ablenerf::InputError&) {
           // e.g. a frame that names the json file itself: refused like any bad PNG.
         }

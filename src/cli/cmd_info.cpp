@@ -21,6 +21,12 @@ nlohmann::json dataset_summary(const Dataset& ds) {
   j["principal_point"] = {ds.intrinsics.cx, ds.intrinsics.cy};
   j["near"] = ds.near;
   j["far"] = ds.far;
+  j["camera"] = ds.intrinsics.describe();
+  j["scene"] = name_of(ds.scene.kind);
+  j["scene_frame"] = ds.scene.describe();
+  j["bounds_source"] = ds.scene.bounds_source;
+  j["notes"] = ds.notes;
+  j["load_seconds"] = ds.load_seconds;
   nlohmann::json splits = nlohmann::json::object();
   for (const auto& [name, s] : ds.splits) {
     nlohmann::json sj;
@@ -53,7 +59,9 @@ void setup(CLI::App& app) {
     }
     if (!data->empty()) {
       Config c = resolve_config(*cfg);
-      out["dataset"] = dataset_summary(Dataset::load(*data, load_options_for(c)));
+      LoadOptions lo = load_options_for(c);
+      lo.progress = true;
+      out["dataset"] = dataset_summary(Dataset::load(*data, lo));
     }
     if (out.is_null()) throw InputError("info", "--data", "give --data DIR and/or --config FILE");
     std::cout << out.dump(2) << std::endl;

@@ -11,6 +11,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <tuple>
 
 #include "cli/command.h"
 #include "cli/common.h"
@@ -118,9 +119,27 @@ void run_render(const RenderArgs& a) {
   if (a.le_noise < 0) throw InputError("--le-noise", "", "must be >= 0");
 
   // Poses and intrinsics.
-  const std::string cams_json = a.cameras.empty() ? dataset_cameras_json(run) : a.cameras;
-  const auto [w, h] = output_size(cams_json, a.width, a.height, a.cameras.empty() ? run.config.data.downscale : 1);
-  const CameraList cams = load_cameras(cams_json, w, h);
+  // A real capture's own cameras (any format) when no --cameras is given; a camera file's poses are
+  // in the capture's coordinates and move into the run's scene frame (RUN/scene.json).
+  const SceneFrame scene = run.scene();
+  const bool capture = a.cameras.empty() && !run.data_dir.empty() && detect_format(run.data_dir) != "blender";
+  CameraList cams;
+  int w = 0, h = 0;
+  if (capture) {
+    cams = capture_cameras(run.data_dir, scene, run.config.data.downscale);
+    w = cams.intrinsics.width, h = cams.intrinsics.height;
+    if (a.width > 0 || a.height > 0) {
+      const double s = a.width > 0 ? static_cast<double>(a.width) / w : static_cast<double>(a.height) / h;
+      w = a.width > 0 ? a.width : static_cast<int>(std::lround(w * s));
+      h = a.height > 0 ? a.height : static_cast<int>(std::lround(h * s));
+      cams.intrinsics = cams.intrinsics.scaled(s, w, h);
+    }
+  } else {
+    const std::string cams_json = a.cameras.empty() ? dataset_cameras_json(run) : a.cameras;
+    std::tie(w, h) = output_size(cams_json, a.width, a.height, a.cameras.empty() ? run.config.data.downscale : 1);
+    cams = load_cameras(cams_json, w, h);
+    cams.c2w = poses_to_scene(cams.c2w, scene);
+  }
   torch::Tensor poses = cams.c2w;
   if (!a.path.empty()) poses = camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
   const int n = static_cast<int>(poses.size(0));
@@ -153,7 +172,10 @@ void run_render(const RenderArgs& a) {
   fo.le_zero = a.le_zero;
   fo.generator = &gen;
   const int64_t chunk = a.chunk > 0 ? a.chunk : run.config.eval.chunk;
-  const double near = run.config.data.near, far = run.config.data.far;
+  const double near = scene.near, far = scene.far;
+  // Depth colours span near..far; an unbounded scene's far (1e6) would colour everything alike, so
+  // its maps span near to twice the cameras' sphere.
+  const double depth_far = scene.kind == SceneKind::Unbounded ? 2.0 : far;
 
   const int64_t rays = static_cast<int64_t>(w) * h;
   Progress bar("render (rays)", rays * n);
@@ -169,8 +191,8 @@ void run_render(const RenderArgs& a) {
     write_png(stem + ".png", r.rgb);
     if (a.raw) save_tensor(stem + ".pt", r.rgb);
     if (a.depth) {
-      write_png(stem + "_depth.png", colormap(r.depth_mean, near, far));
-      write_png(stem + "_depth_argmax.png", colormap(r.depth_argmax, near, far));
+      write_png(stem + "_depth.png", colormap(r.depth_mean, near, depth_far));
+      write_png(stem + "_depth_argmax.png", colormap(r.depth_argmax, near, depth_far));
       if (a.raw) {
         save_tensor(stem + "_depth.pt", r.depth_mean);
         save_tensor(stem + "_depth_argmax.pt", r.depth_argmax);

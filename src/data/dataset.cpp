@@ -2,6 +2,12 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <mutex>
+#include <optional>
+#include <thread>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +16,7 @@
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "util/progress.h"
 
 namespace fs = std::filesystem;
 
@@ -35,8 +42,54 @@ torch::Tensor pose_tensor(const Pose34& pose) {
   return t;
 }
 
-// Decodes the frames of a split into tensors.
-Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h, int expect_w) {
+// The stored image turned upright for EXIF orientations 5-8 (those that swap width and height):
+// 5 transpose, 6 rotate 90 degrees clockwise, 7 transverse, 8 rotate 90 degrees counter-clockwise.
+torch::Tensor rotate_to_exif_upright(const torch::Tensor& im, int orientation) {
+  const auto t = im.permute({1, 0, 2});
+  switch (orientation) {
+    case 5: return t.contiguous();
+    case 6: return t.flip({1}).contiguous();
+    case 7: return t.flip({0, 1}).contiguous();
+    case 8: return t.flip({0}).contiguous();
+    default: return im;
+  }
+}
+
+// One frame's image as (h, w, 4) float straight RGBA at the loaded size (h, w): decoded (PNG or
+// JPEG), turned upright when its EXIF orientation explains a size mismatch, box-downscaled (or read
+// from the pre-downscaled copy).
+torch::Tensor frame_rgba(const FrameJson& fr, int full_h, int full_w, int f, int64_t h, int64_t w) {
+  int orientation = 1;
+  torch::Tensor raw = read_image(fr.image, &orientation);
+  const auto size_error = [&](int64_t want_h, int64_t want_w) {
+    return InputError(fr.image, fr.field,
+                      "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) + " but the capture's images are " +
+                          std::to_string(want_w) + "x" + std::to_string(want_h) + (fr.prescaled ? " (pre-downscaled copy)" : ""));
+  };
+  const auto fits = [&](int64_t want_h, int64_t want_w) { return raw.size(0) == want_h && raw.size(1) == want_w; };
+  const int64_t want_h = fr.prescaled ? h : full_h, want_w = fr.prescaled ? w : full_w;
+  // Pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels; an EXIF rotation is applied
+  // only when the capture's size says the poses were made on the upright image.
+  if (!fits(want_h, want_w) && orientation >= 5 && raw.size(0) == want_w && raw.size(1) == want_h) {
+    raw = rotate_to_exif_upright(raw, orientation);
+  }
+  if (fr.prescaled) {
+    // images_N/ copies are W/N rounded or floored: one extra row or column is cropped.
+    if (raw.size(0) < h || raw.size(1) < w || raw.size(0) > h + 1 || raw.size(1) > w + 1) throw size_error(h, w);
+    raw = raw.slice(0, 0, h).slice(1, 0, w);
+  } else if (!fits(want_h, want_w)) {
+    throw size_error(want_h, want_w);
+  }
+  torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);
+  if (im.size(2) == 1) im = im.expand({-1, -1, 3});
+  if (im.size(2) == 3) im = torch::cat({im, torch::ones_like(im.slice(2, 0, 1))}, 2);
+  if (!fr.prescaled) im = box_downscale(im, f);  // straight RGBA, before compositing (spec 1.1)
+  return im;
+}
+
+// Decodes the frames of a split into tensors, on every core (each frame writes its own rows).
+Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h, int expect_w, const SceneFrame& scene,
+                   Progress* progress, std::atomic<int64_t>& done, int64_t total) {
   Split s;
   s.name = spec.name;
   const int64_t n = static_cast<int64_t>(spec.frames.size());
@@ -44,43 +97,66 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
   const int64_t h = expect_h / f, w = expect_w / f;
   s.images = torch::empty({n, h, w, 3}, torch::kFloat);
   s.alpha = torch::empty({n, h, w}, torch::kFloat);
-  std::vector<torch::Tensor> poses, depths;
-  for (int64_t i = 0; i < n; ++i) {
-    const auto& fr = spec.frames[static_cast<size_t>(i)];
-    torch::Tensor raw = read_png(fr.image);
-    if (raw.size(0) != expect_h || raw.size(1) != expect_w)
-      throw InputError(fr.image, fr.field,
-                       "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) +
-                           " but the split's images are " + std::to_string(expect_w) + "x" +
-                           std::to_string(expect_h));
-    torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);
-    if (im.size(2) == 1) im = im.expand({-1, -1, 3});
-    if (im.size(2) == 3) im = torch::cat({im, torch::ones_like(im.slice(2, 0, 1))}, 2);
-    im = box_downscale(im, f);  // straight RGBA, before compositing (spec 1.1)
-    auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
-    const float bg = opts.white_background ? 1.0f : 0.0f;
-    s.images[i].copy_(rgb * a + bg * (1.0f - a));
-    s.alpha[i].copy_(a.squeeze(-1));
-    poses.push_back(pose_tensor(fr.pose));
-    s.files.push_back(fr.image);
-    if (!fr.depth.empty()) {
-      torch::Tensor d;
+  std::vector<torch::Tensor> depths(static_cast<size_t>(n));
+  std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
+  std::atomic<int64_t> next{0};
+  std::mutex print;
+  const auto work = [&] {
+    torch::NoGradGuard no_grad;
+    at::set_num_threads(1);
+    for (int64_t i; (i = next++) < n;) {
+      const auto& fr = spec.frames[static_cast<size_t>(i)];
       try {
-        const std::string bytes = read_file(fr.depth);
-        d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
-      } catch (const InputError&) {
-        throw;
-      } catch (const std::exception&) {
-        throw InputError(fr.depth, fr.field, "cannot read depth tensor");
+        const torch::Tensor im = frame_rgba(fr, expect_h, expect_w, f, h, w);
+        auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
+        const float bg = opts.white_background ? 1.0f : 0.0f;
+        s.images[i].copy_(rgb * a + bg * (1.0f - a));
+        s.alpha[i].copy_(a.squeeze(-1));
+        if (!fr.depth.empty()) {
+          torch::Tensor d;
+          try {
+            const std::string bytes = read_file(fr.depth);
+            d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
+          } catch (const InputError&) {
+            throw;
+          } catch (const std::exception&) {
+            throw InputError(fr.depth, fr.field, "cannot read depth tensor");
+          }
+          if (d.dim() != 2 || d.size(0) != expect_h || d.size(1) != expect_w)
+            throw InputError(fr.depth, fr.field, "depth map size does not match the image");
+          if (f > 1) d = box_downscale(d.unsqueeze(-1), f).squeeze(-1);
+          depths[static_cast<size_t>(i)] = d;
+        }
+      } catch (...) {
+        errors[static_cast<size_t>(i)] = std::current_exception();
       }
-      if (d.dim() != 2 || d.size(0) != expect_h || d.size(1) != expect_w)
-        throw InputError(fr.depth, fr.field, "depth map size does not match the image");
-      if (f > 1) d = box_downscale(d.unsqueeze(-1), f).squeeze(-1);
-      depths.push_back(d);
+      const int64_t k = ++done;
+      if (progress) {
+        std::lock_guard<std::mutex> lock(print);
+        progress->update(k, "", k == total);
+      }
     }
+  };
+  const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(n, std::thread::hardware_concurrency()));
+  std::vector<std::thread> pool;
+  for (int64_t t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+  // The first bad frame in capture order is the one reported, whatever the threads' timing.
+  for (const auto& e : errors)
+    if (e) std::rethrow_exception(e);
+  std::vector<torch::Tensor> poses;
+  for (const auto& fr : spec.frames) {
+    poses.push_back(pose_tensor(scene.to_scene(fr.pose)));
+    s.files.push_back(fr.image);
+    s.cameras.push_back(fr.camera.scaled(static_cast<double>(w) / expect_w, static_cast<int>(w), static_cast<int>(h)));
   }
   s.c2w = torch::stack(poses);
-  if (!depths.empty() && depths.size() == static_cast<size_t>(n)) s.depth = torch::stack(depths);
+  if (!spec.frames.empty() && !spec.frames.front().depth.empty()) {
+    bool all = true;
+    for (const auto& d : depths) all = all && d.defined();
+    if (all) s.depth = torch::stack(depths);
+  }
   return s;
 }
 
@@ -113,29 +189,76 @@ std::vector<std::string> available_splits(const std::string& root) {
   std::vector<std::string> out;
   for (const char* s : {"train", "val", "test"})
     if (fs::exists(fs::path(root) / ("transforms_" + std::string(s) + ".json"))) out.push_back(s);
-  if (out.empty() && fs::exists(fs::path(root) / "transforms.json")) out = {"train", "test"};
+  if (out.empty() && !detect_format(root).empty()) {
+    // A capture: its own split when it has one (nerfstudio), else train + every 8th for test.
+    try {
+      for (const auto& s : read_dataset_json(root, {}, 1).splits) out.push_back(s.name);
+    } catch (const InputError&) {
+      out = {"train", "test"};  // the load itself reports what is wrong
+    }
+  }
   return out;
 }
 
 Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
-  const DatasetJson js = read_dataset_json(root, opts.splits, opts.downscale);
+  const auto start = std::chrono::steady_clock::now();
+  // A capture's scene frame is fitted on all of its frames, whichever splits are decoded, so that
+  // training and evaluation share it.
+  const bool blender = detect_format(root) == "blender";
+  DatasetJson js = read_dataset_json(root, blender ? opts.splits : std::vector<std::string>{}, opts.downscale);
   Dataset ds;
   ds.root = root;
   ds.format = js.format;
-  ds.near = opts.near;
-  ds.far = opts.far;
+  ds.scene = fit_scene_frame(js, root, opts.scene, opts.near, opts.far, opts.bounds_from_config);
+  ds.near = ds.scene.near;
+  ds.far = ds.scene.far;
+  if (!blender && !opts.splits.empty()) {
+    std::vector<SplitJson> keep;
+    for (auto& sp : js.splits)
+      if (std::find(opts.splits.begin(), opts.splits.end(), sp.name) != opts.splits.end()) keep.push_back(std::move(sp));
+    js.splits = std::move(keep);
+  }
+  if (js.splits.empty()) throw InputError(root, "split", "none of the requested splits is present");
   const int h = js.height, w = js.width;
   check_memory(js.splits, h, w, opts, root);
-  ds.intrinsics.width = w / opts.downscale;
-  ds.intrinsics.height = h / opts.downscale;
-  ds.intrinsics.fx = js.fx;
-  ds.intrinsics.fy = js.fy;
-  ds.intrinsics.cx = js.cx >= 0 ? js.cx : 0.5 * ds.intrinsics.width;
-  ds.intrinsics.cy = js.cy >= 0 ? js.cy : 0.5 * ds.intrinsics.height;
-  if (ds.intrinsics.width < 1 || ds.intrinsics.height < 1)
-    throw InputError(root, "downscale", "larger than the images");
-  for (const auto& spec : js.splits) ds.splits[spec.name] = decode_split(spec, opts, h, w);
+  if (w / opts.downscale < 1 || h / opts.downscale < 1) throw InputError(root, "downscale", "larger than the images");
+  int64_t total = 0;
+  for (const auto& spec : js.splits) total += static_cast<int64_t>(spec.frames.size());
+  std::optional<Progress> progress;
+  if (opts.progress) progress.emplace("load", total, 2.0);
+  std::atomic<int64_t> done{0};
+  for (const auto& spec : js.splits)
+    ds.splits[spec.name] = decode_split(spec, opts, h, w, ds.scene, progress ? &*progress : nullptr, done, total);
+  ds.intrinsics = ds.splits.begin()->second.cameras.front();
+  ds.notes = js.notes;
+  ds.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return ds;
+}
+
+CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale) {
+  const DatasetJson js = read_dataset_json(root, {}, downscale);
+  CameraList cl;
+  std::vector<torch::Tensor> poses;
+  for (const auto& s : js.splits)
+    for (const auto& f : s.frames) poses.push_back(pose_tensor(scene.to_scene(f.pose)));
+  const Intrinsics& k = js.splits.front().frames.front().camera;
+  const int w = k.width / downscale, h = k.height / downscale;
+  cl.intrinsics = k.scaled(static_cast<double>(w) / k.width, w, h);
+  cl.c2w = torch::stack(poses);
+  return cl;
+}
+
+torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene) {
+  if (scene.identity()) return c2w;
+  auto in = c2w.to(torch::kFloat).contiguous();
+  std::vector<torch::Tensor> out;
+  for (int64_t i = 0; i < in.size(0); ++i) {
+    Pose34 p;
+    const auto row = in[i].slice(0, 0, 3).contiguous();
+    std::memcpy(p.data(), row.data_ptr<float>(), sizeof(float) * p.size());
+    out.push_back(pose_tensor(scene.to_scene(p)));
+  }
+  return torch::stack(out);
 }
 
 CameraList load_cameras(const std::string& path, int width, int height) {

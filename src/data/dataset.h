@@ -1,8 +1,11 @@
 #pragma once
-// Datasets: the Blender format (transforms_{train,val,test}.json + PNGs) and the
-// instant-ngp / nerfstudio single transforms.json. Images are decoded, box-downscaled in
-// straight (non-premultiplied) RGBA, then composited on the background, and kept as one float
-// tensor per split. Rays are generated on the fly from poses (see rays.h), never tabulated.
+// Datasets: Blender scenes (transforms_{train,val,test}.json + PNGs) and real captures
+// (instant-ngp / nerfstudio transforms.json, COLMAP models, LLFF poses_bounds.npy; PNG or JPEG;
+// see transforms_json.h). Images are decoded in parallel, box-downscaled in straight
+// (non-premultiplied) RGBA (or read from a pre-downscaled images_N/ folder), composited on the
+// background, and kept as one float tensor per split. A capture's poses are moved into its scene
+// frame (scene_frame.h). Rays are generated on the fly from poses and per-image cameras (rays.h),
+// never tabulated.
 #include <torch/torch.h>
 
 #include <map>
@@ -11,6 +14,7 @@
 #include <vector>
 
 #include "data/rays.h"
+#include "data/scene_frame.h"
 
 namespace ablenerf {
 
@@ -18,6 +22,10 @@ struct LoadOptions {
   int downscale = 1;
   bool white_background = true;
   double near = 2.0, far = 6.0;
+  SceneKind scene = SceneKind::Auto;  // data.scene
+  bool bounds_from_config = false;    // data.bounds_from_config
+  // Print a progress line while decoding (the CLI's loads; tests keep quiet).
+  bool progress = false;
   // Splits to decode; empty = all present. Others are still validated for pose/shape errors
   // only when listed.
   std::vector<std::string> splits;
@@ -30,7 +38,8 @@ struct Split {
   std::string name;
   torch::Tensor images;  // (N,H,W,3) float32 in [0,1], composited on the background
   torch::Tensor alpha;   // (N,H,W) float32 alpha after downscale
-  torch::Tensor c2w;     // (N,3,4) float32 camera-to-world, OpenGL axes
+  torch::Tensor c2w;     // (N,3,4) float32 camera-to-world, OpenGL axes, in the scene frame
+  std::vector<Intrinsics> cameras;  // each image's camera at the loaded resolution
   std::vector<std::string> files;  // image paths
   torch::Tensor depth;   // (N,H,W) float32 depth along the optical axis, if the dataset has it (else undefined)
   int64_t size() const { return c2w.defined() ? c2w.size(0) : 0; }
@@ -38,9 +47,12 @@ struct Split {
 
 struct Dataset {
   std::string root;
-  std::string format;  // "blender" | "transforms"
-  Intrinsics intrinsics;
-  double near = 2.0, far = 6.0;
+  std::string format;  // "blender" | "instant-ngp" | "nerfstudio" | "colmap" | "llff"
+  Intrinsics intrinsics;  // the first image's camera (every image's, unless the capture has per-image ones)
+  double near = 2.0, far = 6.0;  // scene.near / scene.far
+  SceneFrame scene;
+  std::vector<std::string> notes;  // what the loader read and chose, for `info`
+  double load_seconds = 0;
   std::map<std::string, Split> splits;
 
   bool has(const std::string& split) const { return splits.count(split) > 0; }
@@ -60,5 +72,12 @@ struct CameraList {
   Intrinsics intrinsics;
 };
 CameraList load_cameras(const std::string& json_path, int width = 0, int height = 0);
+
+// Every camera of a capture folder (any format; every split, in split order), poses moved into
+// `scene`, intrinsics those of the first image at `downscale` (lens included). No image is decoded.
+CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale);
+
+// Poses (N,3,4) given in a capture's own coordinates, moved into its scene frame.
+torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene);
 
 }  // namespace ablenerf

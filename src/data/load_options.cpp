@@ -8,6 +8,8 @@ LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
   o.white_background = c.data.background == Background::White;
   o.near = c.data.near;
   o.far = c.data.far;
+  o.scene = c.data.scene;
+  o.bounds_from_config = c.data.bounds_from_config;
   o.splits = std::move(splits);
   return o;
 }

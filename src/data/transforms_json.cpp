@@ -6,10 +6,11 @@
 #include <cstdlib>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <optional>
 
 #include "util/errors.h"
 #include "util/fs.h"
-#include "util/png_codec.h"
+#include "util/image_codec.h"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -144,25 +145,10 @@ Pose34 parse_pose(const json& m, const std::string& file, const std::string& fie
     const double d = std::abs(a[3][0]) + std::abs(a[3][1]) + std::abs(a[3][2]) + std::abs(a[3][3] - 1);
     if (d > kLastRowTolerance) throw InputError(file, field, "last row must be [0, 0, 0, 1]");
   }
-  // Rigid: columns of R orthonormal, det +1.
-  double worst = 0;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) {
-      double dot = 0;
-      for (int k = 0; k < 3; ++k) dot += a[k][i] * a[k][j];
-      worst = std::max(worst, std::abs(dot - (i == j ? 1.0 : 0.0)));
-    }
-  const double det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) -
-                     a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0]) +
-                     a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
-  if (worst > kRigidTolerance || det < 0)
-    throw InputError(file, field,
-                     "not a rigid transform (rotation part not orthonormal with det +1: max |R^T R - I| = " +
-                         std::to_string(worst) + ", det = " + std::to_string(det) + ")");
-  Pose34 pose;
+  double top[3][4];
   for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) pose[static_cast<size_t>(r * 4 + c)] = static_cast<float>(a[r][c]);
-  return pose;
+    for (int c = 0; c < 4; ++c) top[r][c] = a[r][c];
+  return checked_pose(top, file, field);
 }
 
 // Resolves a frame's file path inside the dataset root; refuses paths that leave it.
@@ -196,8 +182,6 @@ std::vector<FrameJson> parse_frames(const json& j, const std::string& root, cons
     if (!fr.contains("file_path") || !fr.at("file_path").is_string())
       throw InputError(file, where + ".file_path", "missing or not a string");
     if (!fr.contains("transform_matrix")) throw InputError(file, where + ".transform_matrix", "missing");
-    for (const char* k : {"fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "p1", "p2"})
-      if (fr.contains(k)) throw InputError(file, where + "." + k, "per-frame intrinsics are not supported");
     FrameJson f;
     f.field = where + ".file_path";
     f.image = resolve_image(root, fr.at("file_path").get<std::string>(), file, f.field, add_png);
@@ -218,9 +202,9 @@ bool wanted(const std::vector<std::string>& splits, const std::string& s) {
 }
 
 // Blender: one json per split sharing camera_angle_x; the image size comes from the first PNG.
-void read_blender(const std::string& root, const std::vector<std::string>& splits, int downscale,
-                  DatasetJson& out) {
+void read_blender(const std::string& root, const std::vector<std::string>& splits, DatasetJson& out) {
   out.format = "blender";
+  out.synthetic = true;
   double angle = -1;
   std::string first_file;
   for (const char* name : {"train", "val", "test"}) {
@@ -238,66 +222,263 @@ void read_blender(const std::string& root, const std::vector<std::string>& split
     out.splits.push_back({name, file, parse_frames(j, root, file, true)});
   }
   if (out.splits.empty()) throw InputError(root, "transforms_*.json", "no split selected or present");
-  const auto hw = png_size(out.splits.front().frames.front().image);
+  const auto hw = image_size(out.splits.front().frames.front().image);
   out.height = hw.first;
   out.width = hw.second;
-  const int64_t ws = out.width / downscale;
-  out.fx = out.fy = 0.5 * static_cast<double>(ws) / std::tan(0.5 * angle);
+  Intrinsics k;
+  k.width = out.width;
+  k.height = out.height;
+  k.fx = k.fy = 0.5 * static_cast<double>(out.width) / std::tan(0.5 * angle);
+  k.cx = 0.5 * out.width;
+  k.cy = 0.5 * out.height;
+  for (auto& s : out.splits)
+    for (auto& f : s.frames) f.camera = k;
 }
 
-// Frames held out as the test split of a single transforms.json: every 8th (the mip-NeRF 360 /
-// LLFF convention).
-constexpr size_t kTestEvery = 8;
+// A number from a frame, else from the file's top level, else `fallback`; `where` names the frame.
+std::optional<double> number_in(const json& frame, const json& top, const char* key, const std::string& file,
+                                const std::string& where) {
+  if (frame.is_object() && frame.contains(key)) return number_field(frame, key, file, where);
+  if (top.contains(key)) return number_field(top, key, file, "");
+  return std::nullopt;
+}
 
-// instant-ngp / nerfstudio: one transforms.json with shared pinhole intrinsics.
-void read_transforms(const std::string& root, const std::vector<std::string>& splits, int downscale,
-                     DatasetJson& out) {
+const json* key_in(const json& frame, const json& top, const char* key) {
+  if (frame.is_object() && frame.contains(key)) return &frame.at(key);
+  if (top.contains(key)) return &top.at(key);
+  return nullptr;
+}
+
+// One frame's camera from instant-ngp / nerfstudio keys (per-frame keys override the file's):
+// fl_x/fl_y or camera_angle_x/camera_angle_y, cx/cy (default: the centre), w/h (default: the image
+// header), k1 k2 k3 k4 p1 p2, camera_model (PINHOLE, SIMPLE_PINHOLE, OPENCV, OPENCV_FISHEYE) or
+// instant-ngp's is_fisheye.
+Intrinsics frame_camera(const json& fr, const json& top, const std::string& image, const std::string& file,
+                        const std::string& where) {
+  Intrinsics k;
+  const auto w = number_in(fr, top, "w", file, where), h = number_in(fr, top, "h", file, where);
+  if (w && h) {
+    const json& wj = fr.contains("w") ? fr : top;
+    const json& hj = fr.contains("h") ? fr : top;
+    k.width = size_field(wj, "w", file);
+    k.height = size_field(hj, "h", file);
+  } else {
+    const auto hw = image_size(image);  // instant-ngp allows w/h to be left out
+    k.height = hw.first;
+    k.width = hw.second;
+  }
+  const auto flx = number_in(fr, top, "fl_x", file, where), fly = number_in(fr, top, "fl_y", file, where);
+  const auto ax = number_in(fr, top, "camera_angle_x", file, where), ay = number_in(fr, top, "camera_angle_y", file, where);
+  if (flx) k.fx = *flx;
+  else if (ax) k.fx = 0.5 * k.width / std::tan(0.5 * *ax);
+  else throw InputError(file, where.empty() ? "fl_x" : where + ".fl_x", "missing (nor camera_angle_x)");
+  if (fly) k.fy = *fly;
+  else if (ay) k.fy = 0.5 * k.height / std::tan(0.5 * *ay);
+  else k.fy = k.fx;
+  if (ax && !(*ax > 0 && *ax < M_PI)) throw InputError(file, "camera_angle_x", "must be in (0, pi)");
+  if (ay && !(*ay > 0 && *ay < M_PI)) throw InputError(file, "camera_angle_y", "must be in (0, pi)");
+  check_focal(k.fx, file, where + "fl_x");
+  check_focal(k.fy, file, where + "fl_y");
+  k.cx = number_in(fr, top, "cx", file, where).value_or(0.5 * k.width);
+  k.cy = number_in(fr, top, "cy", file, where).value_or(0.5 * k.height);
+  static const char* const names[kLensCoeffs] = {"k1", "k2", "k3", "k4", "p1", "p2"};
+  for (int c = 0; c < kLensCoeffs; ++c) k.dist[static_cast<size_t>(c)] = number_in(fr, top, names[c], file, where).value_or(0.0);
+  std::string model = "";
+  if (const json* m = key_in(fr, top, "camera_model")) {
+    if (!m->is_string()) throw InputError(file, "camera_model", "expected a string");
+    model = m->get<std::string>();
+  }
+  if (const json* f = key_in(fr, top, "is_fisheye"); f && f->is_boolean() && f->get<bool>()) model = "OPENCV_FISHEYE";
+  if (model == "OPENCV_FISHEYE") {
+    k.model = LensModel::Fisheye;
+    if (k.dist[kP1] != 0 || k.dist[kP2] != 0)
+      throw InputError(file, "p1", "a fisheye lens has no tangential coefficients (p1, p2)");
+  } else if (model.empty() || model == "OPENCV" || model == "PINHOLE" || model == "SIMPLE_PINHOLE" ||
+             model == "SIMPLE_RADIAL" || model == "RADIAL") {
+    if (k.dist[kK4] != 0)
+      throw InputError(file, "k4", "k4 belongs to the fisheye model (camera_model OPENCV_FISHEYE)");
+    k.model = k.distorted() ? LensModel::RadialTangential : LensModel::Pinhole;
+    if ((model == "PINHOLE" || model == "SIMPLE_PINHOLE") && k.distorted())
+      throw InputError(file, "camera_model", model + " with distortion coefficients (use OPENCV)");
+  } else {
+    throw InputError(file, "camera_model",
+                     "'" + model + "' is not supported (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE)");
+  }
+  for (int c = 0; c < kLensCoeffs; ++c)
+    if (std::abs(k.dist[static_cast<size_t>(c)]) > 1e3) throw InputError(file, names[c], "implausibly large");
+  return k;
+}
+
+// nerfstudio's own split: lists of image paths ("train_filenames", "val_filenames",
+// "test_filenames") relative to the folder.
+bool has_own_split(const json& j) { return j.contains("train_filenames") || j.contains("test_filenames"); }
+
+// instant-ngp / nerfstudio: one transforms.json, cameras per file or per frame.
+void read_transforms(const std::string& root, const std::vector<std::string>& splits, int downscale, DatasetJson& out) {
   const std::string file = (fs::path(root) / "transforms.json").string();
-  if (!fs::exists(file))
-    throw InputError(root, "transforms_train.json", "no transforms_{train,val,test}.json or transforms.json");
-  out.format = "transforms";
   const json j = parse_json_file(file);
   if (!j.is_object()) throw InputError(file, "", "expected a JSON object");
-  for (const char* k : {"k1", "k2", "k3", "k4", "p1", "p2"})
-    if (j.contains(k) && j.at(k).is_number() && j.at(k).get<double>() != 0.0)
-      throw InputError(file, k, "lens distortion is not supported (undistort the images first)");
-  if (j.contains("camera_model") && j.at("camera_model").is_string() &&
-      j.at("camera_model").get<std::string>() != "OPENCV" && j.at("camera_model").get<std::string>() != "PINHOLE")
-    throw InputError(file, "camera_model", "only PINHOLE (or OPENCV without distortion) is supported");
+  out.format = j.contains("camera_model") || j.contains("applied_transform") || has_own_split(j) ? "nerfstudio" : "instant-ngp";
   auto frames = parse_frames(j, root, file, false);
-  out.width = size_field(j, "w", file);
-  out.height = size_field(j, "h", file);
-  const double s = 1.0 / downscale;
-  if (j.contains("fl_x")) {
-    out.fx = number_field(j, "fl_x", file, "") * s;
-    out.fy = j.contains("fl_y") ? number_field(j, "fl_y", file, "") * s : out.fx;
-  } else if (j.contains("camera_angle_x")) {
-    out.fx = out.fy = 0.5 * (out.width * s) / std::tan(0.5 * angle_field(j, file));
-  } else {
-    throw InputError(file, "fl_x", "missing (nor camera_angle_x)");
+  const json& jf = j.at("frames");
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const std::string where = "frames[" + std::to_string(i) + "].";
+    frames[i].camera = frame_camera(jf[i], j, frames[i].image, file, where);
+    if (i == 0) {
+      out.width = frames[0].camera.width;
+      out.height = frames[0].camera.height;
+    } else if (frames[i].camera.width != out.width || frames[i].camera.height != out.height) {
+      throw InputError(file, where + "w",
+                       "frame size " + std::to_string(frames[i].camera.width) + "x" + std::to_string(frames[i].camera.height) +
+                           " differs from the first frame's " + std::to_string(out.width) + "x" + std::to_string(out.height));
+    }
   }
-  out.cx = j.contains("cx") ? number_field(j, "cx", file, "") * s : -1;
-  out.cy = j.contains("cy") ? number_field(j, "cy", file, "") * s : -1;
+  if (j.contains("aabb_scale")) {
+    out.aabb_scale = number_field(j, "aabb_scale", file, "");
+    out.notes.push_back("aabb_scale " + std::to_string(static_cast<int>(out.aabb_scale)));
+  }
+  for (const char* k : {"scale", "offset", "applied_transform"})
+    if (j.contains(k)) out.notes.push_back(std::string(k) + " present (poses used as written; ablenerf normalises the scene itself)");
+  for (auto& f : frames) {
+    const std::string small = resolve_downscaled(root, f.image, downscale);
+    if (!small.empty()) f.image = small, f.prescaled = true;
+  }
+  if (has_own_split(j)) {
+    // The capture's own split, by image path.
+    std::vector<std::pair<std::string, std::string>> lists{{"train", "train_filenames"}, {"val", "val_filenames"}, {"test", "test_filenames"}};
+    std::vector<FrameJson> all = frames;
+    for (const auto& [name, key] : lists) {
+      if (!j.contains(key) || !wanted(splits, name)) continue;
+      const json& names = j.at(key);
+      if (!names.is_array()) throw InputError(file, key, "expected an array of image paths");
+      SplitJson sp{name, file, {}};
+      for (size_t i = 0; i < names.size(); ++i) {
+        if (!names[i].is_string()) throw InputError(file, key + "[" + std::to_string(i) + "]", "expected a string");
+        const std::string want = resolve_in_root(root, names[i].get<std::string>(), file, key + "[" + std::to_string(i) + "]");
+        bool found = false;
+        for (size_t f = 0; f < jf.size() && !found; ++f) {
+          if (resolve_in_root(root, jf[f].at("file_path").get<std::string>(), file, "frames") == want) {
+            sp.frames.push_back(all[f]);
+            found = true;
+          }
+        }
+        if (!found) throw InputError(file, key + "[" + std::to_string(i) + "]", "no frame has this file_path");
+      }
+      if (!sp.frames.empty()) out.splits.push_back(std::move(sp));
+    }
+    out.notes.push_back("split: the capture's own (train_filenames / test_filenames)");
+    return;
+  }
+  // instant-ngp keeps the json's frame order; every 8th of it is held out.
   SplitJson train{"train", file, {}}, test{"test", file, {}};
   for (size_t i = 0; i < frames.size(); ++i)
     (i % kTestEvery == 0 && frames.size() > 1 ? test : train).frames.push_back(frames[i]);
   if (wanted(splits, "train") && !train.frames.empty()) out.splits.push_back(std::move(train));
   if (wanted(splits, "test") && !test.frames.empty()) out.splits.push_back(std::move(test));
+  out.notes.push_back("split: every 8th frame held out for test");
+}
+
+// The COLMAP model folder of `root`, "" when none.
+std::string colmap_dir(const std::string& root) {
+  for (const char* sub : {"sparse/0", "sparse", "colmap/sparse/0", ""}) {
+    const fs::path d = fs::path(root) / sub;
+    if (fs::exists(d / "cameras.bin") || fs::exists(d / "cameras.txt")) return d.string();
+  }
+  return "";
 }
 
 }  // namespace
+
+std::string detect_format(const std::string& root) {
+  if (fs::exists(fs::path(root) / "transforms_train.json") || fs::exists(fs::path(root) / "transforms_test.json"))
+    return "blender";
+  if (fs::exists(fs::path(root) / "transforms.json")) return "transforms";
+  if (!colmap_dir(root).empty()) return "colmap";
+  if (fs::exists(fs::path(root) / "poses_bounds.npy")) return "llff";
+  return "";
+}
 
 DatasetJson read_dataset_json(const std::string& root, const std::vector<std::string>& splits, int downscale) {
   if (!fs::is_directory(root)) throw InputError(root, "", "dataset folder not found");
   if (downscale < 1) throw InputError(root, "downscale", "must be >= 1");
   DatasetJson out;
-  const bool blender = fs::exists(fs::path(root) / "transforms_train.json") ||
-                       fs::exists(fs::path(root) / "transforms_test.json");
-  if (blender) read_blender(root, splits, downscale, out);
-  else read_transforms(root, splits, downscale, out);
-  check_focal(out.fx, root, "focal");
-  check_focal(out.fy, root, "focal");
+  const std::string format = detect_format(root);
+  if (format == "blender") read_blender(root, splits, out);
+  else if (format == "transforms") read_transforms(root, splits, downscale, out);
+  else if (format == "colmap") read_colmap_capture(root, colmap_dir(root), splits, downscale, out);
+  else if (format == "llff") read_llff_capture(root, splits, downscale, out);
+  else
+    throw InputError(root, "transforms_train.json",
+                     "no capture found: expected transforms_{train,val,test}.json (Blender), transforms.json "
+                     "(instant-ngp / nerfstudio), sparse/0/cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)");
+  for (const auto& s : out.splits)
+    for (const auto& f : s.frames) {
+      check_focal(f.camera.fx, s.file, f.field + " (focal)");
+      check_focal(f.camera.fy, s.file, f.field + " (focal)");
+    }
   return out;
+}
+
+std::string resolve_in_root(const std::string& root, const std::string& rel, const std::string& file,
+                            const std::string& field) {
+  return resolve_image(root, rel, file, field, false);
+}
+
+std::string resolve_downscaled(const std::string& root, const std::string& image, int downscale) {
+  if (downscale <= 1) return "";
+  std::error_code ec;
+  const fs::path canon_root = fs::weakly_canonical(fs::path(root), ec);
+  const fs::path rel = fs::path(image).lexically_relative(canon_root);
+  if (rel.empty() || *rel.begin() == "..") return "";
+  auto it = rel.begin();
+  const std::string top = it->string();
+  if (top != "images") return "";
+  fs::path rest;
+  for (++it; it != rel.end(); ++it) rest /= *it;
+  const fs::path dir = canon_root / ("images_" + std::to_string(downscale)) / rest.parent_path();
+  if (!fs::is_directory(dir)) return "";
+  for (const std::string ext : {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"),
+                                std::string(".JPG"), std::string(".PNG"), std::string(".JPEG")}) {
+    const fs::path cand = dir / (rest.stem().string() + ext);
+    if (fs::is_regular_file(cand)) return resolve_image(root, cand.lexically_relative(canon_root).string(), image, "images_" + std::to_string(downscale), false);
+  }
+  return "";
+}
+
+void split_every_eighth(std::vector<FrameJson> all, const std::vector<std::string>& splits, const std::string& file,
+                        DatasetJson& out) {
+  std::stable_sort(all.begin(), all.end(), [](const FrameJson& a, const FrameJson& b) { return a.image < b.image; });
+  SplitJson train{"train", file, {}}, test{"test", file, {}};
+  for (size_t i = 0; i < all.size(); ++i)
+    (i % kTestEvery == 0 && all.size() > 1 ? test : train).frames.push_back(all[i]);
+  if (wanted(splits, "train") && !train.frames.empty()) out.splits.push_back(std::move(train));
+  if (wanted(splits, "test") && !test.frames.empty()) out.splits.push_back(std::move(test));
+  out.notes.push_back("split: every 8th image (sorted by name) held out for test");
+}
+
+Pose34 checked_pose(const double (&a)[3][4], const std::string& file, const std::string& field) {
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c)
+      if (!std::isfinite(a[r][c])) throw InputError(file, field, "non-finite value");
+  // Rigid: columns of R orthonormal, det +1.
+  double worst = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      double dot = 0;
+      for (int k = 0; k < 3; ++k) dot += a[k][i] * a[k][j];
+      worst = std::max(worst, std::abs(dot - (i == j ? 1.0 : 0.0)));
+    }
+  const double det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) -
+                     a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0]) +
+                     a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+  if (worst > kRigidTolerance || det < 0)
+    throw InputError(file, field,
+                     "not a rigid transform (rotation part not orthonormal with det +1: max |R^T R - I| = " +
+                         std::to_string(worst) + ", det = " + std::to_string(det) + ")");
+  Pose34 pose;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) pose[static_cast<size_t>(r * 4 + c)] = static_cast<float>(a[r][c]);
+  return pose;
 }
 
 CameraJson read_camera_json(const std::string& path, int width, int height) {

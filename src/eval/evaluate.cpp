@@ -107,7 +107,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   for (int64_t i = 0; i < count; ++i) {
     const auto t0 = std::chrono::steady_clock::now();
     const std::string view = "view " + std::to_string(i + 1) + "/" + std::to_string(count);
-    const RenderResult r = render_image(model, split.c2w[i], k, ds.near, ds.far, chunk, ForwardOptions{},
+    const Intrinsics& cam = split.cameras.empty() ? k : split.cameras[static_cast<size_t>(i)];
+    const RenderResult r = render_image(model, split.c2w[i], cam, ds.near, ds.far, chunk, ForwardOptions{},
                                         opts.device, [&](int64_t done, int64_t) {
                                           if (bar) bar->update(i * rays_per_image + done, view);
                                         });
@@ -119,7 +120,11 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     write_png(stem + ".png", r.rgb);
     write_png(stem + "_gt.png", gt);
     write_png(stem + "_error.png", colormap((r.rgb - gt).abs().mean(-1), 0.0, kErrorMapMax));
-    write_png(stem + "_depth.png", colormap(r.depth_mean, ds.near, ds.far));
+    // Unbounded scenes reach 1e6: their depth maps span near to the image's 98th percentile.
+    const double depth_far = ds.scene.kind == SceneKind::Unbounded
+                                 ? std::max(ds.near * 1.01, r.depth_mean.flatten().quantile(0.98).item<double>())
+                                 : ds.far;
+    write_png(stem + "_depth.png", colormap(r.depth_mean, ds.near, depth_far));
 
     nlohmann::json im;
     im["index"] = i;

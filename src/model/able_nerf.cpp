@@ -3,6 +3,7 @@
 #include <ATen/CPUGeneratorImpl.h>
 
 #include "kernels/cpu_parallel.h"
+#include "model/contraction.h"
 #include "model/frustum.h"
 #include "model/ipe.h"
 #include "model/resampler.h"
@@ -32,7 +33,7 @@ ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
 }
 }  // namespace
 
-AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg) : cfg_(cfg) {
+AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene) : cfg_(cfg), unbounded_(scene == SceneKind::Unbounded) {
   const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
   // Plain randn (spec 8.1: the release's xavier call on these is a no-op).
   ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
@@ -90,7 +91,15 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
                                           const torch::Tensor& view_code, bool colour) {
   const int64_t b = t.size(0);
-  const auto g = cast_intervals(t, rays);
+  Gaussians g;
+  if (unbounded_) {
+    const int64_t n = t.size(-1);
+    const auto m = conical_frustum_moments(t.slice(-1, 0, n - 1), t.slice(-1, 1, n), rays.radii);
+    const auto mean = rays.origins.unsqueeze(1) + rays.directions.unsqueeze(1) * m.t_mean.unsqueeze(-1);
+    g = contract_gaussians(mean, rays.directions, m);
+  } else {
+    g = cast_intervals(t, rays);
+  }
   const auto volumes = volume_embedding_(integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees));
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
@@ -152,11 +161,16 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   LEColourHead* head_c = has_le() ? &le_head_coarse_ : nullptr;
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
-  const auto t_c = coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
+  // Unbounded scenes place and resample their fence-posts in the normalised s in [0, 1]
+  // (model/contraction.h); bounded ones directly in depth.
+  const auto s_c = unbounded_ ? coarse_fence_posts(b, 0.0, 1.0, cfg_.samples, options, opts.coarse_jitter)
+                              : coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
+  const auto t_c = unbounded_ ? unbounded_depths(s_c, near, far) : s_c;
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
                           opts.coarse_colour);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
-  const auto t_f = resample_fence_posts(t_c, c.weights.to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
+  const auto s_f = resample_fence_posts(s_c, c.weights.to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
+  const auto t_f = unbounded_ ? unbounded_depths(s_f, near, far) : s_f;
   // The fine ray token is the coarse output token, not detached (spec 4.4).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
                           view_code, /*colour=*/true);

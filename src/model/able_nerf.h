@@ -59,7 +59,9 @@ struct ModelOutput {
 
 class AbleNerfImpl : public torch::nn::Module {
  public:
-  explicit AbleNerfImpl(const ModelConfig& cfg);
+  // `scene` (resolved: Bounded or Unbounded; data.scene) sets where the samples lie and whether the
+  // frustum Gaussians are contracted (model/contraction.h); Auto means Bounded.
+  explicit AbleNerfImpl(const ModelConfig& cfg, SceneKind scene = SceneKind::Bounded);
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
   // training mode, drawn for the whole batch (with_jitter) before any split. On the CPU without
   // gradient recording (rendering, evaluation) the rays are split across CPU threads
@@ -67,6 +69,7 @@ class AbleNerfImpl : public torch::nn::Module {
   ModelOutput forward(const Rays& rays, double near, double far, const ForwardOptions& opts = {});
   int64_t parameter_count() const;
   const ModelConfig& config() const { return cfg_; }
+  bool unbounded() const { return unbounded_; }
   bool has_le() const { return cfg_.le_count > 0; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
@@ -92,6 +95,7 @@ class AbleNerfImpl : public torch::nn::Module {
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;
+  bool unbounded_ = false;
   Compute compute_;
   torch::Tensor ray_token_;  // (1,1,E) initial ray token
   torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off

@@ -50,7 +50,7 @@ RunFolder RunFolder::create(const std::string& dir, const Config& config, const 
 
 void RunFolder::remove_stale_temporaries() const {
   std::vector<std::string> prefixes;
-  for (const std::string& out : {weights_path(), checkpoint_path(), path("config.toml"), path("run.json"), report_path()})
+  for (const std::string& out : {weights_path(), checkpoint_path(), path("config.toml"), path("run.json"), report_path(), scene_path()})
     prefixes.push_back(fs::path(atomic_temp_prefix(out)).filename().string());
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(dir, ec)) {
@@ -60,8 +60,19 @@ void RunFolder::remove_stale_temporaries() const {
   }
 }
 
+void RunFolder::write_scene(const SceneFrame& scene) const { write_file_atomic(scene_path(), scene.to_json()); }
+
+SceneFrame RunFolder::scene() const {
+  if (fs::exists(scene_path())) return SceneFrame::from_json(read_file(scene_path()), scene_path());
+  SceneFrame f;
+  f.kind = config.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+  f.near = config.data.near;
+  f.far = f.kind == SceneKind::Unbounded ? kUnboundedFar : config.data.far;
+  return f;
+}
+
 AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
-  AbleNerf model(run.config.model);
+  AbleNerf model(run.config.model, run.scene().kind);
   if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "missing (the run has no weights yet)");
   load_weights(model, run.weights_path());
   model->to(device);

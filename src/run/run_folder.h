@@ -4,6 +4,8 @@
 //   RUN/run.json        {"data": dataset folder, "version": ablenerf version}
 //   RUN/weights.pt      latest model weights (save_weights format, torch.load-able dict)
 //   RUN/checkpoint.pt   full training state (model, Adam, step, RNG), checksummed; see train/checkpoint.h
+//   RUN/scene.json      the capture's scene frame (data/scene_frame.h): capture -> scene transform,
+//                       bounded/unbounded, near/far; absent for runs from before it (Blender identity)
 //   RUN/log.jsonl       one JSON object per line: {"type":"train", step, loss, psnr, lr, rays_per_s,
 //                       elapsed_s} or {"type":"eval", step, psnr, views, split}; see run/run_log.h
 //   RUN/eval/SPLIT/     eval outputs (images, error and depth maps, metrics.json)
@@ -12,6 +14,7 @@
 
 #include <string>
 
+#include "data/scene_frame.h"
 #include "model/able_nerf.h"
 #include "util/config.h"
 
@@ -32,6 +35,12 @@ struct RunFolder {
   std::string checkpoint_path() const { return path("checkpoint.pt"); }
   std::string log_path() const { return path("log.jsonl"); }
   std::string report_path() const { return path("report.html"); }
+  std::string scene_path() const { return path("scene.json"); }
+
+  // RUN/scene.json, written atomically by `train`.
+  void write_scene(const SceneFrame& scene) const;
+  // RUN/scene.json; without one (older runs) the identity frame with the config's scene and near/far.
+  SceneFrame scene() const;
 
   // A kill -9 during an atomic write (util/fs.h) leaves its temporary file behind while the real
   // file is intact: removes the temporaries of this folder's own outputs (weights, checkpoint,

@@ -8,6 +8,8 @@ RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Dev
   images_ = split.images.reshape({-1, 3}).to(device);
   c2w_ = split.c2w.to(device);
   pixels_ = images_.size(0);
+  const auto n = static_cast<size_t>(split.c2w.size(0));
+  cams_ = CameraTable::of(split.cameras.size() == n ? split.cameras : std::vector<Intrinsics>(n, k), device);
   if (error_map) map_.emplace(split.c2w.size(0), k.height, k.width, *error_map);
 }
 
@@ -23,7 +25,7 @@ RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   auto pix = idx - image * per_image;
   auto row = pix.div(k_.width, "floor");
   auto col = pix - row * k_.width;
-  return {rays_for_pixels(c2w_.index_select(0, image), col, row, k_), images_.index_select(0, idx)};
+  return {rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image)), images_.index_select(0, idx)};
 }
 
 RayBatch RaySampler::next(int64_t global_size, int rank, int world) {

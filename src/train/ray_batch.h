@@ -22,7 +22,8 @@ struct RayBatch {
 
 class RaySampler {
  public:
-  // images (N,H,W,3) and c2w (N,3,4) are moved to `device` once.
+  // images (N,H,W,3) and c2w (N,3,4) are moved to `device` once. Each image's camera is
+  // split.cameras[i] when the split lists them, else `k`.
   // With `error_map`, pixels are drawn through an ErrorMap fed by observe(); without, uniformly.
   RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed,
              std::optional<ErrorMapOptions> error_map = std::nullopt);
@@ -48,7 +49,8 @@ class RaySampler {
 
  private:
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
-  Intrinsics k_;
+  Intrinsics k_;       // the first image's camera (the image size of every image)
+  CameraTable cams_;   // on device: one row per image
   int64_t pixels_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
   std::optional<ErrorMap> map_;

@@ -54,6 +54,9 @@ struct Trainer::State {
   bool leader = true;
   RunFolder run;            // empty dir: no run folder (bench)
   std::optional<Dataset> ds;
+  // Where samples lie: the dataset's scene (near/far, bounded or unbounded), else the config's.
+  double near = 2, far = 6;
+  SceneKind scene = SceneKind::Bounded;
   std::string held_out;     // split for the periodic PSNR ("" = none)
   AbleNerf model{nullptr};
   std::unique_ptr<Adam> adam;
@@ -128,9 +131,23 @@ void Trainer::setup() {
   for (const char* name : {"val", "test"})
     if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
   if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
-  s.ds = Dataset::load(s.run.data_dir, load_options_for(config_, want));
+  LoadOptions lo = load_options_for(config_, want);
+  lo.progress = s.leader && !opts_.quiet;
+  s.ds = Dataset::load(s.run.data_dir, lo);
   if (!s.ds->has("train")) throw InputError(s.run.data_dir, "transforms_train.json", "the dataset has no train split");
   if (!s.ds->has(s.held_out)) s.held_out.clear();
+  // data.scene resolved from the capture, recorded in the run's config with the scene frame (so
+  // that eval and render place samples as training did).
+  if (config_.data.scene == SceneKind::Auto) config_.data.scene = s.ds->scene.kind;
+  s.run.config = config_;
+  if (s.leader) {
+    write_file_atomic(s.run.path("config.toml"), config_.to_toml());
+    s.run.write_scene(s.ds->scene);
+    if (!opts_.quiet) {
+      std::cerr << "train: " << s.ds->format << " capture, " << s.ds->scene.describe() << "\n";
+      for (const auto& note : s.ds->notes) std::cerr << "train: " << note << "\n";
+    }
+  }
 
   build(s.ds->split("train"), s.ds->intrinsics);
   if (opts_.resume && have_ckpt) {
@@ -158,7 +175,13 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   auto& s = *s_;
   const TrainConfig& tc = config_.train;
   torch::manual_seed(static_cast<uint64_t>(tc.seed));
-  s.model = AbleNerf(config_.model);
+  if (s.ds) {
+    s.near = s.ds->near, s.far = s.ds->far, s.scene = s.ds->scene.kind;
+  } else {
+    s.scene = config_.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+    s.near = config_.data.near, s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.data.far;
+  }
+  s.model = AbleNerf(config_.model, s.scene);
   s.model->to(opts_.device);
   s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
   s.model->train();
@@ -219,7 +242,7 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   s.adam->clear_grads();
   const RayBatch batch = s.sampler->gather(indices);
   const StepSums sums =
-      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, config_.data.near, config_.data.far);
+      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
   StepReport r;
   r.step = s.state.step + 1;
   r.lr = lr;
@@ -259,7 +282,7 @@ void Trainer::device_body() {
   {
     // One autocast scope around every micro-batch: each weight is cast to bf16 once per step.
     const AutocastScope autocast(s.model->compute().precision, opts_.device);
-    sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, config_.data.near, config_.data.far);
+    sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
   }
   s.adam->step_device(sums.loss);
   torch::NoGradGuard no_grad;
@@ -398,7 +421,7 @@ void Trainer::held_out_check() {
   double sum = 0;
   const std::vector<int64_t> views = held_out_views(split.size(), tc.eval_views);
   for (const int64_t i : views) {
-    RenderResult img = render_image(s.model, split.c2w[i], s.ds->intrinsics, config_.data.near, config_.data.far,
+    RenderResult img = render_image(s.model, split.c2w[i], split.cameras.at(static_cast<size_t>(i)), s.near, s.far,
                                     config_.eval.chunk, {}, opts_.device);
     sum += psnr(img.rgb.cpu(), split.images[i]);
   }

@@ -18,7 +18,7 @@ namespace ablenerf {
 namespace {
 
 using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,
-                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*>;
+                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*, SceneKind*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -50,6 +50,8 @@ void visit_fields(C& c, F&& f) {
   f("data.background", &c.data.background);
   f("data.near", &c.data.near);
   f("data.far", &c.data.far);
+  f("data.scene", &c.data.scene);
+  f("data.bounds_from_config", &c.data.bounds_from_config);
   f("train.steps", &c.train.steps);
   f("train.rays_per_step", &c.train.rays_per_step);
   f("train.micro_batch", &c.train.micro_batch);

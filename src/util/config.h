@@ -19,6 +19,12 @@ enum class CpuSplit { Rays, Ops };
 enum class ViewEncoding { Release, Paper };  // model.view_encoding (model/view_encoding.h)
 enum class Background { White, Black };      // data.background: the colour RGBA images are composited on
 enum class RaySampling { Uniform, Error };    // train.ray_sampling (train/error_map.h)
+// data.scene (data/scene_frame.h): where samples lie along a ray and how they are encoded.
+//  * Bounded: depth-linear samples between near and far (Blender's object on a card);
+//  * Unbounded: mip-NeRF 360's scene contraction of the frustum Gaussians, half the samples linear
+//    in depth inside the cameras' sphere, half linear in disparity out to (practically) infinity;
+//  * Auto: Bounded for Blender scenes, Unbounded for real captures.
+enum class SceneKind { Auto, Bounded, Unbounded };
 // eval.ssim (eval/metrics.h):
 enum class SsimVariant {
   // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
@@ -47,6 +53,8 @@ template <>
 inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
 template <>
 inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"}, {RaySampling::Error, "error"}};
+template <>
+inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"}, {SceneKind::Bounded, "bounded"}, {SceneKind::Unbounded, "unbounded"}};
 template <>
 inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
 
@@ -87,8 +95,13 @@ struct ModelConfig {
 struct DataConfig {
   int downscale = 1;                  // integer box-downscale factor
   Background background = Background::White;
+  // Near/far of Blender scenes (their convention: 2/6). A real capture's bounds come from the
+  // capture itself (sparse points, LLFF bounds or the camera layout; data/scene_frame.h) unless
+  // bounds = "config".
   double near = 2.0;
   double far = 6.0;
+  SceneKind scene = SceneKind::Auto;
+  bool bounds_from_config = false;  // data.bounds_from_config: use near/far for captures too
 };
 
 struct TrainConfig {

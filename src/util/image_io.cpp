@@ -2,6 +2,7 @@
 
 #include <cstring>
 
+#include "util/image_codec.h"
 #include "util/png_codec.h"
 
 namespace ablenerf {
@@ -10,6 +11,14 @@ torch::Tensor read_png(const std::string& path) {
   const PngImage png = decode_png_file(path);
   auto out = torch::empty({png.height, png.width, png.channels}, torch::kUInt8);
   std::memcpy(out.data_ptr<uint8_t>(), png.pixels.data(), png.pixels.size());
+  return out;
+}
+
+torch::Tensor read_image(const std::string& path, int* exif_orientation) {
+  const DecodedImage d = decode_image_file(path);
+  if (exif_orientation) *exif_orientation = d.exif_orientation;
+  auto out = torch::empty({d.image.height, d.image.width, d.image.channels}, torch::kUInt8);
+  std::memcpy(out.data_ptr<uint8_t>(), d.image.pixels.data(), d.image.pixels.size());
   return out;
 }
 

@@ -1,0 +1,96 @@
+// An LLFF capture: poses_bounds.npy (N x 17: a 3x5 matrix per image, the pose in LLFF's
+// [down, right, backwards] axes plus a column [height, width, focal], then the near and far depth of
+// the scene in that image) and the images of ROOT/images/ in name order. Torch-free.
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+
+#include "data/npy.h"
+#include "data/transforms_json.h"
+#include "util/errors.h"
+#include "util/image_codec.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+
+namespace {
+bool is_image_name(const fs::path& p) {
+  std::string e = p.extension().string();
+  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return e == ".jpg" || e == ".jpeg" || e == ".png";
+}
+constexpr int64_t kLlffColumns = 17;
+}  // namespace
+
+void read_llff_capture(const std::string& root, const std::vector<std::string>& splits, int downscale, DatasetJson& out) {
+  const std::string file = (fs::path(root) / "poses_bounds.npy").string();
+  const NpyArray a = read_npy(file);
+  if (a.shape.size() != 2 || a.shape[1] != kLlffColumns || a.shape[0] < 1)
+    throw InputError(file, "shape", "expected (N, 17) poses and bounds");
+  const int64_t n = a.shape[0];
+  const fs::path dir = fs::path(root) / "images";
+  if (!fs::is_directory(dir)) throw InputError(root, "images", "folder not found (LLFF keeps its images in images/)");
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.is_regular_file() && is_image_name(e.path())) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  if (static_cast<int64_t>(names.size()) != n)
+    throw InputError(file, "shape", std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
+  out.format = "llff";
+  std::vector<FrameJson> frames;
+  std::vector<std::pair<std::string, std::array<double, 2>>> bounds;
+  for (int64_t i = 0; i < n; ++i) {
+    const double* r = a.data.data() + i * kLlffColumns;
+    const std::string where = "row " + std::to_string(i) + " (" + names[static_cast<size_t>(i)] + ")";
+    for (int64_t c = 0; c < kLlffColumns; ++c)
+      if (!std::isfinite(r[c])) throw InputError(file, where, "non-finite value");
+    // r is the row-major 3x5 matrix, then near, far.
+    const auto at = [&](int row, int col) { return r[row * 5 + col]; };
+    const double h = at(0, 4), w = at(1, 4), f = at(2, 4);
+    if (!(h >= 1 && w >= 1 && h <= (1 << 20) && w <= (1 << 20) && f > 0))
+      throw InputError(file, where, "height, width and focal (column 5) must be positive");
+    double c2w[3][4];
+    for (int row = 0; row < 3; ++row) {
+      c2w[row][0] = at(row, 1);   // right
+      c2w[row][1] = -at(row, 0);  // up = -down
+      c2w[row][2] = at(row, 2);   // backwards
+      c2w[row][3] = at(row, 3);
+    }
+    FrameJson fr;
+    fr.field = where;
+    fr.pose = checked_pose(c2w, file, where);
+    fr.image = resolve_in_root(root, "images/" + names[static_cast<size_t>(i)], file, where);
+    // The npy's size is the one the poses were computed at; the stored images may be another
+    // (LLFF ships full-size photos): the camera follows the image.
+    const auto hw = image_size(fr.image);
+    const double s = static_cast<double>(hw.second) / w;
+    fr.camera.width = hw.second;
+    fr.camera.height = hw.first;
+    fr.camera.fx = fr.camera.fy = f * s;
+    fr.camera.cx = 0.5 * hw.second;
+    fr.camera.cy = 0.5 * hw.first;
+    if (std::abs(h * s - hw.first) > 1.0)
+      throw InputError(fr.image, where, "aspect ratio differs from the npy's height and width");
+    if (frames.empty()) {
+      out.width = hw.second, out.height = hw.first;
+    } else if (hw.second != out.width || hw.first != out.height) {
+      throw InputError(fr.image, where, "image size differs from the first image's");
+    }
+    const double near = r[15], far = r[16];
+    if (!(near > 0 && far > near)) throw InputError(file, where + ": bounds", "need 0 < near < far");
+    const std::string small = resolve_downscaled(root, fr.image, downscale);
+    if (!small.empty()) fr.image = small, fr.prescaled = true;
+    bounds.push_back({fr.image, {near, far}});
+    frames.push_back(std::move(fr));
+  }
+  out.notes.push_back("LLFF poses_bounds.npy: " + std::to_string(n) + " images");
+  split_every_eighth(frames, splits, file, out);
+  // Bounds in the order of the split frames.
+  for (const auto& s : out.splits)
+    for (const auto& fr : s.frames)
+      for (const auto& b : bounds)
+        if (b.first == fr.image) out.bounds.push_back(b.second);
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,251 @@
+#include "data/scene_frame.h"
+
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "util/errors.h"
+
+namespace ablenerf {
+
+namespace {
+
+using V3 = std::array<double, 3>;
+
+V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+double norm(const V3& a) { return std::sqrt(dot(a, a)); }
+V3 cross(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+
+V3 column(const Pose34& p, int c) {
+  return {p[static_cast<size_t>(c)], p[static_cast<size_t>(4 + c)], p[static_cast<size_t>(8 + c)]};
+}
+
+// The rotation taking unit vector `a` to +z (Rodrigues about a x z).
+std::array<double, 9> rotation_to_z(const V3& a) {
+  const V3 z{0, 0, 1};
+  const V3 v = cross(a, z);
+  const double c = dot(a, z), s = norm(v);
+  if (s < 1e-12) {
+    if (c > 0) return {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    return {1, 0, 0, 0, -1, 0, 0, 0, -1};  // a = -z: half a turn about x
+  }
+  const V3 k{v[0] / s, v[1] / s, v[2] / s};
+  const double K[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
+  std::array<double, 9> r{};
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      double kk = 0;
+      for (int m = 0; m < 3; ++m) kk += K[i][m] * K[m][j];
+      r[static_cast<size_t>(i * 3 + j)] = (i == j ? 1.0 : 0.0) + s * K[i][j] + (1 - c) * kk;
+    }
+  return r;
+}
+
+V3 rotate(const std::array<double, 9>& r, const V3& v) {
+  return {r[0] * v[0] + r[1] * v[1] + r[2] * v[2], r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+          r[6] * v[0] + r[7] * v[1] + r[8] * v[2]};
+}
+V3 rotate_t(const std::array<double, 9>& r, const V3& v) {
+  return {r[0] * v[0] + r[3] * v[1] + r[6] * v[2], r[1] * v[0] + r[4] * v[1] + r[7] * v[2],
+          r[2] * v[0] + r[5] * v[1] + r[8] * v[2]};
+}
+
+// Solves the 3x3 system A x = b (Cramer); false when A is near singular relative to its size.
+bool solve3(const double A[3][3], const V3& b, V3& x) {
+  const double det = A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1]) - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0]) +
+                     A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0]);
+  double scale = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) scale = std::max(scale, std::abs(A[i][j]));
+  if (!(std::abs(det) > 1e-6 * scale * scale * scale)) return false;
+  for (int c = 0; c < 3; ++c) {
+    double M[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) M[i][j] = j == c ? b[static_cast<size_t>(i)] : A[i][j];
+    x[static_cast<size_t>(c)] = (M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) - M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
+                                 M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0])) / det;
+  }
+  return true;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1)));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+// Points used for the bounds: at most this many (evenly strided), so a large COLMAP model costs
+// milliseconds.
+constexpr size_t kMaxBoundPoints = 20000;
+
+}  // namespace
+
+bool SceneFrame::identity() const {
+  return scale == 1 && centre == V3{0, 0, 0} && rotation == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
+}
+
+std::array<double, 3> SceneFrame::point_to_scene(const std::array<double, 3>& p) const {
+  const V3 r = rotate(rotation, sub(p, centre));
+  return {scale * r[0], scale * r[1], scale * r[2]};
+}
+
+Pose34 SceneFrame::to_scene(const Pose34& c2w) const {
+  Pose34 out{};
+  for (int c = 0; c < 3; ++c) {
+    const V3 col = rotate(rotation, column(c2w, c));
+    for (int r = 0; r < 3; ++r) out[static_cast<size_t>(r * 4 + c)] = static_cast<float>(col[static_cast<size_t>(r)]);
+  }
+  const V3 t = point_to_scene(column(c2w, 3));
+  for (int r = 0; r < 3; ++r) out[static_cast<size_t>(r * 4 + 3)] = static_cast<float>(t[static_cast<size_t>(r)]);
+  return out;
+}
+
+Pose34 SceneFrame::to_capture(const Pose34& c2w) const {
+  Pose34 out{};
+  for (int c = 0; c < 3; ++c) {
+    const V3 col = rotate_t(rotation, column(c2w, c));
+    for (int r = 0; r < 3; ++r) out[static_cast<size_t>(r * 4 + c)] = static_cast<float>(col[static_cast<size_t>(r)]);
+  }
+  const V3 t = column(c2w, 3);
+  const V3 back = rotate_t(rotation, {t[0] / scale, t[1] / scale, t[2] / scale});
+  for (int r = 0; r < 3; ++r)
+    out[static_cast<size_t>(r * 4 + 3)] = static_cast<float>(back[static_cast<size_t>(r)] + centre[static_cast<size_t>(r)]);
+  return out;
+}
+
+std::string SceneFrame::to_json() const {
+  nlohmann::json j;
+  j["rotation"] = rotation;
+  j["centre"] = centre;
+  j["scale"] = scale;
+  j["scene"] = name_of(kind);
+  j["near"] = near;
+  j["far"] = far;
+  j["bounds_source"] = bounds_source;
+  j["convention"] = "x_scene = scale * rotation (x_capture - centre); rotation row-major";
+  return j.dump(2) + "\n";
+}
+
+SceneFrame SceneFrame::from_json(const std::string& text, const std::string& origin) {
+  SceneFrame f;
+  try {
+    const auto j = nlohmann::json::parse(text);
+    f.rotation = j.at("rotation").get<std::array<double, 9>>();
+    f.centre = j.at("centre").get<std::array<double, 3>>();
+    f.scale = j.at("scale").get<double>();
+    const auto kind = enum_from_name<SceneKind>(j.at("scene").get<std::string>());
+    if (!kind || *kind == SceneKind::Auto) throw InputError(origin, "scene", "must be \"bounded\" or \"unbounded\"");
+    f.kind = *kind;
+    f.near = j.at("near").get<double>();
+    f.far = j.at("far").get<double>();
+    f.bounds_source = j.value("bounds_source", "");
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(origin, "", std::string("not a scene frame: ") + e.what());
+  }
+  if (!(f.scale > 0 && std::isfinite(f.scale))) throw InputError(origin, "scale", "must be positive");
+  if (!(f.near >= 0 && f.far > f.near)) throw InputError(origin, "far", "need 0 <= near < far");
+  return f;
+}
+
+std::string SceneFrame::describe() const {
+  std::ostringstream o;
+  o << name_of(kind) << " scene, near " << near << " far " << far << " (" << bounds_source << ")";
+  if (!identity())
+    o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << "), scale " << scale
+      << ", up (" << rotation[6] << ", " << rotation[7] << ", " << rotation[8] << ") -> +z";
+  return o.str();
+}
+
+SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, SceneKind requested, double near,
+                           double far, bool bounds_from_config) {
+  SceneFrame f;
+  if (cap.synthetic) {
+    f.kind = requested == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+    f.near = near;
+    f.far = f.kind == SceneKind::Unbounded ? kUnboundedFar : far;
+    return f;
+  }
+  std::vector<Pose34> poses;
+  for (const auto& s : cap.splits)
+    for (const auto& fr : s.frames) poses.push_back(fr.pose);
+  if (poses.empty()) throw InputError(root, "frames", "no frames");
+  // Centre: the nearest point to every optical axis (-z of each camera), when the cameras look at
+  // a common region in front of them; else the mean camera position.
+  V3 mean{0, 0, 0}, up{0, 0, 0};
+  double A[3][3] = {{0}};
+  V3 b{0, 0, 0};
+  for (const auto& p : poses) {
+    const V3 o = column(p, 3), y = column(p, 1), z = column(p, 2);
+    const V3 d{-z[0], -z[1], -z[2]};
+    for (int i = 0; i < 3; ++i) {
+      mean[static_cast<size_t>(i)] += o[static_cast<size_t>(i)] / static_cast<double>(poses.size());
+      up[static_cast<size_t>(i)] += y[static_cast<size_t>(i)];
+    }
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const double m = (i == j ? 1.0 : 0.0) - d[static_cast<size_t>(i)] * d[static_cast<size_t>(j)];
+        A[i][j] += m;
+        b[static_cast<size_t>(i)] += m * o[static_cast<size_t>(j)];
+      }
+  }
+  double spread = 0;
+  for (const auto& p : poses) spread = std::max(spread, norm(sub(column(p, 3), mean)));
+  if (!(spread > 1e-9 * (1 + norm(mean))))
+    throw InputError(root, "poses", "every camera is at the same point (degenerate poses: nothing to triangulate)");
+  V3 focus;
+  int in_front = 0;
+  if (solve3(A, b, focus)) {
+    for (const auto& p : poses) {
+      const V3 z = column(p, 2);
+      in_front += dot(sub(focus, column(p, 3)), V3{-z[0], -z[1], -z[2]}) > 0;
+    }
+  }
+  const bool use_focus = 2 * in_front > static_cast<int>(poses.size()) && norm(sub(focus, mean)) < 10 * spread;
+  f.centre = use_focus ? focus : mean;
+  const double up_norm = norm(up);
+  f.rotation = up_norm > 1e-9 ? rotation_to_z({up[0] / up_norm, up[1] / up_norm, up[2] / up_norm})
+                              : std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  double radius = 0;
+  for (const auto& p : poses) radius = std::max(radius, norm(sub(column(p, 3), f.centre)));
+  f.scale = 1.0 / radius;
+  f.kind = requested == SceneKind::Bounded ? SceneKind::Bounded : SceneKind::Unbounded;
+
+  // Bounds, in scene units.
+  if (bounds_from_config) {
+    f.near = near, f.far = far, f.bounds_source = "config";
+  } else if (!cap.points.empty()) {
+    std::vector<double> depths;
+    const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
+    for (const auto& p : poses) {
+      const V3 o = column(p, 3), z = column(p, 2);
+      for (size_t i = 0; i < cap.points.size(); i += stride) {
+        const double d = -dot(sub(cap.points[i], o), z);
+        if (d > 0) depths.push_back(d * f.scale);
+      }
+    }
+    if (depths.empty()) throw InputError(root, "points", "no sparse point lies in front of any camera");
+    f.near = 0.5 * percentile(depths, 0.01);
+    f.far = 1.5 * percentile(depths, 0.99);
+    f.bounds_source = "points";
+  } else if (!cap.bounds.empty()) {
+    double lo = cap.bounds[0][0], hi = cap.bounds[0][1];
+    for (const auto& b2 : cap.bounds) lo = std::min(lo, b2[0]), hi = std::max(hi, b2[1]);
+    f.near = 0.9 * lo * f.scale;
+    f.far = 1.1 * hi * f.scale;
+    f.bounds_source = "llff bounds";
+  } else {
+    // Only cameras: the scene is assumed to lie around the centre, within the cameras' sphere.
+    f.near = 0.05;
+    f.far = 4.0;
+    f.bounds_source = "cameras";
+  }
+  f.near = std::max(f.near, 1e-3);
+  if (f.kind == SceneKind::Unbounded) f.far = kUnboundedFar;
+  if (!(f.far > f.near)) f.far = f.near * 100;
+  return f;
+}
+
+}  // namespace ablenerf

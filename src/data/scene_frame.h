@@ -1,0 +1,51 @@
+#pragma once
+// Scene normalisation of a real capture (torch-free): captures come in arbitrary units, origin and
+// orientation. The scene frame maps capture coordinates to the model's working volume:
+//   x_scene = scale * R (x_capture - centre),
+// with R turning the cameras' mean up vector to +z, the centre the point the cameras look at
+// (least-squares nearest point to their optical axes, when it lies in front of most of them; else
+// the mean camera position) and the scale putting the farthest camera at distance 1. Near/far
+// come from what the capture knows: its sparse points (COLMAP), its per-image bounds (LLFF), else
+// the camera layout. Blender scenes keep the identity and their 2/6.
+#include <array>
+#include <string>
+#include <vector>
+
+#include "data/transforms_json.h"
+#include "util/config.h"
+
+namespace ablenerf {
+
+struct SceneFrame {
+  std::array<double, 9> rotation{1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major R
+  std::array<double, 3> centre{0, 0, 0};
+  double scale = 1;
+  SceneKind kind = SceneKind::Bounded;  // resolved: Bounded or Unbounded
+  double near = 2, far = 6;             // in scene units
+  std::string bounds_source = "config"; // "points" | "llff bounds" | "cameras" | "config"
+
+  bool identity() const;
+  // A camera-to-world pose in capture coordinates -> scene coordinates (and back).
+  Pose34 to_scene(const Pose34& c2w) const;
+  Pose34 to_capture(const Pose34& c2w) const;
+  std::array<double, 3> point_to_scene(const std::array<double, 3>& p) const;
+
+  std::string to_json() const;  // RUN/scene.json
+  // Parses to_json's text; InputError(origin, field, ...) on anything else.
+  static SceneFrame from_json(const std::string& text, const std::string& origin);
+  // One line for logs and `info`.
+  std::string describe() const;
+};
+
+// Unbounded scenes: the far bound (scene units). Samples reach it linearly in disparity, and the
+// contraction maps everything beyond the unit sphere into radius 2, so it stands for infinity.
+constexpr double kUnboundedFar = 1e6;
+
+// Fits the scene frame of a capture from all of its frames (every split: training and evaluation
+// must share one frame). `requested` is data.scene; `near`/`far` are data.near/data.far, used for
+// Blender scenes and, with `bounds_from_config`, for every capture. InputError(root, "poses", ...)
+// for degenerate layouts (all cameras at one point).
+SceneFrame fit_scene_frame(const DatasetJson& capture, const std::string& root, SceneKind requested, double near,
+                           double far, bool bounds_from_config);
+
+}  // namespace ablenerf
