@@ -106,27 +106,53 @@ TEST(Dataset, FocalFromAngleAfterDownscale) {
   EXPECT_EQ(ds.split("train").images.sizes(), (std::vector<int64_t>{2, 4, 4, 3}));
 }
 
-TEST(Dataset, NerfstudioTransformsJson) {
+TEST(Dataset, InstantNgpTransformsJson) {
   test::TempDir t;
   make_blender(t.path(), 9, 6, 4);
   fs::remove(t / "transforms_train.json");
-  std::string frames;
-  for (int i = 0; i < 9; ++i)
-    frames += std::string(i ? "," : "") + "{\"file_path\": \"train/r_" + std::to_string(i) +
-              ".png\", \"transform_matrix\": " + kIdentityPose + "}";
+  // Cameras 0.5 apart along x, all looking down -z.
+  const auto frames_with = [](const std::string& extra) {
+    std::string frames;
+    for (int i = 0; i < 9; ++i)
+      frames += std::string(i ? "," : "") + "{\"file_path\": \"train/r_" + std::to_string(i) + ".png\", " + extra +
+                "\"transform_matrix\": [[1,0,0," + std::to_string(0.5 * i) + "],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}";
+    return frames;
+  };
+  const std::string frames = frames_with("");
   test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"fl_y\": 6.0, \"cx\": 3.1, \"cy\": 1.9, ") +
                                               "\"w\": 6, \"h\": 4, \"frames\": [" + frames + "]}");
   Dataset ds = Dataset::load(t.path());
-  EXPECT_EQ(ds.format, "transforms");
+  EXPECT_EQ(ds.format, "instant-ngp");
   EXPECT_DOUBLE_EQ(ds.intrinsics.fx, 5.0);
   EXPECT_DOUBLE_EQ(ds.intrinsics.fy, 6.0);
   EXPECT_DOUBLE_EQ(ds.intrinsics.cx, 3.1);
+  EXPECT_EQ(ds.intrinsics.model, LensModel::Pinhole);
   EXPECT_EQ(ds.split("test").size(), 2);   // frames 0 and 8 held out
   EXPECT_EQ(ds.split("train").size(), 7);
-  // distortion is refused with a clear error
-  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"k1\": 0.1, \"w\": 6, \"h\": 4, \"frames\": [") +
+  // The scene frame: centred on the mean camera (parallel axes have no focus point), farthest
+  // camera at distance 1, up (+y of the cameras) turned to +z.
+  EXPECT_EQ(ds.scene.kind, SceneKind::Unbounded);
+  EXPECT_NEAR(ds.scene.scale, 1.0 / 2.0, 1e-9);
+  const auto centres = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3);
+  EXPECT_NEAR(centres.norm(2, 1).max().item<double>(), 1.0, 1e-6);
+  EXPECT_NEAR(ds.split("train").c2w[0][2][1].item<double>(), 1.0, 1e-6);  // camera up is world +z
+  // Lens distortion and per-frame intrinsics are read.
+  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"k1\": 0.1, \"p2\": 0.01, \"w\": 6, \"h\": 4, \"frames\": [") +
+                                              frames_with("\"fl_x\": 7.0, ") + "]}");
+  ds = Dataset::load(t.path());
+  EXPECT_EQ(ds.intrinsics.model, LensModel::RadialTangential);
+  EXPECT_DOUBLE_EQ(ds.intrinsics.dist[kK1], 0.1);
+  EXPECT_DOUBLE_EQ(ds.intrinsics.dist[kP2], 0.01);
+  EXPECT_DOUBLE_EQ(ds.intrinsics.fx, 7.0);
+  // A camera model it cannot cast rays through, and every camera at one point, are refused.
+  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"camera_model\": \"EQUIRECTANGULAR\", \"w\": 6, \"h\": 4, \"frames\": [") +
                                               frames + "]}");
-  expect_bad(t.path(), "transforms.json", "k1");
+  expect_bad(t.path(), "transforms.json", "camera_model");
+  std::string same;
+  for (int i = 0; i < 9; ++i)
+    same += std::string(i ? "," : "") + "{\"file_path\": \"train/r_" + std::to_string(i) + ".png\", \"transform_matrix\": " + kIdentityPose + "}";
+  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"w\": 6, \"h\": 4, \"frames\": [") + same + "]}");
+  expect_bad(t.path(), "", "poses");
 }
 
 TEST(Dataset, LegoScene) {
