@@ -97,9 +97,14 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   double last = 0;
   for (size_t i = 50; i < 60; ++i) last += losses[i] / 10;
   EXPECT_LT(last, 0.7 * losses.front());
-  // The run folder reopens with the same config.
+  // The run folder reopens with the same config, data.scene resolved from the dataset (a Blender
+  // scene is bounded), and the scene frame beside it.
   RunFolder r = RunFolder::open(t / "run");
-  EXPECT_EQ(r.config.to_toml(), c.to_toml());
+  Config resolved = c;
+  resolved.data.scene = SceneKind::Bounded;
+  EXPECT_EQ(r.config.to_toml(), resolved.to_toml());
+  EXPECT_EQ(r.scene().kind, SceneKind::Bounded);
+  EXPECT_TRUE(r.scene().identity());
   EXPECT_EQ(r.data_dir, fs::absolute(test::tiny_dataset()).lexically_normal().string());
 }
 
