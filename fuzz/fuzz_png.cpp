@@ -23,7 +23,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   ablenerf::fuzz::write_bytes(path, data, size);
   try {
     const auto hw = ablenerf::png_size(path);
-    const ablenerf::PngImage im = ablenerf::decode_png_file(path);
+    const ablenerf::Image8 im = ablenerf::decode_png_file(path);
     // A decoded image must agree with its own header and hold exactly H * W * C bytes.
     if (im.height != hw.first || im.width != hw.second) finding("png_size and decode_png_file disagree");
     if (im.channels != 1 && im.channels != 3 && im.channels != 4) finding("channel count not in {1, 3, 4}");

@@ -3,7 +3,8 @@
 # starting from the committed seed corpus in fuzz/corpus/NAME.
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     (default: 60 s, every fuzz/fuzz_*.cpp)
 # The build is -DABLENERF_FUZZ_ONLY=ON: only the torch-free sources that are fuzzed
-# (src/util/png_codec, src/util/fs, src/data/transforms_json) and the targets, no LibTorch.
+# (the image decoders, the dataset json, COLMAP and .npy readers: ablenerf_fuzz_core in
+# CMakeLists.txt) and the targets, no LibTorch.
 # Environment:
 #   ABLENERF_FUZZ_BUILD  build folder (default build-fuzz)
 #   ABLENERF_JOBS        build parallelism (default 1)

@@ -1,5 +1,7 @@
 #include "test_util.h"
 
+#include <gtest/gtest.h>
+
 #include <ATen/CPUGeneratorImpl.h>
 #include <ATen/Parallel.h>
 
@@ -15,6 +17,8 @@
 #include <fstream>
 #include <random>
 #include <stdexcept>
+
+#include "util/errors.h"
 
 namespace fs = std::filesystem;
 
@@ -90,6 +94,20 @@ Rays random_rays(int64_t n, uint64_t seed, torch::Dtype dtype) {
   const auto o = torch::randn({n, 3}, gen, opts) * 0.2 + torch::tensor({0.0, 0.0, 4.0}, opts);
   const auto d = torch::randn({n, 3}, gen, opts) * 0.2 + torch::tensor({0.0, 0.0, -1.0}, opts);
   return {o, d, torch::full({n, 1}, kBlenderPixelRadius, opts)};
+}
+
+void expect_input_error(const std::function<void()>& f, const std::string& file, const std::string& field,
+                        const std::string& what, bool exact_field) {
+  try {
+    f();
+    ADD_FAILURE() << "expected an InputError for " << file << ": " << field << ": " << what;
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.file(), file) << e.what();
+    if (exact_field) EXPECT_EQ(e.field(), field) << e.what();
+    else EXPECT_NE(e.field().find(field), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << "one line: " << e.what();
+  }
 }
 
 }  // namespace ablenerf::test

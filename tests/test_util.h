@@ -3,6 +3,7 @@
 #include <torch/torch.h>
 
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include "data/rays.h"
@@ -64,5 +65,10 @@ class IntraOpThreads {
  private:
   int previous_;
 };
+
+// Runs `f` and expects an InputError naming `file`, a field that equals `field` (exact_field) or
+// contains it, and a message that contains `what` and is one line. Any other outcome is a failure.
+void expect_input_error(const std::function<void()>& f, const std::string& file, const std::string& field,
+                        const std::string& what, bool exact_field);
 
 }  // namespace ablenerf::test

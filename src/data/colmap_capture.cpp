@@ -106,7 +106,7 @@ void read_colmap_capture(const std::string& root, const std::string& model_dir, 
   out.notes.push_back("COLMAP model " + model_dir + " (" + m.encoding + "): " + std::to_string(m.cameras.size()) +
                       " camera(s), " + std::to_string(m.images.size()) + " images, " + std::to_string(m.points.size()) +
                       " points");
-  split_every_eighth(std::move(frames), splits, img_file, out);
+  split_every_eighth(std::move(frames), splits, img_file, FrameOrder::ByImageName, out);
 }
 
 }  // namespace ablenerf

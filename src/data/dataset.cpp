@@ -15,6 +15,7 @@
 #include "data/transforms_json.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/image_codec.h"
 #include "util/image_io.h"
 #include "util/progress.h"
 
@@ -42,42 +43,29 @@ torch::Tensor pose_tensor(const Pose34& pose) {
   return t;
 }
 
-// The stored image turned upright for EXIF orientations 5-8 (those that swap width and height):
-// 5 transpose, 6 rotate 90 degrees clockwise, 7 transverse, 8 rotate 90 degrees counter-clockwise.
-torch::Tensor rotate_to_exif_upright(const torch::Tensor& im, int orientation) {
-  const auto t = im.permute({1, 0, 2});
-  switch (orientation) {
-    case 5: return t.contiguous();
-    case 6: return t.flip({1}).contiguous();
-    case 7: return t.flip({0, 1}).contiguous();
-    case 8: return t.flip({0}).contiguous();
-    default: return im;
-  }
-}
-
 // One frame's image as (h, w, 4) float straight RGBA at the loaded size (h, w): decoded (PNG or
 // JPEG), turned upright when its EXIF orientation explains a size mismatch, box-downscaled (or read
 // from the pre-downscaled copy).
 torch::Tensor frame_rgba(const FrameJson& fr, int full_h, int full_w, int f, int64_t h, int64_t w) {
-  int orientation = 1;
-  torch::Tensor raw = read_image(fr.image, &orientation);
+  DecodedImage decoded = decode_image_file(fr.image);
+  const int64_t want_h = fr.prescaled ? h : full_h, want_w = fr.prescaled ? w : full_w;
+  // Pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels; an EXIF rotation is applied
+  // only when the capture's size says the poses were made on the upright image.
+  const Image8& im8 = decoded.image;
+  if (!(im8.height == want_h && im8.width == want_w) && decoded.exif_orientation >= 5 && im8.height == want_w &&
+      im8.width == want_h)
+    apply_exif_orientation(decoded.image, decoded.exif_orientation);
+  torch::Tensor raw = image_tensor(decoded.image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
     return InputError(fr.image, fr.field,
                       "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) + " but the capture's images are " +
                           std::to_string(want_w) + "x" + std::to_string(want_h) + (fr.prescaled ? " (pre-downscaled copy)" : ""));
   };
-  const auto fits = [&](int64_t want_h, int64_t want_w) { return raw.size(0) == want_h && raw.size(1) == want_w; };
-  const int64_t want_h = fr.prescaled ? h : full_h, want_w = fr.prescaled ? w : full_w;
-  // Pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels; an EXIF rotation is applied
-  // only when the capture's size says the poses were made on the upright image.
-  if (!fits(want_h, want_w) && orientation >= 5 && raw.size(0) == want_w && raw.size(1) == want_h) {
-    raw = rotate_to_exif_upright(raw, orientation);
-  }
   if (fr.prescaled) {
     // images_N/ copies are W/N rounded or floored: one extra row or column is cropped.
     if (raw.size(0) < h || raw.size(1) < w || raw.size(0) > h + 1 || raw.size(1) > w + 1) throw size_error(h, w);
     raw = raw.slice(0, 0, h).slice(1, 0, w);
-  } else if (!fits(want_h, want_w)) {
+  } else if (raw.size(0) != want_h || raw.size(1) != want_w) {
     throw size_error(want_h, want_w);
   }
   torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);

@@ -39,7 +39,6 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
     throw InputError(file, "shape", std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
   out.format = "llff";
   std::vector<FrameJson> frames;
-  std::vector<std::pair<std::string, std::array<double, 2>>> bounds;
   for (int64_t i = 0; i < n; ++i) {
     const double* r = a.data.data() + i * kLlffColumns;
     const std::string where = "row " + std::to_string(i) + " (" + names[static_cast<size_t>(i)] + ")";
@@ -81,16 +80,11 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
     if (!(near > 0 && far > near)) throw InputError(file, where + ": bounds", "need 0 < near < far");
     const std::string small = resolve_downscaled(root, fr.image, downscale);
     if (!small.empty()) fr.image = small, fr.prescaled = true;
-    bounds.push_back({fr.image, {near, far}});
+    out.bounds.push_back({near, far});
     frames.push_back(std::move(fr));
   }
   out.notes.push_back("LLFF poses_bounds.npy: " + std::to_string(n) + " images");
-  split_every_eighth(frames, splits, file, out);
-  // Bounds in the order of the split frames.
-  for (const auto& s : out.splits)
-    for (const auto& fr : s.frames)
-      for (const auto& b : bounds)
-        if (b.first == fr.image) out.bounds.push_back(b.second);
+  split_every_eighth(std::move(frames), splits, file, FrameOrder::ByImageName, out);
 }
 
 }  // namespace ablenerf

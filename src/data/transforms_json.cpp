@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <unordered_map>
 
 #include "util/errors.h"
 #include "util/fs.h"
@@ -339,6 +340,10 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
   }
   for (const char* k : {"scale", "offset", "applied_transform"})
     if (j.contains(k)) out.notes.push_back(std::string(k) + " present (poses used as written; ablenerf normalises the scene itself)");
+  // Each frame by its image's canonical path (what parse_frames resolved), for the capture's own
+  // split, before pre-downscaled copies replace the paths.
+  std::unordered_map<std::string, size_t> frame_of;
+  for (size_t i = 0; i < frames.size(); ++i) frame_of.emplace(frames[i].image, i);
   for (auto& f : frames) {
     const std::string small = resolve_downscaled(root, f.image, downscale);
     if (!small.empty()) f.image = small, f.prescaled = true;
@@ -346,7 +351,6 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
   if (has_own_split(j)) {
     // The capture's own split, by image path.
     std::vector<std::pair<std::string, std::string>> lists{{"train", "train_filenames"}, {"val", "val_filenames"}, {"test", "test_filenames"}};
-    std::vector<FrameJson> all = frames;
     for (const auto& [name, key] : lists) {
       if (!j.contains(key) || !wanted(splits, name)) continue;
       const json& names = j.at(key);
@@ -355,14 +359,9 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
       for (size_t i = 0; i < names.size(); ++i) {
         if (!names[i].is_string()) throw InputError(file, key + "[" + std::to_string(i) + "]", "expected a string");
         const std::string want = resolve_in_root(root, names[i].get<std::string>(), file, key + "[" + std::to_string(i) + "]");
-        bool found = false;
-        for (size_t f = 0; f < jf.size() && !found; ++f) {
-          if (resolve_in_root(root, jf[f].at("file_path").get<std::string>(), file, "frames") == want) {
-            sp.frames.push_back(all[f]);
-            found = true;
-          }
-        }
-        if (!found) throw InputError(file, key + "[" + std::to_string(i) + "]", "no frame has this file_path");
+        const auto it = frame_of.find(want);
+        if (it == frame_of.end()) throw InputError(file, key + "[" + std::to_string(i) + "]", "no frame has this file_path");
+        sp.frames.push_back(frames[it->second]);
       }
       if (!sp.frames.empty()) out.splits.push_back(std::move(sp));
     }
@@ -370,12 +369,7 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
     return;
   }
   // instant-ngp keeps the json's frame order; every 8th of it is held out.
-  SplitJson train{"train", file, {}}, test{"test", file, {}};
-  for (size_t i = 0; i < frames.size(); ++i)
-    (i % kTestEvery == 0 && frames.size() > 1 ? test : train).frames.push_back(frames[i]);
-  if (wanted(splits, "train") && !train.frames.empty()) out.splits.push_back(std::move(train));
-  if (wanted(splits, "test") && !test.frames.empty()) out.splits.push_back(std::move(test));
-  out.notes.push_back("split: every 8th frame held out for test");
+  split_every_eighth(std::move(frames), splits, file, FrameOrder::AsGiven, out);
 }
 
 // The COLMAP model folder of `root`, "" when none.
@@ -446,14 +440,16 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
 }
 
 void split_every_eighth(std::vector<FrameJson> all, const std::vector<std::string>& splits, const std::string& file,
-                        DatasetJson& out) {
-  std::stable_sort(all.begin(), all.end(), [](const FrameJson& a, const FrameJson& b) { return a.image < b.image; });
+                        FrameOrder order, DatasetJson& out) {
+  if (order == FrameOrder::ByImageName)
+    std::stable_sort(all.begin(), all.end(), [](const FrameJson& a, const FrameJson& b) { return a.image < b.image; });
   SplitJson train{"train", file, {}}, test{"test", file, {}};
   for (size_t i = 0; i < all.size(); ++i)
     (i % kTestEvery == 0 && all.size() > 1 ? test : train).frames.push_back(all[i]);
   if (wanted(splits, "train") && !train.frames.empty()) out.splits.push_back(std::move(train));
   if (wanted(splits, "test") && !test.frames.empty()) out.splits.push_back(std::move(test));
-  out.notes.push_back("split: every 8th image (sorted by name) held out for test");
+  out.notes.push_back(order == FrameOrder::ByImageName ? "split: every 8th image (sorted by name) held out for test"
+                                                       : "split: every 8th frame held out for test");
 }
 
 Pose34 checked_pose(const double (&a)[3][4], const std::string& file, const std::string& field) {

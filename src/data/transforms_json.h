@@ -44,7 +44,7 @@ struct DatasetJson {
   int width = 0, height = 0;      // full-resolution image size (every frame's)
   // What the capture says about the scene's extent, in the poses' units (empty / 0 when absent):
   std::vector<std::array<double, 3>> points;   // sparse points (COLMAP points3D)
-  std::vector<std::array<double, 2>> bounds;   // near/far of every frame of every split, in order (LLFF)
+  std::vector<std::array<double, 2>> bounds;   // near/far of every image of the capture (LLFF)
   double aabb_scale = 0;                       // instant-ngp's aabb_scale (> 1: content beyond the unit cube)
   bool synthetic = false;                      // Blender: a bounded object, near/far 2/6 by convention
   std::vector<std::string> notes;              // what was read, for `info` (one line each)
@@ -71,10 +71,14 @@ std::string detect_format(const std::string& root);
 // (.png, .jpg, .jpeg, .JPG, .PNG; LLFF writes PNGs there). "" when there is none or downscale is 1.
 std::string resolve_downscaled(const std::string& root, const std::string& image, int downscale);
 
-// Every frame of `all` in order of image path; every kTestEvery-th (from 0) to test, the rest to
-// train (one frame: train only). Only the `splits` wanted are kept (empty = both).
+// The order split_every_eighth counts frames in: the file's (instant-ngp) or by image path (COLMAP,
+// LLFF: the LLFF / mip-NeRF 360 convention).
+enum class FrameOrder { AsGiven, ByImageName };
+
+// Every kTestEvery-th frame of `all` (from 0, in `order`) to test, the rest to train (one frame:
+// train only). Only the `splits` wanted are kept (empty = both).
 void split_every_eighth(std::vector<FrameJson> all, const std::vector<std::string>& splits, const std::string& file,
-                        DatasetJson& out);
+                        FrameOrder order, DatasetJson& out);
 
 // Resolves a relative image path inside the dataset root (refusing paths that leave it) to its
 // canonical path; `file`/`field` name it in errors.

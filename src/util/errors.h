@@ -9,6 +9,7 @@
 // Anything else that escapes is an internal error (exit code 1, "internal error: ...").
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace ablenerf {
 
@@ -41,6 +42,19 @@ class EnvironmentError : public std::runtime_error {
  private:
   std::string subject_;
 };
+
+// Untrusted text (a name or token read from an input file) quoted in an error message: control
+// bytes and DEL become '?' so the message stays one line, and at most `max_chars` bytes are kept
+// ("..." marks a cut). Other bytes (UTF-8 file names) are kept as they are.
+inline std::string printable(std::string_view s, size_t max_chars) {
+  std::string out;
+  for (const char c : s.substr(0, max_chars)) {
+    const auto u = static_cast<unsigned char>(c);
+    out += (u < 0x20 || u == 0x7f) ? '?' : c;
+  }
+  if (s.size() > max_chars) out += "...";
+  return out;
+}
 
 // Exit codes of the CLI.
 constexpr int kExitOk = 0;

@@ -4,10 +4,12 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 
 namespace fs = std::filesystem;
 
@@ -95,7 +97,7 @@ void write_file_atomic(const std::string& path, std::string_view bytes) {
   (void)fsync_path(folder_of(path));
 }
 
-std::string read_file(const std::string& path) {
+int open_for_reading(const std::string& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError(path, "", std::string("cannot read: ") + std::strerror(errno));
   struct stat st {};
@@ -103,11 +105,18 @@ std::string read_file(const std::string& path) {
     ::close(fd);
     throw InputError(path, "", "cannot read: a folder, not a file");
   }
+  return fd;
+}
+
+std::string read_file_prefix(const std::string& path, size_t max_bytes) {
+  const int fd = open_for_reading(path);
   std::string out;
-  if (S_ISREG(st.st_mode) && st.st_size > 0) out.reserve(static_cast<size_t>(st.st_size));
+  struct stat st {};
+  if (::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0)
+    out.reserve(std::min(static_cast<size_t>(st.st_size), max_bytes));
   char buf[1 << 16];
-  while (true) {
-    const ssize_t n = ::read(fd, buf, sizeof buf);
+  while (out.size() < max_bytes) {
+    const ssize_t n = ::read(fd, buf, std::min(sizeof buf, max_bytes - out.size()));
     if (n == 0) break;
     if (n < 0) {
       if (errno == EINTR) continue;
@@ -120,6 +129,8 @@ std::string read_file(const std::string& path) {
   ::close(fd);
   return out;
 }
+
+std::string read_file(const std::string& path) { return read_file_prefix(path, std::numeric_limits<size_t>::max()); }
 
 void ensure_dir(const std::string& path) {
   std::error_code ec;

@@ -1,5 +1,6 @@
 #pragma once
 // Reading and writing whole files: the one atomic writer and the one reader of the project.
+#include <cstddef>
 #include <string>
 #include <string_view>
 
@@ -21,6 +22,12 @@ std::string atomic_temp_prefix(const std::string& path);
 // The whole file, byte for byte (binary-safe). Throws InputError(path, "", "cannot read: ...")
 // when it is missing, a folder or unreadable.
 std::string read_file(const std::string& path);
+// At most the first `max_bytes` bytes of the file (fewer when it is shorter), with read_file's
+// messages.
+std::string read_file_prefix(const std::string& path, size_t max_bytes);
+// Opens `path` read-only and returns the descriptor (the caller closes it), with read_file's
+// messages when it is missing, a folder or unreadable.
+int open_for_reading(const std::string& path);
 
 // Creates the folder (and its parents). A file in the way is an InputError; a folder that cannot
 // be created (permissions, full disk) an EnvironmentError.

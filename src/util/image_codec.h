@@ -1,29 +1,31 @@
 #pragma once
 // One image decoder for PNG and JPEG, picked by the file's magic bytes (not its extension), without
-// LibTorch (fuzzed). PNG goes through png_codec.h; JPEG through libjpeg-turbo (Debian's
-// libjpeg-dev), strict: truncated or corrupt files (libjpeg's warnings included) and CMYK/YCCK
-// colour are refused with an InputError naming the file.
+// LibTorch (fuzzed). PNG goes through png_codec.h (16-bit reduced to 8), JPEG through jpeg_codec.h
+// (libjpeg-turbo), both strict: unreadable, truncated or corrupt files and CMYK/YCCK JPEGs are
+// refused with an InputError naming the file. Safe to call from several threads at once.
 #include <string>
 #include <utility>
 
+// Both codecs, so that users of this header also get encode_png_file, png_size, jpeg_size and
+// apply_exif_orientation.
+#include "util/image8.h"
+#include "util/jpeg_codec.h"
 #include "util/png_codec.h"
 
 namespace ablenerf {
 
 struct DecodedImage {
-  PngImage image;            // 8-bit, channels 1 (grey), 3 or 4, the stored (raw) pixel grid
-  int exif_orientation = 1;  // JPEG EXIF orientation 1..8 (1 when absent or unreadable)
+  Image8 image;              // 8-bit, channels 1 (grey), 3 or 4, the stored (raw, unrotated) pixel grid
+  int exif_orientation = 1;  // JPEG EXIF orientation 1..8 (1 for PNG, and when absent or malformed);
+                             // apply_exif_orientation (jpeg_codec.h) turns the image upright
 };
 
+// Decodes a PNG (signature 89 50 4E 47 0D 0A 1A 0A) or a JPEG (FF D8 FF). Anything else is
+// InputError(path, "", "not a PNG or JPEG image"); a missing file or a folder InputError(path, "",
+// "cannot read: ...").
 DecodedImage decode_image_file(const std::string& path);
 
-// {height, width} of the stored pixels, from the header only.
+// {height, width} of the stored (raw, unrotated) pixels, from the header only. Same errors.
 std::pair<int, int> image_size(const std::string& path);
-
-// JPEG only (for tests and the fuzzer): decodes a JPEG file; `origin` names it in errors.
-DecodedImage decode_jpeg_bytes(const std::string& bytes, const std::string& origin);
-// The EXIF orientation tag of a JPEG's APP1 segment payload ("Exif\0\0" + TIFF), 1 when absent or
-// malformed. Every offset is bounds-checked.
-int exif_orientation(const std::string& app1);
 
 }  // namespace ablenerf

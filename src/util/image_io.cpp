@@ -7,20 +7,13 @@
 
 namespace ablenerf {
 
-torch::Tensor read_png(const std::string& path) {
-  const PngImage png = decode_png_file(path);
-  auto out = torch::empty({png.height, png.width, png.channels}, torch::kUInt8);
-  std::memcpy(out.data_ptr<uint8_t>(), png.pixels.data(), png.pixels.size());
+torch::Tensor image_tensor(const Image8& image) {
+  auto out = torch::empty({image.height, image.width, image.channels}, torch::kUInt8);
+  std::memcpy(out.data_ptr<uint8_t>(), image.pixels.data(), image.pixels.size());
   return out;
 }
 
-torch::Tensor read_image(const std::string& path, int* exif_orientation) {
-  const DecodedImage d = decode_image_file(path);
-  if (exif_orientation) *exif_orientation = d.exif_orientation;
-  auto out = torch::empty({d.image.height, d.image.width, d.image.channels}, torch::kUInt8);
-  std::memcpy(out.data_ptr<uint8_t>(), d.image.pixels.data(), d.image.pixels.size());
-  return out;
-}
+torch::Tensor read_png(const std::string& path) { return image_tensor(decode_png_file(path)); }
 
 torch::Tensor to_uint8(const torch::Tensor& image) {
   if (image.scalar_type() == torch::kUInt8) return image.contiguous();

@@ -13,9 +13,8 @@ namespace ablenerf {
 // (grey+alpha is expanded to RGBA, palettes to RGB(A)). Throws InputError naming the file.
 torch::Tensor read_png(const std::string& path);
 
-// PNG or JPEG (util/image_codec.h) as a uint8 (H, W, C) tensor of the stored pixels, C in {1,3,4};
-// the JPEG's EXIF orientation (1..8) through `exif_orientation` when given.
-torch::Tensor read_image(const std::string& path, int* exif_orientation = nullptr);
+// A decoded image (PNG or JPEG: util/image_codec.h) as a uint8 (H, W, C) tensor (a copy).
+torch::Tensor image_tensor(const Image8& image);
 
 // Writes a uint8 (H,W,C) or float (H,W,C) in [0,1] tensor, C in {1,3,4}. Floats are clamped
 // and rounded half-up (x*255 + 0.5), like torchvision's save_image. The file is written to a

@@ -49,14 +49,14 @@ std::pair<int, int> png_size(const std::string& path) {
   return {static_cast<int>(p.img.height), static_cast<int>(p.img.width)};
 }
 
-PngImage decode_png_file(const std::string& path) {
+Image8 decode_png_file(const std::string& path) {
   PngHandle p;
   begin_read(p, path);
-  PngImage out;
+  Image8 out;
   out.channels = channels_of(p.img.format);
   p.img.format = format_of(out.channels);
   const int64_t h = p.img.height, w = p.img.width;
-  if (h <= 0 || w <= 0 || h * w > kMaxPngPixels)
+  if (h <= 0 || w <= 0 || h * w > kMaxImagePixels)
     throw InputError(path, "", "unsupported PNG size " + std::to_string(w) + "x" + std::to_string(h));
   out.width = static_cast<int>(w);
   out.height = static_cast<int>(h);

@@ -7,21 +7,14 @@
 #include <utility>
 #include <vector>
 
+#include "util/image8.h"  // Image8, kMaxImagePixels
+
 namespace ablenerf {
 
-// A decoded image: row-major (height, width, channels) bytes, channels in {1, 3, 4}.
-struct PngImage {
-  int width = 0, height = 0, channels = 0;
-  std::vector<uint8_t> pixels;
-};
-
-// Largest number of pixels (width * height) decode_png_file accepts: 2^28, i.e. a 16384 x 16384
-// image, 1 GiB as RGBA. Far above any NeRF dataset; refuses headers that claim absurd sizes.
-constexpr int64_t kMaxPngPixels = int64_t(1) << 28;
-
 // Decodes an 8-bit (or 16-bit, reduced to 8) PNG. Grey stays 1 channel; grey+alpha is expanded
-// to RGBA, palettes to RGB(A). Throws InputError(path, "", ...) on failure.
-PngImage decode_png_file(const std::string& path);
+// to RGBA, palettes to RGB(A). Sizes above kMaxImagePixels are refused. Throws
+// InputError(path, "", ...) on failure.
+Image8 decode_png_file(const std::string& path);
 
 // Reads only the header: {height, width}. Throws InputError on failure.
 std::pair<int, int> png_size(const std::string& path);
