@@ -91,6 +91,10 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
   std::mutex print;
   const auto work = [&] {
     torch::NoGradGuard no_grad;
+    // One intra-op thread per worker, so the workers do not oversubscribe the cores. The setting
+    // belongs to the calling thread (LibTorch's OpenMP build), and the caller's thread works too:
+    // its own count is put back afterwards, or training would go on with one thread.
+    const int caller_threads = at::get_num_threads();
     at::set_num_threads(1);
     for (int64_t i; (i = next++) < n;) {
       const auto& fr = spec.frames[static_cast<size_t>(i)];
@@ -124,6 +128,7 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
         progress->update(k, "", k == total);
       }
     }
+    at::set_num_threads(caller_threads);
   };
   const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(n, std::thread::hardware_concurrency()));
   std::vector<std::thread> pool;

@@ -1,6 +1,7 @@
 // Dataset loader: the real lego scene (when ../shared/data is present), downscaling, compositing,
 // the instant-ngp / nerfstudio transforms.json, and every bad-input case of the Blender format.
 #include <gtest/gtest.h>
+#include <ATen/Parallel.h>
 #include <torch/torch.h>
 
 #include <cmath>
@@ -104,6 +105,18 @@ TEST(Dataset, FocalFromAngleAfterDownscale) {
   EXPECT_DOUBLE_EQ(ds.near, 1.5);
   EXPECT_DOUBLE_EQ(ds.far, 7.0);
   EXPECT_EQ(ds.split("train").images.sizes(), (std::vector<int64_t>{2, 4, 4, 3}));
+}
+
+TEST(Dataset, LoadingKeepsTheCallersThreadCount) {
+  // The decoding workers run on one intra-op thread each; the calling thread decodes too and must
+  // get its own count back (the setting is per thread), or training would continue on one thread.
+  test::TempDir t;
+  make_blender(t.path(), 6, 8, 8);
+  for (const int threads : {2, 3}) {
+    const test::IntraOpThreads scope(threads);
+    (void)Dataset::load(t.path());
+    EXPECT_EQ(at::get_num_threads(), threads);
+  }
 }
 
 TEST(Dataset, InstantNgpTransformsJson) {
