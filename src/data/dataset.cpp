@@ -3,9 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <mutex>
 #include <optional>
 #include <thread>
 #include <cstring>
@@ -43,19 +41,24 @@ torch::Tensor pose_tensor(const Pose34& pose) {
   return t;
 }
 
-// One frame's image as (h, w, 4) float straight RGBA at the loaded size (h, w): decoded (PNG or
-// JPEG), turned upright when its EXIF orientation explains a size mismatch, box-downscaled (or read
-// from the pre-downscaled copy).
-torch::Tensor frame_rgba(const FrameJson& fr, int full_h, int full_w, int f, int64_t h, int64_t w) {
+// A frame's image decoded (PNG or JPEG) and turned upright when its EXIF orientation explains a
+// size mismatch: pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels, so the
+// rotation is applied only when the capture's size says the poses were made on the upright image.
+// Torch-free, so several frames decode at once without touching LibTorch's thread settings.
+DecodedImage decode_frame(const FrameJson& fr, int64_t want_h, int64_t want_w) {
   DecodedImage decoded = decode_image_file(fr.image);
-  const int64_t want_h = fr.prescaled ? h : full_h, want_w = fr.prescaled ? w : full_w;
-  // Pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels; an EXIF rotation is applied
-  // only when the capture's size says the poses were made on the upright image.
   const Image8& im8 = decoded.image;
   if (!(im8.height == want_h && im8.width == want_w) && decoded.exif_orientation >= 5 && im8.height == want_w &&
       im8.width == want_h)
     apply_exif_orientation(decoded.image, decoded.exif_orientation);
-  torch::Tensor raw = image_tensor(decoded.image);
+  return decoded;
+}
+
+// One frame's decoded image as (h, w, 4) float straight RGBA at the loaded size (h, w):
+// box-downscaled, or cropped from the pre-downscaled copy.
+torch::Tensor frame_rgba(const FrameJson& fr, const Image8& image, int64_t want_h, int64_t want_w, int f, int64_t h,
+                         int64_t w) {
+  torch::Tensor raw = image_tensor(image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
     return InputError(fr.image, fr.field,
                       "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) + " but the capture's images are " +
@@ -75,9 +78,11 @@ torch::Tensor frame_rgba(const FrameJson& fr, int full_h, int full_w, int f, int
   return im;
 }
 
-// Decodes the frames of a split into tensors, on every core (each frame writes its own rows).
+// Decodes the frames of a split into tensors. The images are decoded a group at a time, one frame
+// per core (the codecs are torch-free); each group then goes through LibTorch on this thread, in
+// frame order, so the first bad frame in capture order is the one reported.
 Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h, int expect_w, const SceneFrame& scene,
-                   Progress* progress, std::atomic<int64_t>& done, int64_t total) {
+                   Progress* progress, int64_t& done, int64_t total) {
   Split s;
   s.name = spec.name;
   const int64_t n = static_cast<int64_t>(spec.frames.size());
@@ -86,58 +91,53 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
   s.images = torch::empty({n, h, w, 3}, torch::kFloat);
   s.alpha = torch::empty({n, h, w}, torch::kFloat);
   std::vector<torch::Tensor> depths(static_cast<size_t>(n));
-  std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
-  std::atomic<int64_t> next{0};
-  std::mutex print;
-  const auto work = [&] {
-    torch::NoGradGuard no_grad;
-    // One intra-op thread per worker, so the workers do not oversubscribe the cores. The setting
-    // belongs to the calling thread (LibTorch's OpenMP build), and the caller's thread works too:
-    // its own count is put back afterwards, or training would go on with one thread.
-    const int caller_threads = at::get_num_threads();
-    at::set_num_threads(1);
-    for (int64_t i; (i = next++) < n;) {
+  const int64_t group = std::max<int64_t>(1, std::min<int64_t>(n, std::thread::hardware_concurrency()));
+  for (int64_t start = 0; start < n; start += group) {
+    const int64_t end = std::min(n, start + group);
+    std::vector<DecodedImage> decoded(static_cast<size_t>(end - start));
+    std::vector<std::exception_ptr> errors(decoded.size());
+    const auto decode = [&](int64_t i) {
       const auto& fr = spec.frames[static_cast<size_t>(i)];
       try {
-        const torch::Tensor im = frame_rgba(fr, expect_h, expect_w, f, h, w);
-        auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
-        const float bg = opts.white_background ? 1.0f : 0.0f;
-        s.images[i].copy_(rgb * a + bg * (1.0f - a));
-        s.alpha[i].copy_(a.squeeze(-1));
-        if (!fr.depth.empty()) {
-          torch::Tensor d;
-          try {
-            const std::string bytes = read_file(fr.depth);
-            d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
-          } catch (const InputError&) {
-            throw;
-          } catch (const std::exception&) {
-            throw InputError(fr.depth, fr.field, "cannot read depth tensor");
-          }
-          if (d.dim() != 2 || d.size(0) != expect_h || d.size(1) != expect_w)
-            throw InputError(fr.depth, fr.field, "depth map size does not match the image");
-          if (f > 1) d = box_downscale(d.unsqueeze(-1), f).squeeze(-1);
-          depths[static_cast<size_t>(i)] = d;
-        }
+        decoded[static_cast<size_t>(i - start)] =
+            decode_frame(fr, fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w);
       } catch (...) {
-        errors[static_cast<size_t>(i)] = std::current_exception();
+        errors[static_cast<size_t>(i - start)] = std::current_exception();
       }
-      const int64_t k = ++done;
-      if (progress) {
-        std::lock_guard<std::mutex> lock(print);
-        progress->update(k, "", k == total);
+    };
+    std::vector<std::thread> pool;
+    for (int64_t i = start + 1; i < end; ++i) pool.emplace_back(decode, i);
+    decode(start);
+    for (auto& t : pool) t.join();
+    for (int64_t i = start; i < end; ++i) {
+      const auto& e = errors[static_cast<size_t>(i - start)];
+      if (e) std::rethrow_exception(e);
+      const auto& fr = spec.frames[static_cast<size_t>(i)];
+      const torch::Tensor im = frame_rgba(fr, decoded[static_cast<size_t>(i - start)].image, fr.prescaled ? h : expect_h,
+                                          fr.prescaled ? w : expect_w, f, h, w);
+      auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
+      const float bg = opts.white_background ? 1.0f : 0.0f;
+      s.images[i].copy_(rgb * a + bg * (1.0f - a));
+      s.alpha[i].copy_(a.squeeze(-1));
+      if (!fr.depth.empty()) {
+        torch::Tensor d;
+        try {
+          const std::string bytes = read_file(fr.depth);
+          d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
+        } catch (const InputError&) {
+          throw;
+        } catch (const std::exception&) {
+          throw InputError(fr.depth, fr.field, "cannot read depth tensor");
+        }
+        if (d.dim() != 2 || d.size(0) != expect_h || d.size(1) != expect_w)
+          throw InputError(fr.depth, fr.field, "depth map size does not match the image");
+        if (f > 1) d = box_downscale(d.unsqueeze(-1), f).squeeze(-1);
+        depths[static_cast<size_t>(i)] = d;
       }
+      ++done;
+      if (progress) progress->update(done, "", done == total);
     }
-    at::set_num_threads(caller_threads);
-  };
-  const int64_t threads = std::max<int64_t>(1, std::min<int64_t>(n, std::thread::hardware_concurrency()));
-  std::vector<std::thread> pool;
-  for (int64_t t = 1; t < threads; ++t) pool.emplace_back(work);
-  work();
-  for (auto& t : pool) t.join();
-  // The first bad frame in capture order is the one reported, whatever the threads' timing.
-  for (const auto& e : errors)
-    if (e) std::rethrow_exception(e);
+  }
   std::vector<torch::Tensor> poses;
   for (const auto& fr : spec.frames) {
     poses.push_back(pose_tensor(scene.to_scene(fr.pose)));
@@ -219,7 +219,7 @@ Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
   for (const auto& spec : js.splits) total += static_cast<int64_t>(spec.frames.size());
   std::optional<Progress> progress;
   if (opts.progress) progress.emplace("load", total, 2.0);
-  std::atomic<int64_t> done{0};
+  int64_t done = 0;
   for (const auto& spec : js.splits)
     ds.splits[spec.name] = decode_split(spec, opts, h, w, ds.scene, progress ? &*progress : nullptr, done, total);
   ds.intrinsics = ds.splits.begin()->second.cameras.front();

@@ -431,7 +431,7 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
   for (++it; it != rel.end(); ++it) rest /= *it;
   const fs::path dir = canon_root / ("images_" + std::to_string(downscale)) / rest.parent_path();
   if (!fs::is_directory(dir)) return "";
-  for (const std::string ext : {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"),
+  for (const std::string& ext : {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"),
                                 std::string(".JPG"), std::string(".PNG"), std::string(".JPEG")}) {
     const fs::path cand = dir / (rest.stem().string() + ext);
     if (fs::is_regular_file(cand)) return resolve_image(root, cand.lexically_relative(canon_root).string(), image, "images_" + std::to_string(downscale), false);

@@ -108,8 +108,9 @@ TEST(Dataset, FocalFromAngleAfterDownscale) {
 }
 
 TEST(Dataset, LoadingKeepsTheCallersThreadCount) {
-  // The decoding workers run on one intra-op thread each; the calling thread decodes too and must
-  // get its own count back (the setting is per thread), or training would continue on one thread.
+  // Loading leaves LibTorch's intra-op thread count alone: the count is per thread, and a thread
+  // that starts later takes the last value any thread set, so a change made while decoding would
+  // reach training (one thread, or a count that depends on the decoders' timing).
   test::TempDir t;
   make_blender(t.path(), 6, 8, 8);
   for (const int threads : {2, 3}) {
