@@ -1,0 +1,381 @@
+// Real-capture loaders on small captures written here (COLMAP text model, LLFF poses_bounds.npy,
+// nerfstudio transforms.json): every loaded camera is checked against a projection done by hand in
+// the format's own convention (COLMAP: world-to-camera, OpenCV axes, quaternion; LLFF: columns
+// down/right/back; nerfstudio: OpenGL camera-to-world through an OpenCV or fisheye lens). A world
+// point projected by hand to a pixel must lie on the ray the loader casts through that pixel, in
+// the scene frame. Also: the every-8th split by image name, nerfstudio's own split, pre-downscaled
+// images_N folders, per-image LLFF bounds, and the real captures in ../captures when present.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <sstream>
+
+#include "data/dataset.h"
+#include "test_util.h"
+#include "util/errors.h"
+#include "util/image_io.h"
+
+using namespace ablenerf;
+namespace fs = std::filesystem;
+
+namespace {
+
+using V3 = std::array<double, 3>;
+V3 sub3(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+double dot3(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+V3 cross3(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+V3 unit3(const V3& a) {
+  const double n = std::sqrt(dot3(a, a));
+  return {a[0] / n, a[1] / n, a[2] / n};
+}
+
+// A camera at `eye` looking at `target`: its right, up and backward axes (OpenGL), world up `up`.
+struct Frame3 {
+  V3 right, up, back, eye;
+};
+Frame3 look_at(const V3& eye, const V3& target, const V3& up) {
+  Frame3 f;
+  f.back = unit3(sub3(eye, target));
+  f.right = unit3(cross3(up, f.back));
+  f.up = cross3(f.back, f.right);
+  f.eye = eye;
+  return f;
+}
+
+// Cameras on a tilted circle around `target` (radius 4, 1.5 above it along `up`).
+std::vector<Frame3> ring(int n, const V3& target, const V3& up) {
+  const V3 a = unit3(cross3(up, {0.3, 0.1, 0.9})), b = cross3(unit3(up), a);
+  std::vector<Frame3> out;
+  for (int i = 0; i < n; ++i) {
+    const double th = 2 * M_PI * i / n;
+    V3 eye;
+    for (int c = 0; c < 3; ++c)
+      eye[static_cast<size_t>(c)] = target[static_cast<size_t>(c)] + 4 * (std::cos(th) * a[static_cast<size_t>(c)] + std::sin(th) * b[static_cast<size_t>(c)]) +
+                                    1.5 * unit3(up)[static_cast<size_t>(c)];
+    out.push_back(look_at(eye, target, up));
+  }
+  return out;
+}
+
+// Pixel coordinates (COLMAP / OpenCV convention: the top-left pixel's centre is (0.5, 0.5)) of
+// the normalised image-plane point (x, y) (x right, y down) through the OpenCV radial-tangential
+// or the fisheye (Kannala-Brandt, OpenCV's cv::fisheye) model.
+struct Lens {
+  double fx, fy, cx, cy;
+  double k1 = 0, k2 = 0, k3 = 0, k4 = 0, p1 = 0, p2 = 0;
+  bool fisheye = false;
+  std::pair<double, double> project(double x, double y) const {
+    double xd, yd;
+    if (fisheye) {
+      const double r = std::sqrt(x * x + y * y), th = std::atan(r), t2 = th * th;
+      const double thd = th * (1 + k1 * t2 + k2 * t2 * t2 + k3 * t2 * t2 * t2 + k4 * t2 * t2 * t2 * t2);
+      xd = r > 0 ? x * thd / r : x, yd = r > 0 ? y * thd / r : y;
+    } else {
+      const double r2 = x * x + y * y, radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2;
+      xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x);
+      yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y;
+    }
+    return {fx * xd + cx, fy * yd + cy};
+  }
+};
+
+// The loader's ray through continuous pixel coordinate (u, v) of image i of `split` passes within
+// `tol` of `world` (capture coordinates) moved into the scene frame, in front of the camera.
+void expect_ray_hits(const Dataset& ds, const Split& split, int64_t i, double u, double v, const V3& world, double tol,
+                     const std::string& what) {
+  const auto col = torch::tensor({u - 0.5}, torch::kFloat64), row = torch::tensor({v - 0.5}, torch::kFloat64);
+  const Rays r = rays_for_pixels(split.c2w[i].unsqueeze(0).to(torch::kFloat64), col, row,
+                                 CameraTable::of({split.cameras[static_cast<size_t>(i)]}));
+  const V3 p = ds.scene.point_to_scene(world);
+  const auto pt = torch::tensor({p[0], p[1], p[2]}, torch::kFloat64);
+  const auto o = r.origins[0].to(torch::kFloat64), d = r.directions[0].to(torch::kFloat64);
+  const double dist = torch::cross(pt - o, d, 0).norm().item<double>() / d.norm().item<double>();
+  EXPECT_LT(dist, tol) << what << " (pixel " << u << ", " << v << ")";
+  EXPECT_GT((pt - o).dot(d).item<double>(), 0) << what << ": the point is behind the camera";
+}
+
+// Opaque RGB image files of one colour.
+void write_image(const std::string& path, int w, int h, int value) {
+  fs::create_directories(fs::path(path).parent_path());
+  write_png(path, torch::full({h, w, 3}, value, torch::kUInt8));
+}
+
+// World-to-camera rotation (rows: the camera's OpenCV axes x right, y down, z forward) as a unit
+// quaternion (w, x, y, z), by Shepperd's method.
+std::array<double, 4> quaternion_of(const double R[3][3]) {
+  const double tr = R[0][0] + R[1][1] + R[2][2];
+  std::array<double, 4> q{};
+  if (tr > 0) {
+    const double s = 2 * std::sqrt(1 + tr);
+    q = {s / 4, (R[2][1] - R[1][2]) / s, (R[0][2] - R[2][0]) / s, (R[1][0] - R[0][1]) / s};
+  } else if (R[0][0] > R[1][1] && R[0][0] > R[2][2]) {
+    const double s = 2 * std::sqrt(1 + R[0][0] - R[1][1] - R[2][2]);
+    q = {(R[2][1] - R[1][2]) / s, s / 4, (R[0][1] + R[1][0]) / s, (R[0][2] + R[2][0]) / s};
+  } else if (R[1][1] > R[2][2]) {
+    const double s = 2 * std::sqrt(1 + R[1][1] - R[0][0] - R[2][2]);
+    q = {(R[0][2] - R[2][0]) / s, (R[0][1] + R[1][0]) / s, s / 4, (R[1][2] + R[2][1]) / s};
+  } else {
+    const double s = 2 * std::sqrt(1 + R[2][2] - R[0][0] - R[1][1]);
+    q = {(R[1][0] - R[0][1]) / s, (R[0][2] + R[2][0]) / s, (R[1][2] + R[2][1]) / s, s / 4};
+  }
+  return q;
+}
+
+// The file name the loader recorded for image i of a split.
+std::string name_of(const Split& s, int64_t i) { return fs::path(s.files[static_cast<size_t>(i)]).filename().string(); }
+
+const V3 kTarget{1.0, 2.0, 3.0};
+const V3 kUp = unit3({0.2, -0.3, 1.0});
+// World points near the target (what the cameras see).
+const std::vector<V3> kPoints{{1.0, 2.0, 3.0}, {1.4, 1.7, 3.2}, {0.6, 2.3, 2.7}, {1.2, 2.5, 3.4}, {0.8, 1.6, 2.9}};
+
+}  // namespace
+
+TEST(Captures, ColmapPosesAndLensesMatchAHandProjection) {
+  test::TempDir t;
+  const int W = 64, H = 48;
+  // Camera 1: OPENCV; camera 2: SIMPLE_RADIAL. Images named so that their sorted order differs
+  // from the id order and from the order images.txt lists them in.
+  const Lens cam1{60, 58, 31.2, 24.9, 0.05, -0.02, 0, 0, 0.004, -0.003};
+  const Lens cam2{55, 55, 32, 24, -0.08};
+  std::ostringstream cams, imgs, pts;
+  cams << "# cameras\n1 OPENCV " << W << " " << H << " 60 58 31.2 24.9 0.05 -0.02 0.004 -0.003\n"
+       << "2 SIMPLE_RADIAL " << W << " " << H << " 55 32 24 -0.08\n";
+  const auto frames = ring(9, kTarget, kUp);
+  std::map<std::string, std::pair<Frame3, Lens>> truth;
+  for (int i = 8; i >= 0; --i) {
+    const Frame3& f = frames[static_cast<size_t>(i)];
+    // World-to-camera: rows are the OpenCV axes (right, down = -up, forward = -back); t = -R eye.
+    const double R[3][3] = {{f.right[0], f.right[1], f.right[2]},
+                            {-f.up[0], -f.up[1], -f.up[2]},
+                            {-f.back[0], -f.back[1], -f.back[2]}};
+    const auto q = quaternion_of(R);
+    V3 tv;
+    for (int r = 0; r < 3; ++r) tv[static_cast<size_t>(r)] = -(R[r][0] * f.eye[0] + R[r][1] * f.eye[1] + R[r][2] * f.eye[2]);
+    const int cam = i % 2 ? 2 : 1;
+    const std::string name = "v" + std::to_string((i * 5) % 9) + ".png";  // v0, v5, v1, v6, ...
+    // COLMAP does not require a normalised quaternion: write it scaled by 2.
+    imgs << i + 1 << " " << 2 * q[0] << " " << 2 * q[1] << " " << 2 * q[2] << " " << 2 * q[3] << " " << tv[0] << " "
+         << tv[1] << " " << tv[2] << " " << cam << " " << name << "\n\n";
+    write_image(t / ("images/" + name), W, H, 10 * i);
+    truth[name] = {f, cam == 1 ? cam1 : cam2};
+  }
+  for (size_t p = 0; p < kPoints.size(); ++p)
+    pts << p + 1 << " " << kPoints[p][0] << " " << kPoints[p][1] << " " << kPoints[p][2] << " 255 0 0 0.5\n";
+  test::write_file(t / "sparse/0/cameras.txt", cams.str());
+  test::write_file(t / "sparse/0/images.txt", imgs.str());
+  test::write_file(t / "sparse/0/points3D.txt", pts.str());
+  test::write_file(t / "sparse/0/project.ini", "[General]\n");  // COLMAP's mapper leaves it there
+
+  LoadOptions o;
+  o.scene = SceneKind::Bounded;
+  const Dataset ds = Dataset::load(t.path(), o);
+  EXPECT_EQ(ds.format, "colmap");
+  ASSERT_EQ(ds.split("test").size(), 2);  // v0 and v8: every 8th by name
+  EXPECT_EQ(name_of(ds.split("test"), 0), "v0.png");
+  EXPECT_EQ(name_of(ds.split("test"), 1), "v8.png");
+  EXPECT_EQ(ds.split("train").size(), 7);
+  EXPECT_EQ(ds.scene.bounds_source, "points");
+  int checked = 0;
+  for (const auto& [sname, split] : ds.splits) {
+    for (int64_t i = 0; i < split.size(); ++i) {
+      const auto& [f, lens] = truth.at(name_of(split, i));
+      EXPECT_EQ(split.cameras[static_cast<size_t>(i)].model, LensModel::RadialTangential);
+      // The image's pixels are the ones written for it (10 * original index).
+      for (const V3& X : kPoints) {
+        const V3 d = sub3(X, f.eye);
+        const double z = -dot3(d, f.back);
+        const auto [u, v] = lens.project(dot3(d, f.right) / z, -dot3(d, f.up) / z);
+        ASSERT_TRUE(u > 0 && u < W && v > 0 && v < H) << "test geometry: point outside the image";
+        expect_ray_hits(ds, split, i, u, v, X, 2e-5, sname + " " + name_of(split, i));
+        ++checked;
+      }
+    }
+  }
+  EXPECT_EQ(checked, 9 * static_cast<int>(kPoints.size()));
+  // The centre of the scene frame is the point the cameras look at; near comes from the points
+  // (every point is ~4.3 units in front of every camera: half of that, in scene units).
+  const V3 c = ds.scene.point_to_scene(kTarget);
+  EXPECT_LT(std::sqrt(dot3(c, c)), 1e-6);
+  const double dist = std::sqrt(16 + 1.5 * 1.5);
+  EXPECT_NEAR(ds.scene.scale, 1 / dist, 1e-6);  // poses are float32
+  EXPECT_GT(ds.scene.near, 0.5 * (dist - 0.7) / dist);
+  EXPECT_LT(ds.scene.near, 0.5 * (dist + 0.7) / dist);
+}
+
+TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
+  test::TempDir t;
+  const int W = 64, H = 48;
+  const auto frames = ring(10, kTarget, kUp);
+  // poses_bounds.npy: row i = the 3x5 matrix [down | right | back | eye | (h, w, f)] row-major,
+  // then near and far. The npy's size is twice the stored images' (LLFF keeps the size the poses
+  // were computed at): the loaded focal must be halved.
+  const double f_npy = 2 * 50.0;
+  std::vector<double> rows;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Frame3& f = frames[i];
+    const double hwf[3] = {2.0 * H, 2.0 * W, f_npy};
+    for (int r = 0; r < 3; ++r) {
+      const size_t rr = static_cast<size_t>(r);
+      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
+    }
+    rows.push_back(3.0 + 0.1 * static_cast<double>(i));  // near
+    rows.push_back(5.0 + 0.2 * static_cast<double>(i));  // far
+  }
+  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + std::to_string(frames.size()) + ", 17), }";
+  while ((10 + header.size() + 1) % 64) header += ' ';
+  header += '\n';
+  std::string npy = std::string("\x93NUMPY\x01\x00", 8);
+  npy += static_cast<char>(header.size() & 0xff);
+  npy += static_cast<char>(header.size() >> 8);
+  npy += header;
+  npy.append(reinterpret_cast<const char*>(rows.data()), rows.size() * sizeof(double));
+  test::write_file(t / "poses_bounds.npy", npy);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const std::string stem = "IMG_" + std::to_string(100 + i);
+    write_image(t / ("images/" + stem + ".png"), W, H, 100);
+    write_image(t / ("images_2/" + stem + ".png"), W / 2, H / 2, 200);  // LLFF's minified copies
+  }
+  LoadOptions o;
+  o.scene = SceneKind::Bounded;
+  for (const int down : {1, 2}) {
+    SCOPED_TRACE("downscale " + std::to_string(down));
+    o.downscale = down;
+    const Dataset ds = Dataset::load(t.path(), o);
+    EXPECT_EQ(ds.format, "llff");
+    ASSERT_EQ(ds.split("test").size(), 2);  // images 0 and 8
+    EXPECT_EQ(name_of(ds.split("test"), 1), "IMG_108.png");
+    EXPECT_EQ(ds.intrinsics.width, W / down);
+    EXPECT_NEAR(ds.intrinsics.fx, 50.0 / down, 1e-9);
+    // downscale 2 reads images_2 (value 200), not a box-downscale of images/ (value 100).
+    EXPECT_NEAR(ds.split("train").images.mean().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
+    // Near/far from the per-image bounds (3.0 .. 6.8 capture units), with the loader's margins.
+    EXPECT_EQ(ds.scene.bounds_source, "llff bounds");
+    EXPECT_NEAR(ds.scene.near, 0.9 * 3.0 * ds.scene.scale, 1e-9);
+    EXPECT_NEAR(ds.scene.far, 1.1 * 6.8 * ds.scene.scale, 1e-9);
+    const Lens lens{50.0 / down, 50.0 / down, 0.5 * W / down, 0.5 * H / down};
+    for (const auto& [sname, split] : ds.splits) {
+      for (int64_t i = 0; i < split.size(); ++i) {
+        const int idx = std::stoi(name_of(split, i).substr(4, 3)) - 100;
+        const Frame3& f = frames[static_cast<size_t>(idx)];
+        for (const V3& X : kPoints) {
+          // LLFF: the camera looks along -back; x along right, y along down.
+          const V3 d = sub3(X, f.eye);
+          const double z = -dot3(d, f.back);
+          const V3 down_axis{-f.up[0], -f.up[1], -f.up[2]};
+          const auto [u, v] = lens.project(dot3(d, f.right) / z, dot3(d, down_axis) / z);
+          expect_ray_hits(ds, split, i, u, v, X, 2e-5, sname + " " + name_of(split, i));
+        }
+      }
+    }
+  }
+  // A pose count that differs from the image count names the npy's shape.
+  fs::remove(t / "images/IMG_105.png");
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, t / "poses_bounds.npy", "shape", "9 images", true);
+}
+
+TEST(Captures, NerfstudioFisheyeOwnSplitAndPrescaledCopies) {
+  test::TempDir t;
+  const int W = 80, H = 60;
+  const Lens lens{40, 41, 39.5, 30.5, 0.03, -0.01, 0.002, -0.0005, 0, 0, true};
+  const auto frames = ring(6, kTarget, kUp);
+  std::ostringstream js;
+  js.precision(17);
+  js << "{\"camera_model\": \"OPENCV_FISHEYE\", \"w\": " << W << ", \"h\": " << H
+     << ", \"fl_x\": 40, \"fl_y\": 41, \"cx\": 39.5, \"cy\": 30.5, \"k1\": 0.03, \"k2\": -0.01, \"k3\": 0.002, "
+        "\"k4\": -0.0005, \"applied_transform\": [[1,0,0,0],[0,0,1,0],[0,-1,0,0]],\n\"frames\": [";
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Frame3& f = frames[i];
+    js << (i ? "," : "") << "{\"file_path\": \"images/frame_" << i << ".png\", \"transform_matrix\": [";
+    for (int r = 0; r < 3; ++r) {
+      const size_t rr = static_cast<size_t>(r);
+      js << "[" << f.right[rr] << "," << f.up[rr] << "," << f.back[rr] << "," << f.eye[rr] << "],";
+    }
+    js << "[0,0,0,1]]}";
+    write_image(t / ("images/frame_" + std::to_string(i) + ".png"), W, H, 30);
+    write_image(t / ("images_2/frame_" + std::to_string(i) + ".png"), W / 2, H / 2, 60);
+  }
+  js << "],\n\"train_filenames\": [\"images/frame_0.png\", \"images/frame_2.png\", \"images/frame_3.png\", "
+        "\"images/frame_5.png\"],\n\"test_filenames\": [\"images/frame_4.png\", \"./images/frame_1.png\"]}";
+  test::write_file(t / "transforms.json", js.str());
+  LoadOptions o;
+  o.scene = SceneKind::Unbounded;
+  o.downscale = 2;
+  const Dataset ds = Dataset::load(t.path(), o);
+  EXPECT_EQ(ds.format, "nerfstudio");
+  ASSERT_EQ(ds.split("train").size(), 4);
+  ASSERT_EQ(ds.split("test").size(), 2);
+  EXPECT_EQ(name_of(ds.split("test"), 0), "frame_4.png");  // the capture's order is kept
+  EXPECT_EQ(name_of(ds.split("test"), 1), "frame_1.png");
+  EXPECT_NEAR(ds.split("test").images.mean().item<double>(), 60 / 255.0, 1e-6);  // images_2 read
+  const Intrinsics& k = ds.split("test").cameras[0];
+  EXPECT_EQ(k.model, LensModel::Fisheye);
+  EXPECT_EQ(k.width, W / 2);
+  EXPECT_NEAR(k.fx, 20, 1e-12);
+  EXPECT_NEAR(k.cy, 15.25, 1e-12);
+  const Lens half{20, 20.5, 19.75, 15.25, lens.k1, lens.k2, lens.k3, lens.k4, 0, 0, true};
+  for (const auto& [sname, split] : ds.splits) {
+    for (int64_t i = 0; i < split.size(); ++i) {
+      const std::string n = name_of(split, i);
+      const Frame3& f = frames[static_cast<size_t>(n[6] - '0')];
+      for (const V3& X : kPoints) {
+        const V3 d = sub3(X, f.eye);
+        const double z = -dot3(d, f.back);
+        const auto [u, v] = half.project(dot3(d, f.right) / z, -dot3(d, f.up) / z);
+        expect_ray_hits(ds, split, i, u, v, X, 2e-5, sname + " " + n);
+      }
+    }
+  }
+  // A test list naming a file that exists but is no frame's image.
+  auto text = js.str();
+  text.replace(text.find("./images/frame_1"), 16, "images_2/frame_1");
+  test::write_file(t / "transforms.json", text);
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, t / "transforms.json", "test_filenames[1]",
+                           "no frame has this file_path", true);
+}
+
+// The real captures of docs/CAPTURES.md, when they sit beside the checkout: each loads, in its
+// format, with the frame counts and bounds source the document records.
+TEST(Captures, RealCapturesWhenPresent) {
+  const fs::path base = fs::path(test::source_dir()).parent_path() / "captures";
+  struct Want {
+    const char* dir;
+    const char* format;
+    int64_t frames;
+    int downscale;
+    const char* bounds;
+  };
+  const Want wants[] = {{"fox50", "instant-ngp", 50, 8, "cameras"},
+                        {"fox_colmap", "colmap", 67, 2, "points"},
+                        {"fox_colmap_txt", "colmap", 67, 2, "points"},
+                        {"fox_ns", "nerfstudio", 67, 2, "cameras"},
+                        {"ethiopianhead_llff", "llff", 66, 8, "llff bounds"}};
+  int found = 0;
+  for (const Want& w : wants) {
+    const fs::path dir = base / w.dir;
+    if (!fs::is_directory(dir)) continue;
+    ++found;
+    SCOPED_TRACE(w.dir);
+    LoadOptions o;
+    o.downscale = w.downscale;
+    const Dataset ds = Dataset::load(dir.string(), o);
+    EXPECT_EQ(ds.format, w.format);
+    EXPECT_EQ(ds.split("train").size() + ds.split("test").size(), w.frames);
+    EXPECT_EQ(ds.split("test").size(), (w.frames + 7) / 8);
+    EXPECT_EQ(ds.scene.bounds_source, w.bounds);
+    EXPECT_EQ(ds.scene.kind, SceneKind::Unbounded);
+    // Every camera inside the unit sphere, the farthest on it.
+    const auto c = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3).norm(2, 1);
+    EXPECT_NEAR(c.max().item<double>(), 1.0, 1e-5);
+    // Real photos: neither blank nor saturated.
+    const double mean = ds.split("train").images.mean().item<double>();
+    EXPECT_GT(mean, 0.1);
+    EXPECT_LT(mean, 0.9);
+  }
+  if (found == 0) GTEST_SKIP() << base << " holds none of the captures of docs/CAPTURES.md";
+}

@@ -1,0 +1,173 @@
+// Scene normalisation (data/scene_frame): on camera layouts whose answer is known by construction
+// (cameras on a tilted ring looking at a point, parallel forward-facing cameras, all cameras at one
+// point), the frame's centre, up, scale and bounds, the pose round trip and the JSON round trip.
+#include "data/scene_frame.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "test_util.h"
+#include "util/errors.h"
+
+using namespace ablenerf;
+
+namespace {
+
+using V3 = std::array<double, 3>;
+V3 minus(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+double dotp(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+V3 crossp(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+V3 unitv(const V3& a) {
+  const double n = std::sqrt(dotp(a, a));
+  return {a[0] / n, a[1] / n, a[2] / n};
+}
+
+// OpenGL camera-to-world pose at `eye` looking at `target` with world up `up`.
+Pose34 look_at_pose(const V3& eye, const V3& target, const V3& up) {
+  const V3 back = unitv(minus(eye, target)), right = unitv(crossp(up, back)), cam_up = crossp(back, right);
+  Pose34 p{};
+  for (size_t r = 0; r < 3; ++r) {
+    p[r * 4 + 0] = static_cast<float>(right[r]);
+    p[r * 4 + 1] = static_cast<float>(cam_up[r]);
+    p[r * 4 + 2] = static_cast<float>(back[r]);
+    p[r * 4 + 3] = static_cast<float>(eye[r]);
+  }
+  return p;
+}
+
+DatasetJson capture_of(const std::vector<Pose34>& poses) {
+  DatasetJson cap;
+  cap.format = "instant-ngp";
+  SplitJson s{"train", "transforms.json", {}};
+  for (const auto& p : poses) {
+    FrameJson f;
+    f.pose = p;
+    s.frames.push_back(f);
+  }
+  cap.splits.push_back(s);
+  return cap;
+}
+
+// Cameras on a circle of radius `radius` around `target` in the plane normal to `up`, `height`
+// above it, all looking at `target`.
+std::vector<Pose34> ring_poses(int n, const V3& target, const V3& up, double radius, double height) {
+  const V3 u = unitv(up), a = unitv(crossp(u, {0.5, 0.2, 0.1})), b = crossp(u, a);
+  std::vector<Pose34> out;
+  for (int i = 0; i < n; ++i) {
+    const double th = 2 * M_PI * i / n + 0.3;
+    V3 eye;
+    for (size_t c = 0; c < 3; ++c) eye[c] = target[c] + radius * (std::cos(th) * a[c] + std::sin(th) * b[c]) + height * u[c];
+    out.push_back(look_at_pose(eye, target, up));
+  }
+  return out;
+}
+
+V3 col(const Pose34& p, size_t c) { return {p[c], p[4 + c], p[8 + c]}; }
+
+}  // namespace
+
+TEST(SceneFrame, RingAroundATiltedTargetIsCentredUprightAndUnitSized) {
+  const V3 target{5, -2, 7}, up = unitv({0.3, 0.4, 1.0});
+  const auto poses = ring_poses(12, target, up, 3.0, 1.0);
+  const SceneFrame f = fit_scene_frame(capture_of(poses), "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_EQ(f.kind, SceneKind::Unbounded);  // auto: a real capture is unbounded
+  // The cameras look at `target`: it becomes the origin.
+  for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(f.centre[c], target[c], 1e-5);
+  // Every camera is sqrt(3^2 + 1^2) from the target: scale puts them on the unit sphere.
+  EXPECT_NEAR(f.scale, 1 / std::sqrt(10.0), 1e-6);
+  // The ring's up (the mean of the cameras' up vectors is along `up`) becomes +z, and the ring
+  // lies in the plane z = 1/sqrt(10).
+  const V3 up_scene = f.point_to_scene({target[0] + up[0], target[1] + up[1], target[2] + up[2]});
+  EXPECT_NEAR(up_scene[2], f.scale, 1e-6);
+  EXPECT_NEAR(std::hypot(up_scene[0], up_scene[1]), 0, 1e-6);
+  for (const auto& p : poses) {
+    const Pose34 s = f.to_scene(p);
+    EXPECT_NEAR(s[11], 1 / std::sqrt(10.0), 1e-5);
+    EXPECT_NEAR(std::sqrt(dotp(col(s, 3), col(s, 3))), 1.0, 1e-5);
+    // Rotations stay rotations, and to_capture undoes to_scene.
+    EXPECT_NEAR(dotp(col(s, 0), col(s, 1)), 0, 1e-6);
+    const Pose34 back = f.to_capture(s);
+    for (size_t k = 0; k < 12; ++k) EXPECT_NEAR(back[k], p[k], 1e-5);
+  }
+  // Only cameras: near/far fixed in scene units; unbounded: far stands for infinity.
+  EXPECT_EQ(f.bounds_source, "cameras");
+  EXPECT_DOUBLE_EQ(f.far, kUnboundedFar);
+  const SceneFrame bounded = fit_scene_frame(capture_of(poses), "cap", SceneKind::Bounded, 2, 6, false);
+  EXPECT_EQ(bounded.kind, SceneKind::Bounded);
+  EXPECT_LT(bounded.far, 10);
+}
+
+TEST(SceneFrame, BoundsFromPointsLlffBoundsOrConfig) {
+  const V3 target{0, 0, 0}, up{0, 0, 1};
+  const auto poses = ring_poses(8, target, up, 4.0, 3.0);  // every camera 5 units away
+  DatasetJson cap = capture_of(poses);
+  // One sparse point at the target: every camera sees it 5 units ahead (1 in scene units), so
+  // near = 0.5 and far = 1.5 (the loader's margins on the 1% / 99% depths).
+  cap.points = {{0, 0, 0}};
+  SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Bounded, 2, 6, false);
+  EXPECT_EQ(f.bounds_source, "points");
+  EXPECT_NEAR(f.near, 0.5, 1e-6);
+  EXPECT_NEAR(f.far, 1.5, 1e-6);
+  // Points behind every camera only: refused, naming the points.
+  DatasetJson behind = capture_of(poses);
+  behind.points = {{0, 0, 1000}};
+  test::expect_input_error([&] { fit_scene_frame(behind, "cap", SceneKind::Bounded, 2, 6, false); }, "cap", "points", "",
+                           true);
+  // LLFF bounds (capture units) scaled with margins 0.9 / 1.1.
+  DatasetJson llff = capture_of(poses);
+  llff.bounds = {{2.5, 7.0}, {3.0, 9.0}};
+  f = fit_scene_frame(llff, "cap", SceneKind::Bounded, 2, 6, false);
+  EXPECT_EQ(f.bounds_source, "llff bounds");
+  EXPECT_NEAR(f.near, 0.9 * 2.5 / 5, 1e-6);
+  EXPECT_NEAR(f.far, 1.1 * 9.0 / 5, 1e-6);
+  // data.bounds_from_config wins over what the capture says.
+  f = fit_scene_frame(llff, "cap", SceneKind::Bounded, 0.3, 2.5, true);
+  EXPECT_EQ(f.bounds_source, "config");
+  EXPECT_DOUBLE_EQ(f.near, 0.3);
+  EXPECT_DOUBLE_EQ(f.far, 2.5);
+}
+
+TEST(SceneFrame, ParallelCamerasCentreOnTheirMean) {
+  // A forward-facing row of cameras all looking down -y: no common focus, so the centre is the
+  // mean camera position and the farthest camera sits at distance 1.
+  std::vector<Pose34> poses;
+  for (int i = 0; i < 5; ++i) poses.push_back(look_at_pose({1.0 + i, 3, 2}, {1.0 + i, -10, 2}, {0, 0, 1}));
+  const SceneFrame f = fit_scene_frame(capture_of(poses), "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_NEAR(f.centre[0], 3, 1e-6);
+  EXPECT_NEAR(f.centre[1], 3, 1e-6);
+  EXPECT_NEAR(f.centre[2], 2, 1e-6);
+  EXPECT_NEAR(f.scale, 0.5, 1e-6);
+}
+
+TEST(SceneFrame, DegenerateLayoutsAndSyntheticScenes) {
+  std::vector<Pose34> same(4, look_at_pose({1, 2, 3}, {0, 0, 0}, {0, 0, 1}));
+  test::expect_input_error([&] { fit_scene_frame(capture_of(same), "cap", SceneKind::Auto, 2, 6, false); }, "cap",
+                           "poses", "same point", true);
+  // Blender scenes keep the identity and the configured near/far.
+  DatasetJson blender = capture_of(ring_poses(4, {0, 0, 0}, {0, 0, 1}, 4, 0));
+  blender.synthetic = true;
+  const SceneFrame f = fit_scene_frame(blender, "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_TRUE(f.identity());
+  EXPECT_EQ(f.kind, SceneKind::Bounded);
+  EXPECT_DOUBLE_EQ(f.near, 2);
+  EXPECT_DOUBLE_EQ(f.far, 6);
+}
+
+TEST(SceneFrame, JsonRoundTripAndRefusals) {
+  const SceneFrame f = fit_scene_frame(capture_of(ring_poses(6, {1, 2, 3}, {0.1, 0.2, 1}, 2, 1)), "cap",
+                                       SceneKind::Bounded, 2, 6, false);
+  const SceneFrame g = SceneFrame::from_json(f.to_json(), "scene.json");
+  EXPECT_EQ(g.rotation, f.rotation);
+  EXPECT_EQ(g.centre, f.centre);
+  EXPECT_EQ(g.scale, f.scale);
+  EXPECT_EQ(g.kind, f.kind);
+  EXPECT_EQ(g.near, f.near);
+  EXPECT_EQ(g.far, f.far);
+  EXPECT_EQ(g.bounds_source, f.bounds_source);
+  test::expect_input_error([] { SceneFrame::from_json("{\"scale\": 1}", "scene.json"); }, "scene.json", "", "not a scene frame",
+                           true);
+  std::string bad = f.to_json();
+  bad.replace(bad.find("\"scale\""), 7, "\"scale\": -1, \"x\"");
+  test::expect_input_error([&] { SceneFrame::from_json(bad, "scene.json"); }, "scene.json", "scale", "positive", true);
+}
