@@ -2,7 +2,7 @@
 # The main job, end to end on the embedded demo scene:
 # install what is missing, build, render the scene, train the demo preset, evaluate, write the report.
 #   scripts/demo.sh [RUN_DIR]   (default: runs/demo)
-# Environment: ABLENERF_DEMO_STEPS=N trains N steps instead of the preset's 10,000 (the learning-rate
+# Environment: ABLENERF_DEMO_STEPS=N trains N steps instead of the preset's 460 s budget (the learning-rate
 # schedule still completes: configs/demo.toml); scripts/check_readme.sh uses 50 to keep CI short.
 # ABLENERF_CPU_ONLY=1: the CPU build even where a CUDA PyTorch is present (scripts/setup.sh).
 set -euo pipefail
