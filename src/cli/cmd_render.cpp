@@ -218,7 +218,8 @@ void setup(CLI::App& app) {
   auto* cams = app.add_option("--cameras", a->cameras, "Render at the poses of this Blender/transforms json");
   auto* path = app.add_option("--path", a->path,
                               "Camera path around the origin at the training cameras' mean distance: "
-                              "orbit (mean elevation) or spiral (elevation oscillating +-15 deg)");
+                              "orbit (mean elevation) or spiral (elevation oscillating up to +-15 deg), over the azimuth arc "
+                              "the cameras cover (out and back when they did not go all the way round)");
   cams->excludes(path);
   app.add_option("--frames", a->frames, "Frames along --path")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--width", a->width, "Output width (default: dataset width / data.downscale)")

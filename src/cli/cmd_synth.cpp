@@ -1,5 +1,6 @@
 // `ablenerf synth`: renders the embedded demo scene (diffuse, mirror and glass spheres under a
-// procedural sky) as a Blender-format dataset with exact test-view depth.
+// procedural sky) as a Blender-format dataset with exact test-view depth, or as a nerfstudio-layout
+// capture through a distorted lens and/or with the environment as background.
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -34,6 +35,13 @@ void setup(CLI::App& app) {
   app.add_option("--test-views", a->opts.test_views, "Number of test views (>= 1)")->capture_default_str();
   app.add_option("--seed", a->opts.seed, "Seed of the training camera positions")->capture_default_str();
   app.add_option("--threads", a->opts.threads, "Worker threads (0 = all cores)")->capture_default_str();
+  app.add_option("--lens", a->opts.lens, "pinhole, or opencv: render through a wide-angle lens with barrel distortion (OpenCV model)")->capture_default_str();
+  app.add_option("--background", a->opts.background,
+                 "transparent, or environment: the sky and ground at infinity behind the objects")
+      ->capture_default_str();
+  app.add_option("--layout", a->opts.layout,
+                 "auto (blender; nerfstudio for the lens or background variants), blender or nerfstudio")
+      ->capture_default_str();
   app.callback([a] {
     synth::validate(a->opts);  // fail before creating any folder
     const auto start = std::chrono::steady_clock::now();
@@ -47,5 +55,5 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_synth
-ABLENERF_COMMAND("synth", 10, "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset", cmd_synth::setup);
+ABLENERF_COMMAND("synth", 10, "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset (or a nerfstudio capture: --lens, --background)", cmd_synth::setup);
 }  // namespace ablenerf::cli

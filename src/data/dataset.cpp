@@ -148,7 +148,8 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
   if (!spec.frames.empty() && !spec.frames.front().depth.empty()) {
     bool all = true;
     for (const auto& d : depths) all = all && d.defined();
-    if (all) s.depth = torch::stack(depths);
+    // In the scene frame's units (0, a miss, stays 0).
+    if (all) s.depth = torch::stack(depths).mul_(scene.scale);
   }
   return s;
 }

@@ -41,7 +41,7 @@ struct Split {
   torch::Tensor c2w;     // (N,3,4) float32 camera-to-world, OpenGL axes, in the scene frame
   std::vector<Intrinsics> cameras;  // each image's camera at the loaded resolution
   std::vector<std::string> files;  // image paths
-  torch::Tensor depth;   // (N,H,W) float32 depth along the optical axis, if the dataset has it (else undefined)
+  torch::Tensor depth;   // (N,H,W) float32 depth along the optical axis in scene units, if the dataset has it (else undefined)
   int64_t size() const { return c2w.defined() ? c2w.size(0) : 0; }
 };
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 #include "util/errors.h"
 
@@ -28,6 +29,22 @@ CameraRig camera_rig(const torch::Tensor& c2w) {
   CameraRig rig;
   rig.distance = dist.mean().item<double>();
   rig.elevation = elev.mean().item<double>();
+  rig.elevation_min = elev.min().item<double>();
+  rig.elevation_max = elev.max().item<double>();
+  // Azimuths in increasing order; the largest gap between neighbours (wrapping round) decides
+  // whether the cameras went all the way round.
+  const auto az = torch::atan2(centres.select(1, 1), centres.select(1, 0));
+  std::vector<double> a(static_cast<size_t>(az.size(0)));
+  for (size_t i = 0; i < a.size(); ++i) a[i] = az[static_cast<int64_t>(i)].item<double>();
+  std::sort(a.begin(), a.end());
+  double gap = a.front() + 2 * M_PI - a.back();  // from the last back round to the first
+  double start = a.front();
+  for (size_t i = 1; i < a.size(); ++i)
+    if (a[i] - a[i - 1] > gap) gap = a[i] - a[i - 1], start = a[i];
+  if (gap > kOpenArcGapRad) {
+    rig.azimuth_start = start;
+    rig.azimuth_span = 2 * M_PI - gap;
+  }
   return rig;
 }
 
@@ -52,14 +69,19 @@ torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig) {
   const auto up = torch::tensor({0.0, 0.0, 1.0}, torch::kDouble);
   std::vector<torch::Tensor> poses;
   poses.reserve(static_cast<size_t>(frames));
+  const double amplitude = std::clamp(
+      std::min({kSpiralAmplitudeRad, rig.elevation_max - rig.elevation, rig.elevation - rig.elevation_min}), 0.0,
+      kSpiralAmplitudeRad);
   for (int k = 0; k < frames; ++k) {
     const double phase = 2.0 * M_PI * k / frames;
+    const double azimuth =
+        rig.full_circle() ? phase : rig.azimuth_start + rig.azimuth_span * 0.5 * (1 - std::cos(phase));
     double elev = rig.elevation;
-    if (kind == PathKind::Spiral) elev += kSpiralAmplitudeRad * std::sin(kSpiralCycles * phase);
+    if (kind == PathKind::Spiral) elev += amplitude * std::sin(kSpiralCycles * phase);
     elev = std::clamp(elev, -kMaxElevationRad, kMaxElevationRad);
     const double r = rig.distance;
     const auto eye = torch::tensor(
-        {r * std::cos(elev) * std::cos(phase), r * std::cos(elev) * std::sin(phase), r * std::sin(elev)},
+        {r * std::cos(elev) * std::cos(azimuth), r * std::cos(elev) * std::sin(azimuth), r * std::sin(elev)},
         torch::kDouble);
     poses.push_back(look_at(eye, origin, up));
   }

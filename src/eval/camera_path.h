@@ -1,10 +1,15 @@
 #pragma once
 // Camera paths for `ablenerf render`: an orbit (circle around the world z axis) or a spiral
 // (the orbit with the elevation oscillating), every camera looking at the origin with +z up.
+// Both stay where the training cameras were: when the cameras leave a gap of more than
+// kOpenArcGapRad in azimuth (a capture that did not go all the way round), the path sweeps the
+// covered arc out and back instead of circling through the gap; the spiral's swing stays inside
+// the cameras' elevation range.
 // Poses are camera-to-world (3,4) in the Blender/OpenGL convention (see data/rays.h): camera x
 // right, y up, and the camera looks along its -z axis.
 #include <torch/torch.h>
 
+#include <cmath>
 #include <string>
 
 namespace ablenerf {
@@ -19,7 +24,16 @@ PathKind parse_path_kind(const std::string& name, const std::string& source = "-
 struct CameraRig {
   double distance = 4.0;   // mean distance of the camera centres from the origin
   double elevation = 0.5;  // mean elevation angle above the xy plane, radians
+  // The azimuth arc the cameras cover (radians, counter-clockwise from +x): the whole circle, or
+  // from `azimuth_start` over `azimuth_span` < 2 pi.
+  double azimuth_start = 0.0;
+  double azimuth_span = 2 * M_PI;
+  // The cameras' elevation range, radians.
+  double elevation_min = -M_PI / 2, elevation_max = M_PI / 2;
+  bool full_circle() const { return azimuth_span >= 2 * M_PI; }
 };
+// The largest azimuth gap between neighbouring cameras that still counts as going all the way round.
+constexpr double kOpenArcGapRad = M_PI / 2;
 // From (N,3,4) or (N,4,4) poses.
 CameraRig camera_rig(const torch::Tensor& c2w);
 
@@ -34,8 +48,10 @@ constexpr int kSpiralCycles = 2;
 // Throws std::invalid_argument when eye == target or the view direction is parallel to `up`.
 torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, const torch::Tensor& up);
 
-// `frames` poses (frames,3,4), azimuth 2 pi k / frames for k = 0..frames-1, elevation clamped to
-// +-kMaxElevationRad.
+// `frames` poses (frames,3,4), elevation clamped to +-kMaxElevationRad. Azimuth 2 pi k / frames for
+// k = 0..frames-1 on a full circle; on an arc start + span (1 - cos(2 pi k / frames)) / 2 (out to
+// the arc's far end at mid-video and back, easing at both ends, so the video loops). The spiral's
+// swing is kSpiralAmplitudeRad or less, to stay inside [elevation_min, elevation_max].
 torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig);
 
 }  // namespace ablenerf

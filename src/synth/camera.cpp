@@ -43,10 +43,29 @@ Camera look_at_origin(const Vec3& centre, int res) {
   return cam;
 }
 
+void distort_point(const SynthLens& l, double x, double y, double& xd, double& yd) {
+  const double r2 = x * x + y * y, radial = 1 + l.k1 * r2 + l.k2 * r2 * r2;
+  xd = x * radial + 2 * l.p1 * x * y + l.p2 * (r2 + 2 * x * x);
+  yd = y * radial + l.p1 * (r2 + 2 * y * y) + 2 * l.p2 * x * y;
+}
+
+void undistort_point(const SynthLens& l, double xd, double yd, double& x, double& y) {
+  x = xd, y = yd;
+  for (int it = 0; it < 100; ++it) {
+    const double r2 = x * x + y * y, radial = 1 + l.k1 * r2 + l.k2 * r2 * r2;
+    const double dx = 2 * l.p1 * x * y + l.p2 * (r2 + 2 * x * x), dy = l.p1 * (r2 + 2 * y * y) + 2 * l.p2 * x * y;
+    const double nx = (xd - dx) / radial, ny = (yd - dy) / radial;
+    const bool done = std::abs(nx - x) < 1e-15 && std::abs(ny - y) < 1e-15;
+    x = nx, y = ny;
+    if (done) break;
+  }
+}
+
 Ray camera_ray(const Camera& cam, double px, double py) {
-  const double x = (px - 0.5 * cam.width) / cam.focal;
-  const double y = -(py - 0.5 * cam.height) / cam.focal;
-  const Vec3 d = cam.axis(0) * x + cam.axis(1) * y - cam.axis(2);
+  double x = (px - 0.5 * cam.width) / cam.focal;
+  double y = (py - 0.5 * cam.height) / cam.focal;  // down
+  if (cam.lens.distorted()) undistort_point(cam.lens, x, y, x, y);
+  const Vec3 d = cam.axis(0) * x - cam.axis(1) * y - cam.axis(2);
   return {cam.centre(), d};
 }
 

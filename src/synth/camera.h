@@ -14,12 +14,29 @@ constexpr double kCameraDistance = 4.0;
 constexpr double kMinElevationDeg = 10.0, kMaxElevationDeg = 80.0;  // train views
 constexpr double kTestElevationDeg = 30.0;                          // test orbit
 
+// The variant's lens (`ablenerf synth --lens opencv`): OpenCV radial-tangential distortion of the
+// normalised image point, x_d = x (1 + k1 r^2 + k2 r^4) + 2 p1 x y + p2 (r^2 + 2 x^2) (y likewise,
+// y pointing down), barrel-shaped like an action camera's wide lens: the corners move inwards by
+// ~7.6% of their distance from the centre (2.6 pixels of a 48x48 view).
+struct SynthLens {
+  double k1 = 0, k2 = 0, p1 = 0, p2 = 0;
+  bool distorted() const { return k1 != 0 || k2 != 0 || p1 != 0 || p2 != 0; }
+};
+constexpr SynthLens kWideLens{-0.32, 0.11, 0.002, -0.0015};
+
+// The distorted point of the normalised point (x, y).
+void distort_point(const SynthLens& lens, double x, double y, double& xd, double& yd);
+// Its inverse by OpenCV's fixed-point iteration (cv::undistortPoints; ablenerf's own loader uses
+// Newton's method, src/data/lens_radial_tangential.cpp): converged to 1e-15 or 100 iterations.
+void undistort_point(const SynthLens& lens, double xd, double yd, double& x, double& y);
+
 struct Camera {
   // Camera-to-world (3 rows of 4): columns are camera right, up, backwards (it looks down -z),
   // and the camera centre.
   double c2w[3][4] = {{0}};
   int width = 0, height = 0;
   double focal = 1.0;  // pixels; fx = fy, principal point at the image centre
+  SynthLens lens;      // none by default (a pinhole)
   Vec3 centre() const { return {c2w[0][3], c2w[1][3], c2w[2][3]}; }
   Vec3 axis(int col) const { return {c2w[0][col], c2w[1][col], c2w[2][col]}; }
 };
@@ -31,8 +48,8 @@ double focal_from_angle(int width, double angle_x);
 Camera look_at_origin(const Vec3& centre, int res);
 
 // The ray through continuous pixel coordinates (px, py) (pixel (i, j)'s centre is
-// (i + 0.5, j + 0.5)): direction R ((px - W/2)/f, -(py - H/2)/f, -1), not normalised, so its
-// t equals depth along the optical axis.
+// (i + 0.5, j + 0.5)): direction R (x, -y, -1) with (x, y) = undistort((px - W/2)/f, (py - H/2)/f)
+// (the identity for a pinhole), not normalised, so its t equals depth along the optical axis.
 Ray camera_ray(const Camera& cam, double px, double py);
 
 // Train views: a golden-angle spiral covering the elevation band uniformly by area, with a

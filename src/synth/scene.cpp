@@ -44,6 +44,35 @@ json transforms_json(const std::vector<Camera>& cams, const std::string& split, 
   return json{{"camera_angle_x", kCameraAngleX}, {"frames", frames}};
 }
 
+// nerfstudio's layout: one transforms.json, every frame, the split as file lists.
+json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>& test) {
+  const Camera& c = train.front();
+  json j{{"w", c.width}, {"h", c.height}, {"fl_x", c.focal}, {"fl_y", c.focal}, {"cx", 0.5 * c.width},
+         {"cy", 0.5 * c.height}, {"camera_model", c.lens.distorted() ? "OPENCV" : "PINHOLE"}};
+  if (c.lens.distorted()) {
+    j["k1"] = c.lens.k1;
+    j["k2"] = c.lens.k2;
+    j["p1"] = c.lens.p1;
+    j["p2"] = c.lens.p2;
+  }
+  json frames = json::array(), train_files = json::array(), test_files = json::array();
+  for (size_t k = 0; k < train.size(); ++k) {
+    const std::string path = "train/r_" + std::to_string(k) + ".png";
+    frames.push_back({{"file_path", path}, {"transform_matrix", pose_json(train[k])}});
+    train_files.push_back(path);
+  }
+  for (size_t k = 0; k < test.size(); ++k) {
+    const std::string base = "test/r_" + std::to_string(k);
+    frames.push_back({{"file_path", base + ".png"}, {"depth_file_path", base + "_depth.pt"},
+                      {"transform_matrix", pose_json(test[k])}});
+    test_files.push_back(base + ".png");
+  }
+  j["frames"] = frames;
+  j["train_filenames"] = train_files;
+  j["test_filenames"] = test_files;
+  return j;
+}
+
 json scene_json(const SynthOptions& o) {
   json objects = json::array();
   for (const Sphere& s : scene_spheres()) {
@@ -61,6 +90,12 @@ json scene_json(const SynthOptions& o) {
   return json{
       {"generator", "ablenerf synth"},
       {"seed", o.seed},
+      {"lens", o.lens == "opencv" ? json{{"model", "OPENCV"}, {"k1", kWideLens.k1}, {"k2", kWideLens.k2},
+                                        {"p1", kWideLens.p1}, {"p2", kWideLens.p2}}
+                                  : json{{"model", "PINHOLE"}}},
+      {"background", o.background == "environment" ? "the environment (sky and ground at infinity), alpha 1"
+                                                    : "transparent"},
+      {"layout", o.resolved_layout()},
       {"resolution", {o.res, o.res}},
       {"train_views", o.train_views},
       {"test_views", o.test_views},
@@ -112,7 +147,19 @@ struct Job {
 
 }  // namespace
 
+std::string SynthOptions::resolved_layout() const {
+  if (layout != "auto") return layout;
+  return lens != "pinhole" || background != "transparent" ? "nerfstudio" : "blender";
+}
+
 void validate(const SynthOptions& o) {
+  if (o.lens != "pinhole" && o.lens != "opencv") throw InputError("synth", "--lens", "must be pinhole or opencv");
+  if (o.background != "transparent" && o.background != "environment")
+    throw InputError("synth", "--background", "must be transparent or environment");
+  if (o.layout != "auto" && o.layout != "blender" && o.layout != "nerfstudio")
+    throw InputError("synth", "--layout", "must be auto, blender or nerfstudio");
+  if (o.layout == "blender" && o.lens != "pinhole")
+    throw InputError("synth", "--layout", "the Blender layout has no lens model (use nerfstudio)");
   if (o.res < kMinResolution || o.res > kMaxResolution)
     throw InputError("synth", "--res",
                      "must be between " + std::to_string(kMinResolution) + " and " + std::to_string(kMaxResolution) +
@@ -127,8 +174,12 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   validate(o);
   ensure_dir(dir + "/train");
   ensure_dir(dir + "/test");
-  const std::vector<Camera> train = train_cameras(o.train_views, o.res, o.seed);
-  const std::vector<Camera> test = test_cameras(o.test_views, o.res);
+  std::vector<Camera> train = train_cameras(o.train_views, o.res, o.seed);
+  std::vector<Camera> test = test_cameras(o.test_views, o.res);
+  if (o.lens == "opencv")
+    for (auto* cams : {&train, &test})
+      for (auto& c : *cams) c.lens = kWideLens;
+  const bool environment = o.background == "environment";
   std::vector<Job> jobs;
   for (size_t k = 0; k < train.size(); ++k) jobs.push_back({&train[k], dir + "/train/r_" + std::to_string(k), false});
   for (size_t k = 0; k < test.size(); ++k) jobs.push_back({&test[k], dir + "/test/r_" + std::to_string(k), true});
@@ -144,7 +195,7 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   auto worker = [&] {
     for (size_t k = next++; k < jobs.size(); k = next++) {
       try {
-        const ViewImage img = render_view(*jobs[k].cam, 1);
+        const ViewImage img = render_view(*jobs[k].cam, 1, environment);
         const auto rgba = torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
         write_png(jobs[k].base + ".png", rgba);
         if (jobs[k].depth) write_depth(jobs[k].base, img);
@@ -165,8 +216,12 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   if (failure) std::rethrow_exception(failure);
 
   // The json files go last, so a readable transforms file implies its images exist.
-  write_file_atomic(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
-  write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
+  if (o.resolved_layout() == "nerfstudio") {
+    write_file_atomic(dir + "/transforms.json", nerfstudio_json(train, test).dump(2) + "\n");
+  } else {
+    write_file_atomic(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
+    write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
+  }
   write_file_atomic(dir + "/scene.json", scene_json(o).dump(2) + "\n");
 }
 

@@ -3,12 +3,19 @@
 // sphere, a mirror sphere and a glass sphere under a procedural environment, rendered by a small
 // CPU ray tracer (world.h, camera.h, render.h) on a transparent background.
 //
-// Layout written to DIR:
+// Variants for real-capture code paths: `lens` "opencv" renders through kWideLens (camera.h),
+// `background` "environment" puts the sky and ground (at infinity) behind the objects instead of a
+// transparent card. Either writes the nerfstudio layout (below) unless `layout` says otherwise.
+//
+// Layout written to DIR ("blender", the default):
 //   transforms_train.json, transforms_test.json  (camera_angle_x + frames, Blender style)
 //   train/r_K.png, test/r_K.png                  (RGBA 8-bit, straight alpha, sRGB)
 //   test/r_K_depth.pt                            (torch::pickle_save of float32 (H,W) depth)
 //   test/r_K_depth.png                           (greyscale visualisation of that depth)
 //   scene.json                                   (objects, materials, lighting, cameras, seed)
+// ("nerfstudio"): one transforms.json with w, h, fl_x, fl_y, cx, cy, camera_model (PINHOLE or
+// OPENCV with k1 k2 p1 p2), every frame, and the split as train_filenames / test_filenames; the
+// same image, depth and scene.json files.
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -29,12 +36,18 @@ struct SynthOptions {
   int test_views = 20;
   uint64_t seed = 0;
   int threads = 0;  // <= 0: hardware concurrency, at least 2
+  std::string lens = "pinhole";            // "pinhole" | "opencv"
+  std::string background = "transparent";  // "transparent" | "environment"
+  std::string layout = "auto";             // "auto" | "blender" | "nerfstudio"
+  // The layout "auto" resolves to: nerfstudio for the lens or background variants, else blender.
+  std::string resolved_layout() const;
   // Called after each finished view with (views done, views total); from worker threads,
   // serialised by a mutex. May be empty.
   std::function<void(int, int)> progress;
 };
 
-// Throws InputError("synth", "--res" / "--train-views" / "--test-views", ...) on bad options.
+// Throws InputError("synth", "--res" / "--train-views" / "--test-views" / "--lens" /
+// "--background" / "--layout", ...) on bad options.
 void validate(const SynthOptions& opts);
 
 // Renders every view and writes the dataset (each file atomically). Deterministic for a seed:

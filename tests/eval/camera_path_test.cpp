@@ -103,6 +103,47 @@ TEST(CameraRigTest, MeanDistanceAndElevationOfKnownCameras) {
   EXPECT_NEAR(rig.elevation, 0.4, 1e-5);
 }
 
+TEST(CameraPath, StaysInsideTheArcAndElevationsTheCamerasCover) {
+  const auto up = torch::tensor({0.0, 0.0, 1.0});
+  const auto ring = [&](const std::vector<double>& azimuths_deg, const std::vector<double>& elevations) {
+    std::vector<torch::Tensor> poses;
+    for (size_t i = 0; i < azimuths_deg.size(); ++i) {
+      const double az = azimuths_deg[i] * M_PI / 180, el = elevations[i % elevations.size()];
+      poses.push_back(look_at(torch::tensor({2 * std::cos(el) * std::cos(az), 2 * std::cos(el) * std::sin(az), 2 * std::sin(el)}),
+                              torch::zeros({3}), up));
+    }
+    return torch::stack(poses);
+  };
+  // A capture that went from -60 to +80 degrees of azimuth (given out of order), 0.1 to 0.3 rad up.
+  const CameraRig arc = camera_rig(ring({20, -60, 80, -10, 45, -35}, {0.1, 0.3, 0.2}));
+  EXPECT_FALSE(arc.full_circle());
+  EXPECT_NEAR(arc.azimuth_start, -60 * M_PI / 180, 1e-6);
+  EXPECT_NEAR(arc.azimuth_span, 140 * M_PI / 180, 1e-6);
+  EXPECT_NEAR(arc.elevation_min, 0.1, 1e-6);
+  EXPECT_NEAR(arc.elevation_max, 0.3, 1e-6);
+  const int n = 40;
+  for (const PathKind kind : {PathKind::Orbit, PathKind::Spiral}) {
+    const auto centres = camera_path(kind, n, arc).select(2, 3).to(torch::kDouble);
+    const auto az = torch::atan2(centres.select(1, 1), centres.select(1, 0)) * (180 / M_PI);
+    const auto el = torch::asin(centres.select(1, 2) / centres.norm(2, 1));
+    EXPECT_GE(az.min().item<double>(), -60 - 1e-4);
+    EXPECT_LE(az.max().item<double>(), 80 + 1e-4);
+    EXPECT_NEAR(az[0].item<double>(), -60, 1e-4);      // starts at one end,
+    EXPECT_NEAR(az[n / 2].item<double>(), 80, 1e-4);   // reaches the other at mid-video,
+    EXPECT_NEAR(az[n - 1].item<double>(), az[1].item<double>(), 1e-4);  // and comes back: the video loops
+    EXPECT_GE(el.min().item<double>(), 0.1 - 1e-6);
+    EXPECT_LE(el.max().item<double>(), 0.3 + 1e-6);
+  }
+  // The spiral's swing shrinks to the 0.1 rad the cameras allow around their mean elevation 0.2.
+  const auto spiral = camera_path(PathKind::Spiral, n, arc).select(2, 3).to(torch::kDouble);
+  EXPECT_NEAR(torch::asin(spiral.select(1, 2) / spiral.norm(2, 1)).max().item<double>(), 0.2 + 0.1, 1e-3);
+  // Cameras all the way round (largest gap 60 degrees): the full circle, as before.
+  const CameraRig round = camera_rig(ring({0, 60, 120, 180, 240, 300}, {0.4}));
+  EXPECT_TRUE(round.full_circle());
+  const auto c = camera_path(PathKind::Orbit, 4, round).select(2, 3);
+  EXPECT_NEAR(c[1][1].item<double>() / c[1].norm().item<double>(), std::cos(0.4), 1e-5);  // azimuth 90 degrees
+}
+
 TEST(CameraPath, ParseKind) {
   EXPECT_EQ(parse_path_kind("orbit"), PathKind::Orbit);
   EXPECT_EQ(parse_path_kind("spiral"), PathKind::Spiral);
