@@ -16,6 +16,7 @@
 #include <sstream>
 
 #include "data/dataset.h"
+#include "jpeg_writer.h"
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/image_io.h"
@@ -337,6 +338,49 @@ TEST(Captures, NerfstudioFisheyeOwnSplitAndPrescaledCopies) {
   test::write_file(t / "transforms.json", text);
   test::expect_input_error([&] { Dataset::load(t.path(), o); }, t / "transforms.json", "test_filenames[1]",
                            "no frame has this file_path", true);
+}
+
+TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
+  // A portrait photo stored landscape (16 wide, 8 high) with EXIF orientation 6 ("rotate 90 degrees
+  // clockwise to display"): upright it is 8 wide, 16 high, and upright pixel (r, c) is stored
+  // pixel (7 - c, r).
+  test::TempDir t;
+  const int sw = 16, sh = 8;
+  std::vector<uint8_t> px(static_cast<size_t>(sw * sh * 3));
+  for (int y = 0; y < sh; ++y)
+    for (int x = 0; x < sw; ++x)
+      for (int ch = 0; ch < 3; ++ch)
+        px[static_cast<size_t>((y * sw + x) * 3 + ch)] = static_cast<uint8_t>(ch == 0 ? 20 + 12 * x : ch == 1 ? 30 + 25 * y : 90);
+  test::JpegOptions jo;
+  jo.app1 = test::exif_payload(true, 6);
+  const std::string jpeg = test::encode_jpeg(px, sw, sh, jo);
+  fs::create_directories(t / "images");
+  for (int i = 0; i < 2; ++i) test::write_file(t / ("images/p" + std::to_string(i) + ".jpg"), jpeg);
+  const auto json_with = [&](int w, int h) {
+    return "{\"fl_x\": 10, \"w\": " + std::to_string(w) + ", \"h\": " + std::to_string(h) +
+           ", \"frames\": [{\"file_path\": \"images/p0.jpg\", \"transform_matrix\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+           "{\"file_path\": \"images/p1.jpg\", \"transform_matrix\": [[1,0,0,1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}";
+  };
+  // The capture says 8x16: its poses were made on the upright image, which the loader produces.
+  test::write_file(t / "transforms.json", json_with(8, 16));
+  Dataset ds = Dataset::load(t.path());
+  const auto im = ds.split("train").images[0];  // (16, 8, 3), in [0, 1]
+  ASSERT_EQ(im.sizes(), (std::vector<int64_t>{16, 8, 3}));
+  double worst = 0;
+  for (int r = 0; r < 16; ++r)
+    for (int c = 0; c < 8; ++c)
+      for (int ch = 0; ch < 3; ++ch)
+        worst = std::max(worst, std::abs(im[r][c][ch].item<double>() * 255 - px[static_cast<size_t>(((7 - c) * sw + r) * 3 + ch)]));
+  EXPECT_LT(worst, 6);  // JPEG at quality 100 with 4:4:4 sampling: a few levels of rounding
+  // The capture says 16x8: the stored pixels, untouched.
+  test::write_file(t / "transforms.json", json_with(16, 8));
+  ds = Dataset::load(t.path());
+  EXPECT_EQ(ds.split("train").images[0].sizes(), (std::vector<int64_t>{8, 16, 3}));
+  // A size that is neither: refused, naming the image and the sizes.
+  test::write_file(t / "transforms.json", json_with(12, 8));
+  // (frame 1 is the first decoded: the train split comes first, frame 0 is held out for test).
+  test::expect_input_error([&] { Dataset::load(t.path()); }, fs::canonical(t / "images/p1.jpg").string(),
+                           "frames[1].file_path", "12x8", true);
 }
 
 // The real captures of docs/CAPTURES.md, when they sit beside the checkout: each loads, in its
