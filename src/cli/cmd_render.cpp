@@ -141,7 +141,9 @@ void run_render(const RenderArgs& a) {
     cams.c2w = poses_to_scene(cams.c2w, scene);
   }
   torch::Tensor poses = cams.c2w;
-  if (!a.path.empty()) poses = camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
+  if (!a.path.empty())
+    poses = scene.kind == SceneKind::ForwardFacing ? forward_facing_path(parse_path_kind(a.path), a.frames, cams.c2w)
+                                                   : camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
   const int n = static_cast<int>(poses.size(0));
 
   // Output: folder of frames, or a video (or frames beside it when ffmpeg is missing and asked).

@@ -81,6 +81,51 @@ double percentile(std::vector<double> v, double q) {
 // milliseconds.
 constexpr size_t kMaxBoundPoints = 20000;
 
+// The closest content in front of the cameras, capture units: the 1st percentile of the sparse
+// points' depths, else the smallest LLFF near bound.
+double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
+  if (cap.points.empty()) {
+    double lo = cap.bounds[0][0];
+    for (const auto& b : cap.bounds) lo = std::min(lo, b[0]);
+    return lo;
+  }
+  std::vector<double> depths;
+  const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
+  for (const auto& p : poses) {
+    const V3 o = column(p, 3), z = column(p, 2);
+    for (size_t i = 0; i < cap.points.size(); i += stride) {
+      const double d = -dot(sub(cap.points[i], o), z);
+      if (d > 0) depths.push_back(d);
+    }
+  }
+  if (depths.empty()) throw InputError(root, "points", "no sparse point lies in front of any camera");
+  return percentile(depths, 0.01);
+}
+
+SceneFrame fit_forward_facing(const DatasetJson& cap, const std::vector<Pose34>& poses, const V3& mean, const V3& back,
+                              const V3& up_sum, const std::string& root) {
+  SceneFrame f;
+  f.kind = SceneKind::ForwardFacing;
+  f.centre = mean;
+  // Rows of R: right = up x back, up' = back x right, back (so R back = +z, the cameras look down -z).
+  V3 right = cross(up_sum, back);
+  const double rn = norm(right);
+  if (!(rn > 1e-9)) throw InputError(root, "poses", "the cameras' up vectors are parallel to their viewing direction");
+  right = {right[0] / rn, right[1] / rn, right[2] / rn};
+  const V3 up = cross(back, right);
+  f.rotation = {right[0], right[1], right[2], up[0], up[1], up[2], back[0], back[1], back[2]};
+  const double closest = nearest_content(cap, poses, root);
+  if (!(closest > 0)) throw InputError(root, "bounds", "the scene's near bound must be positive");
+  f.scale = 1.0 / (kForwardNearFraction * closest);
+  f.near = 0;
+  f.far = 1;
+  f.bounds_source = cap.points.empty() ? "llff bounds" : "points";
+  const Intrinsics& k = cap.splits.front().frames.front().camera;
+  f.ndc_a = 2 * k.fx / k.width;
+  f.ndc_b = 2 * k.fy / k.height;
+  return f;
+}
+
 }  // namespace
 
 bool SceneFrame::identity() const {
@@ -125,6 +170,10 @@ std::string SceneFrame::to_json() const {
   j["near"] = near;
   j["far"] = far;
   j["bounds_source"] = bounds_source;
+  if (kind == SceneKind::ForwardFacing) {
+    j["ndc_a"] = ndc_a;
+    j["ndc_b"] = ndc_b;
+  }
   j["convention"] = "x_scene = scale * rotation (x_capture - centre); rotation row-major";
   return j.dump(2) + "\n";
 }
@@ -137,8 +186,11 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
     f.centre = j.at("centre").get<std::array<double, 3>>();
     f.scale = j.at("scale").get<double>();
     const auto kind = enum_from_name<SceneKind>(j.at("scene").get<std::string>());
-    if (!kind || *kind == SceneKind::Auto) throw InputError(origin, "scene", "must be \"bounded\" or \"unbounded\"");
+    if (!kind || *kind == SceneKind::Auto)
+      throw InputError(origin, "scene", "must be \"bounded\", \"unbounded\" or \"forward\"");
     f.kind = *kind;
+    f.ndc_a = j.value("ndc_a", 0.0);
+    f.ndc_b = j.value("ndc_b", 0.0);
     f.near = j.at("near").get<double>();
     f.far = j.at("far").get<double>();
     f.bounds_source = j.value("bounds_source", "");
@@ -147,12 +199,15 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
   }
   if (!(f.scale > 0 && std::isfinite(f.scale))) throw InputError(origin, "scale", "must be positive");
   if (!(f.near >= 0 && f.far > f.near)) throw InputError(origin, "far", "need 0 <= near < far");
+  if (f.kind == SceneKind::ForwardFacing && !(f.ndc_a > 0 && f.ndc_b > 0 && std::isfinite(f.ndc_a) && std::isfinite(f.ndc_b)))
+    throw InputError(origin, "ndc_a", "a forward-facing scene needs positive ndc_a and ndc_b");
   return f;
 }
 
 std::string SceneFrame::describe() const {
   std::ostringstream o;
   o << name_of(kind) << " scene, near " << near << " far " << far << " (" << bounds_source << ")";
+  if (kind == SceneKind::ForwardFacing) o << ", NDC rays (ndc_a " << ndc_a << ", ndc_b " << ndc_b << ")";
   if (!identity())
     o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << "), scale " << scale
       << ", up (" << rotation[6] << ", " << rotation[7] << ", " << rotation[8] << ") -> +z";
@@ -195,6 +250,29 @@ SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, Scen
   for (const auto& p : poses) spread = std::max(spread, norm(sub(column(p, 3), mean)));
   if (!(spread > 1e-9 * (1 + norm(mean))))
     throw InputError(root, "poses", "every camera is at the same point (degenerate poses: nothing to triangulate)");
+  // Forward-facing: every optical axis close to the mean one, and a known near bound.
+  V3 back{0, 0, 0};
+  for (const auto& p : poses) {
+    const V3 z = column(p, 2);
+    for (size_t i = 0; i < 3; ++i) back[i] += z[i];
+  }
+  const double back_norm = norm(back);
+  bool facing_one_way = back_norm > 1e-9;
+  if (facing_one_way) {
+    for (size_t i = 0; i < 3; ++i) back[i] /= back_norm;
+    for (const auto& p : poses)
+      facing_one_way = facing_one_way && dot(column(p, 2), back) >= std::cos(kForwardFacingMaxAngleDeg * M_PI / 180);
+  }
+  const bool has_near = !cap.points.empty() || !cap.bounds.empty();
+  if (requested == SceneKind::ForwardFacing && !has_near)
+    throw InputError(root, "data.scene", "forward needs the scene's near bound: sparse points (COLMAP) or LLFF bounds");
+  if (requested == SceneKind::ForwardFacing && !facing_one_way)
+    throw InputError(root, "data.scene", "forward needs cameras that all look the same way (none may turn more than " +
+                                             std::to_string(static_cast<int>(kForwardFacingMaxAngleDeg)) +
+                                             " degrees from their mean direction); use unbounded");
+  if (requested == SceneKind::ForwardFacing || (requested == SceneKind::Auto && facing_one_way && has_near))
+    return fit_forward_facing(cap, poses, mean, back, up, root);
+
   V3 focus;
   int in_front = 0;
   if (solve3(A, b, focus)) {

@@ -20,8 +20,10 @@ struct SceneFrame {
   std::array<double, 9> rotation{1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major R
   std::array<double, 3> centre{0, 0, 0};
   double scale = 1;
-  SceneKind kind = SceneKind::Bounded;  // resolved: Bounded or Unbounded
-  double near = 2, far = 6;             // in scene units
+  SceneKind kind = SceneKind::Bounded;  // resolved: Bounded, Unbounded or ForwardFacing
+  double near = 2, far = 6;             // in scene units (ForwardFacing: 0 and 1, the NDC ray's t)
+  // ForwardFacing: the NDC projection's focal factors 2 fx / W and 2 fy / H (model/ndc.h).
+  double ndc_a = 0, ndc_b = 0;
   std::string bounds_source = "config"; // "points" | "llff bounds" | "cameras" | "config"
 
   bool identity() const;
@@ -37,12 +39,22 @@ struct SceneFrame {
   std::string describe() const;
 };
 
+// Forward-facing layouts: every camera's optical axis within this angle of their mean.
+constexpr double kForwardFacingMaxAngleDeg = 35.0;
+// Forward-facing scenes are scaled so that the nearest content (1st percentile of the sparse
+// points' depths, or the smallest LLFF near bound) sits at 1 / kForwardNearFraction in front of the
+// cameras, beyond the NDC near plane at 1 (LLFF's convention).
+constexpr double kForwardNearFraction = 0.75;
+
 // Unbounded scenes: the far bound (scene units). Samples reach it linearly in disparity, and the
 // contraction maps everything beyond the unit sphere into radius 2, so it stands for infinity.
 constexpr double kUnboundedFar = 1e6;
 
 // Fits the scene frame of a capture from all of its frames (every split: training and evaluation
-// must share one frame). `requested` is data.scene; `near`/`far` are data.near/data.far, used for
+// must share one frame). Forward-facing captures get another frame: centred on the mean camera,
+// rotated so that the cameras look down -z with their mean up towards +y, scaled by
+// kForwardNearFraction (model/ndc.h); `auto` picks it when the layout is forward-facing and the
+// capture has sparse points or LLFF bounds, and `forward` without either is refused. `requested` is data.scene; `near`/`far` are data.near/data.far, used for
 // Blender scenes and, with `bounds_from_config`, for every capture. InputError(root, "poses", ...)
 // for degenerate layouts (all cameras at one point).
 SceneFrame fit_scene_frame(const DatasetJson& capture, const std::string& root, SceneKind requested, double near,

@@ -88,4 +88,23 @@ torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig) {
   return torch::stack(poses);
 }
 
+torch::Tensor forward_facing_path(PathKind kind, int frames, const torch::Tensor& c2w) {
+  if (frames < 1) throw std::invalid_argument("forward_facing_path: frames must be >= 1");
+  TORCH_CHECK(c2w.dim() == 3 && c2w.size(0) > 0 && c2w.size(2) == 4, "forward_facing_path: expected (N,3,4) poses");
+  const auto centres = c2w.slice(1, 0, 3).select(2, 3).to(torch::kDouble);
+  const double rx = std::max(centres.select(1, 0).abs().max().item<double>(), kDegenerateNorm);
+  const double ry = std::max(centres.select(1, 1).abs().max().item<double>(), kDegenerateNorm);
+  const double z0 = centres.select(1, 2).mean().item<double>();
+  const auto target = torch::tensor({0.0, 0.0, -kForwardFocusDepth}, torch::kDouble);
+  const auto up = torch::tensor({0.0, 1.0, 0.0}, torch::kDouble);
+  std::vector<torch::Tensor> poses;
+  for (int k = 0; k < frames; ++k) {
+    const double phase = 2.0 * M_PI * k / frames;
+    const double dz = kind == PathKind::Spiral ? 0.5 * std::min(rx, ry) * std::sin(kSpiralCycles * phase) : 0.0;
+    const auto eye = torch::tensor({rx * std::cos(phase), ry * std::sin(phase), z0 + dz}, torch::kDouble);
+    poses.push_back(look_at(eye, target, up));
+  }
+  return torch::stack(poses);
+}
+
 }  // namespace ablenerf

@@ -54,4 +54,12 @@ torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, con
 // swing is kSpiralAmplitudeRad or less, to stay inside [elevation_min, elevation_max].
 torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig);
 
+// Forward-facing scenes (data.scene = "forward": cameras near z = 0 looking down -z, the nearest
+// content at 1 / 0.75 in front): LLFF's path. The eye goes round an ellipse in the cameras' plane
+// whose half-axes are the largest |x| and |y| of the camera centres (`c2w`, (N,3,4)), looking at
+// (0, 0, -kForwardFocusDepth) with +y up; the spiral also moves it forward and back by half the
+// smaller half-axis, twice per turn.
+constexpr double kForwardFocusDepth = 4.0 / 0.75;  // LLFF: 1 / (0.25 / nearest + 0.75 / infinity)
+torch::Tensor forward_facing_path(PathKind kind, int frames, const torch::Tensor& c2w);
+
 }  // namespace ablenerf

@@ -98,7 +98,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const std::string out_dir = eval_dir(run, opts.split);
   ensure_dir(out_dir);
 
-  const bool has_depth = split.depth.defined();
+  // Forward-facing models see depth as the NDC ray's t (disparity-like), not comparable to metric
+  // ground truth: no depth error there.
+  const bool has_depth = split.depth.defined() && ds.scene.kind != SceneKind::ForwardFacing;
   nlohmann::json images = nlohmann::json::array();
   const int64_t rays_per_image = static_cast<int64_t>(k.width) * k.height;
   std::optional<Progress> bar;

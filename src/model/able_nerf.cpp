@@ -33,7 +33,8 @@ ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
 }
 }  // namespace
 
-AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene) : cfg_(cfg), unbounded_(scene == SceneKind::Unbounded) {
+AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjection ndc)
+    : cfg_(cfg), unbounded_(scene == SceneKind::Unbounded), ndc_(scene == SceneKind::ForwardFacing), ndc_projection_(ndc) {
   const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
   // Plain randn (spec 8.1: the release's xavier call on these is a no-op).
   ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
@@ -146,14 +147,16 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
 
 ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far, const ForwardOptions& opts) {
   const auto options = ray_token_.options();
-  const Rays rays{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
+  const Rays world{in.origins.to(options), in.directions.to(options), in.radii.to(options)};
+  // Forward-facing scenes sample along the NDC ray; the view direction stays the world one.
+  const Rays rays = ndc_ ? rays_to_ndc(world, ndc_projection_) : world;
   const int64_t b = rays.size();
   const AutocastScope autocast(compute_.precision, ray_token_.device());
 
   torch::Tensor le, view, view_code;
   if (has_le()) {
     le = effective_le(opts);
-    view_code = encode_view(rays.directions, cfg_.view_encoding);
+    view_code = encode_view(world.directions, cfg_.view_encoding);
     view = view_token_(view_code);
   }
   LETransformer* le_c = has_le() ? &le_coarse_ : nullptr;

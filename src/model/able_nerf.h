@@ -12,6 +12,7 @@
 #include "model/ab_transformer.h"
 #include "model/colour_heads.h"
 #include "model/le_transformer.h"
+#include "model/ndc.h"
 #include "model/volume_embedding.h"
 #include "util/config.h"
 
@@ -59,9 +60,10 @@ struct ModelOutput {
 
 class AbleNerfImpl : public torch::nn::Module {
  public:
-  // `scene` (resolved: Bounded or Unbounded; data.scene) sets where the samples lie and whether the
-  // frustum Gaussians are contracted (model/contraction.h); Auto means Bounded.
-  explicit AbleNerfImpl(const ModelConfig& cfg, SceneKind scene = SceneKind::Bounded);
+  // `scene` (resolved: Bounded, Unbounded or ForwardFacing; data.scene) sets where the samples lie
+  // and whether the frustum Gaussians are contracted (model/contraction.h) or cast around NDC rays
+  // (model/ndc.h, with `ndc`'s projection); Auto means Bounded.
+  explicit AbleNerfImpl(const ModelConfig& cfg, SceneKind scene = SceneKind::Bounded, NdcProjection ndc = {});
   // Rays must be on the model's device. Stratified jitter (model.randomized) applies only in
   // training mode, drawn for the whole batch (with_jitter) before any split. On the CPU without
   // gradient recording (rendering, evaluation) the rays are split across CPU threads
@@ -96,6 +98,8 @@ class AbleNerfImpl : public torch::nn::Module {
 
   ModelConfig cfg_;
   bool unbounded_ = false;
+  bool ndc_ = false;
+  NdcProjection ndc_projection_;
   Compute compute_;
   torch::Tensor ray_token_;  // (1,1,E) initial ray token
   torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off

@@ -72,7 +72,8 @@ SceneFrame RunFolder::scene() const {
 }
 
 AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
-  AbleNerf model(run.config.model, run.scene().kind);
+  const SceneFrame scene = run.scene();
+  AbleNerf model(run.config.model, scene.kind, NdcProjection{scene.ndc_a, scene.ndc_b});
   if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "missing (the run has no weights yet)");
   load_weights(model, run.weights_path());
   model->to(device);

@@ -181,7 +181,8 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
     s.scene = config_.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
     s.near = config_.data.near, s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.data.far;
   }
-  s.model = AbleNerf(config_.model, s.scene);
+  const NdcProjection ndc = s.ds ? NdcProjection{s.ds->scene.ndc_a, s.ds->scene.ndc_b} : NdcProjection{};
+  s.model = AbleNerf(config_.model, s.scene, ndc);
   s.model->to(opts_.device);
   s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
   s.model->train();

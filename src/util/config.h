@@ -23,8 +23,12 @@ enum class RaySampling { Uniform, Error };    // train.ray_sampling (train/error
 //  * Bounded: depth-linear samples between near and far (Blender's object on a card);
 //  * Unbounded: mip-NeRF 360's scene contraction of the frustum Gaussians, half the samples linear
 //    in depth inside the cameras' sphere, half linear in disparity out to (practically) infinity;
-//  * Auto: Bounded for Blender scenes, Unbounded for real captures.
-enum class SceneKind { Auto, Bounded, Unbounded };
+//  * ForwardFacing: NeRF's normalised device coordinates (model/ndc.h) for captures whose cameras all
+//    look the same way at a scene in front of them (LLFF): samples linear in disparity to infinity;
+//  * Auto: Bounded for Blender scenes; for real captures ForwardFacing when every camera looks
+//    within kForwardFacingMaxAngleDeg of their mean direction and the capture knows how near its
+//    scene comes (sparse points or LLFF bounds), else Unbounded.
+enum class SceneKind { Auto, Bounded, Unbounded, ForwardFacing };
 // eval.ssim (eval/metrics.h):
 enum class SsimVariant {
   // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
@@ -54,7 +58,7 @@ inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "w
 template <>
 inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"}, {RaySampling::Error, "error"}};
 template <>
-inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"}, {SceneKind::Bounded, "bounded"}, {SceneKind::Unbounded, "unbounded"}};
+inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"}, {SceneKind::Bounded, "bounded"}, {SceneKind::Unbounded, "unbounded"}, {SceneKind::ForwardFacing, "forward"}};
 template <>
 inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
 

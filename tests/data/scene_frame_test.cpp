@@ -171,3 +171,45 @@ TEST(SceneFrame, JsonRoundTripAndRefusals) {
   bad.replace(bad.find("\"scale\""), 7, "\"scale\": -1, \"x\"");
   test::expect_input_error([&] { SceneFrame::from_json(bad, "scene.json"); }, "scene.json", "scale", "positive", true);
 }
+
+TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
+  // A 3x3 grid of cameras in the plane y = -2, all looking at points 5..9 units ahead along +y
+  // (within 10 degrees of each other), world up +z: LLFF's layout.
+  std::vector<Pose34> poses;
+  for (int i = -1; i <= 1; ++i)
+    for (int j = -1; j <= 1; ++j) poses.push_back(look_at_pose({0.3 * i, -2, 1 + 0.2 * j}, {0.3 * i * 0.5, 5, 1}, {0, 0, 1}));
+  DatasetJson cap = capture_of(poses);
+  for (auto& f : cap.splits[0].frames) f.camera.width = 40, f.camera.height = 30, f.camera.fx = 35, f.camera.fy = 33;
+  cap.points = {{0, 3, 1}, {0.5, 5, 1.2}, {-0.4, 7, 0.8}};  // depths 5..9 from the grid
+  const SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false);
+  ASSERT_EQ(f.kind, SceneKind::ForwardFacing);
+  EXPECT_DOUBLE_EQ(f.near, 0);
+  EXPECT_DOUBLE_EQ(f.far, 1);
+  EXPECT_NEAR(f.ndc_a, 70.0 / 40, 1e-12);
+  EXPECT_NEAR(f.ndc_b, 66.0 / 30, 1e-12);
+  // Centred on the mean camera, looking down -z with +z (world up) towards +y.
+  for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(f.centre[c], (V3{0, -2, 1})[c], 1e-6);
+  const V3 ahead = f.point_to_scene({0, 5, 1});
+  EXPECT_NEAR(ahead[0], 0, 1e-3);
+  EXPECT_LT(ahead[2], 0);
+  const V3 above = f.point_to_scene({0, -2, 2});
+  EXPECT_GT(above[1], 0);
+  EXPECT_NEAR(above[0], 0, 1e-3);
+  // The nearest content (~5 units ahead: the 1st percentile of the points' depths) at 1 / 0.75.
+  EXPECT_NEAR(-f.point_to_scene({0, 3, 1})[2], 1 / 0.75, 0.05);
+  // Round trip through scene.json keeps the projection.
+  const SceneFrame g = SceneFrame::from_json(f.to_json(), "scene.json");
+  EXPECT_EQ(g.kind, SceneKind::ForwardFacing);
+  EXPECT_EQ(g.ndc_a, f.ndc_a);
+  // Without points or bounds auto stays unbounded, and an explicit forward is refused.
+  const DatasetJson bare = capture_of(poses);
+  EXPECT_EQ(fit_scene_frame(bare, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);
+  test::expect_input_error([&] { fit_scene_frame(bare, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
+                           "data.scene", "near bound", true);
+  // Cameras all round the scene are not forward-facing, even with points; forcing it is refused.
+  DatasetJson round = capture_of(ring_poses(8, {0, 0, 0}, {0, 0, 1}, 3, 1));
+  round.points = {{0, 0, 0}};
+  EXPECT_EQ(fit_scene_frame(round, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);
+  test::expect_input_error([&] { fit_scene_frame(round, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
+                           "data.scene", "same way", true);
+}
