@@ -145,6 +145,14 @@ void run_render(const RenderArgs& a) {
     poses = scene.kind == SceneKind::ForwardFacing ? forward_facing_path(parse_path_kind(a.path), a.frames, cams.c2w)
                                                    : camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
   const int n = static_cast<int>(poses.size(0));
+  // H.264 (yuv420p) needs even sides: an odd native size (a capture at 135x240, say) loses its
+  // last column or row, principal point unchanged. An odd size asked for is refused below.
+  if (video && a.width <= 0 && a.height <= 0 && (w % 2 || h % 2)) {
+    std::cerr << "render: " << w << "x" << h << " cropped to " << w - w % 2 << "x" << h - h % 2
+              << " (H.264 needs even sides; --width/--height choose another size)" << std::endl;
+    w -= w % 2, h -= h % 2;
+    cams.intrinsics.width = w, cams.intrinsics.height = h;
+  }
 
   // Output: folder of frames, or a video (or frames beside it when ffmpeg is missing and asked).
   std::string frame_dir;
