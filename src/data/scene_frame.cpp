@@ -83,12 +83,9 @@ constexpr size_t kMaxBoundPoints = 20000;
 
 // The closest content in front of the cameras, capture units: the 1st percentile of the sparse
 // points' depths, else the smallest LLFF near bound.
-double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
-  if (cap.points.empty()) {
-    double lo = cap.bounds[0][0];
-    for (const auto& b : cap.bounds) lo = std::min(lo, b[0]);
-    return lo;
-  }
+// Depths (capture units, along each optical axis) of the sparse points in front of each camera;
+// InputError(root, "points") when none is.
+std::vector<double> point_depths(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
   std::vector<double> depths;
   const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
   for (const auto& p : poses) {
@@ -99,7 +96,16 @@ double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses,
     }
   }
   if (depths.empty()) throw InputError(root, "points", "no sparse point lies in front of any camera");
-  return percentile(depths, 0.01);
+  return depths;
+}
+
+double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
+  if (cap.points.empty()) {
+    double lo = cap.bounds[0][0];
+    for (const auto& b : cap.bounds) lo = std::min(lo, b[0]);
+    return lo;
+  }
+  return percentile(point_depths(cap, poses, root), 0.01);
 }
 
 SceneFrame fit_forward_facing(const DatasetJson& cap, const std::vector<Pose34>& poses, const V3& mean, const V3& back,
@@ -295,18 +301,9 @@ SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, Scen
   if (bounds_from_config) {
     f.near = near, f.far = far, f.bounds_source = "config";
   } else if (!cap.points.empty()) {
-    std::vector<double> depths;
-    const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
-    for (const auto& p : poses) {
-      const V3 o = column(p, 3), z = column(p, 2);
-      for (size_t i = 0; i < cap.points.size(); i += stride) {
-        const double d = -dot(sub(cap.points[i], o), z);
-        if (d > 0) depths.push_back(d * f.scale);
-      }
-    }
-    if (depths.empty()) throw InputError(root, "points", "no sparse point lies in front of any camera");
-    f.near = 0.5 * percentile(depths, 0.01);
-    f.far = 1.5 * percentile(depths, 0.99);
+    const std::vector<double> depths = point_depths(cap, poses, root);
+    f.near = 0.5 * f.scale * percentile(depths, 0.01);
+    f.far = 1.5 * f.scale * percentile(depths, 0.99);
     f.bounds_source = "points";
   } else if (!cap.bounds.empty()) {
     double lo = cap.bounds[0][0], hi = cap.bounds[0][1];
