@@ -1,5 +1,7 @@
 #include "data/transforms_json.h"
 
+#include "data/ply.h"
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -337,6 +339,18 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
   if (j.contains("aabb_scale")) {
     out.aabb_scale = number_field(j, "aabb_scale", file, "");
     out.notes.push_back("aabb_scale " + std::to_string(static_cast<int>(out.aabb_scale)));
+  }
+  // nerfstudio's sparse point cloud (ns-process-data writes it, in the poses' frame): the scene's
+  // near bound comes from it as from a COLMAP model's points.
+  if (j.contains("ply_file_path")) {
+    if (!j.at("ply_file_path").is_string()) throw InputError(file, "ply_file_path", "expected a string");
+    const std::string rel = j.at("ply_file_path").get<std::string>();
+    if (fs::exists(fs::path(root) / rel)) {
+      out.points = read_ply_points(resolve_in_root(root, rel, file, "ply_file_path"));
+      out.notes.push_back(std::to_string(out.points.size()) + " sparse points from " + rel);
+    } else {
+      out.notes.push_back("ply_file_path " + rel + " not found: near/far from the cameras");
+    }
   }
   for (const char* k : {"scale", "offset", "applied_transform"})
     if (j.contains(k)) out.notes.push_back(std::string(k) + " present (poses used as written; ablenerf normalises the scene itself)");

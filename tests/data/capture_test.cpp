@@ -332,6 +332,20 @@ TEST(Captures, NerfstudioFisheyeOwnSplitAndPrescaledCopies) {
       }
     }
   }
+  // nerfstudio's sparse point cloud (ply_file_path) gives the near bound, as COLMAP's points do.
+  EXPECT_EQ(ds.scene.bounds_source, "cameras");
+  {
+    std::string ply = "ply\nformat ascii 1.0\nelement vertex " + std::to_string(kPoints.size()) +
+                      "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+    for (const V3& X : kPoints) ply += std::to_string(X[0]) + " " + std::to_string(X[1]) + " " + std::to_string(X[2]) + "\n";
+    test::write_file(t / "sparse_pc.ply", ply);
+    auto with_ply = js.str();
+    with_ply.replace(with_ply.find("\"camera_model\""), 0, "\"ply_file_path\": \"sparse_pc.ply\", ");
+    test::write_file(t / "transforms.json", with_ply);
+    const Dataset dp = Dataset::load(t.path(), o);
+    EXPECT_EQ(dp.scene.bounds_source, "points");
+    EXPECT_GT(dp.scene.near, 0.05);  // half the ~4.3 units to the points, in scene units: ~0.5
+  }
   // A test list naming a file that exists but is no frame's image.
   auto text = js.str();
   text.replace(text.find("./images/frame_1"), 16, "images_2/frame_1");
@@ -397,7 +411,7 @@ TEST(Captures, RealCapturesWhenPresent) {
   const Want wants[] = {{"fox50", "instant-ngp", 50, 8, "cameras"},
                         {"fox_colmap", "colmap", 67, 2, "points"},
                         {"fox_colmap_txt", "colmap", 67, 2, "points"},
-                        {"fox_ns", "nerfstudio", 67, 2, "cameras"},
+                        {"fox_ns", "nerfstudio", 67, 2, "points"},
                         {"ethiopianhead_llff", "llff", 66, 8, "llff bounds"}};
   int found = 0;
   for (const Want& w : wants) {
