@@ -32,6 +32,7 @@ packages=(
   libgloo-dev                             # headers for c10d's Gloo backend (multi-process training)
   libgtest-dev libgmock-dev
   ffmpeg                                  # MP4 output of `ablenerf render`
+  libcpp-httplib-dev                      # the web viewer (`ablenerf view`)
   clang libclang-rt-14-dev                # libFuzzer + ASan/UBSan runtimes (fuzz smoke run in scripts/test.sh)
 )
 # Tensors and autograd: Debian's LibTorch and the fast BLAS it should use (the CUDA build uses

@@ -66,7 +66,7 @@ Image8 decode_png_file(const std::string& path) {
   return out;
 }
 
-void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels) {
+std::string encode_png(int width, int height, int channels, const uint8_t* pixels, const std::string& path) {
   if (width <= 0 || height <= 0 || (channels != 1 && channels != 3 && channels != 4))
     throw InputError(path, "", "cannot write PNG: expected a non-empty image with 1, 3 or 4 channels");
   PngHandle p;
@@ -81,7 +81,11 @@ void encode_png_file(const std::string& path, int width, int height, int channel
   if (!png_image_write_to_memory(&p.img, bytes.data(), &size, 0, pixels, 0, nullptr))
     throw std::runtime_error(path + ": cannot encode PNG: " + p.img.message);
   bytes.resize(size);
-  write_file_atomic(path, bytes);
+  return bytes;
+}
+
+void encode_png_file(const std::string& path, int width, int height, int channels, const uint8_t* pixels) {
+  write_file_atomic(path, encode_png(width, height, channels, pixels, path));
 }
 
 }  // namespace ablenerf

@@ -1,0 +1,156 @@
+// The viewer page served at / by view_server.cpp: plain HTML, CSS and JavaScript, nothing fetched
+// from the internet. The camera is a camera-to-world pose in the scene frame; dragging orbits it
+// about the target (left button: around the scene's up axis and the camera's right axis; right
+// button or shift: pans), the wheel dollies towards the target, and W/A/S/D/Q/E move it. Each change
+// asks for a quarter-size image at once and the full size once the camera rests (older answers are
+// dropped), so the page stays responsive on a CPU. For tests: the current pose is kept in
+// <pre id="pose">, body's data-images counts the images drawn, and #drag=DX,DY in the address
+// plays a drag through the mouse handlers once the cameras are in.
+#include "view/view_server.h"
+
+namespace ablenerf {
+
+const char* viewer_page_html() {
+  return R"ABLENERF_PAGE(<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>ablenerf view</title>
+<style>
+body { margin: 0; font: 14px sans-serif; background: #202124; color: #e8eaed; }
+#bar { padding: 6px 10px; display: flex; gap: 12px; align-items: center; flex-wrap: wrap; }
+#view { display: block; margin: 0 auto; background: #000; image-rendering: auto; cursor: grab; }
+#status { color: #9aa0a6; }
+select, button { font: inherit; }
+</style></head>
+<body>
+<div id="bar">
+  <b>ablenerf view</b>
+  <label>camera <select id="cams"></select></label>
+  <label>mode <select id="mode"><option>rgb</option><option>depth</option></select></label>
+  <label>size <select id="size"><option value="0.5">1/2</option><option value="1" selected>1</option><option value="2">2x</option></select></label>
+  <span id="status">loading cameras...</span>
+</div>
+<canvas id="view" width="400" height="400"></canvas>
+<pre id="pose" hidden></pre>
+<script>
+"use strict";
+let info = null, pose = null, target = [0, 0, 0], up = [0, 0, 1];
+let seq = 0, restTimer = null;
+const canvas = document.getElementById("view"), ctx = canvas.getContext("2d");
+const statusEl = document.getElementById("status");
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+const mul = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const norm = a => Math.sqrt(dot(a, a));
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const col = (p, c) => [p[c], p[4 + c], p[8 + c]];
+function setCol(p, c, v) { p[c] = v[0]; p[4 + c] = v[1]; p[8 + c] = v[2]; }
+// Rodrigues rotation of v about unit axis k by angle t.
+function rot(v, k, t) {
+  const c = Math.cos(t), s = Math.sin(t);
+  return add(add(mul(v, c), mul(cross(k, v), s)), mul(k, dot(k, v) * (1 - c)));
+}
+function rotatePose(k, t) {
+  const p = pose.slice();
+  for (let c = 0; c < 3; ++c) setCol(p, c, rot(col(pose, c), k, t));
+  setCol(p, 3, add(target, rot(sub(col(pose, 3), target), k, t)));
+  pose = p;
+}
+function size() {
+  const s = parseFloat(document.getElementById("size").value);
+  let w = Math.round(info.width * s), h = Math.round(info.height * s);
+  const big = Math.max(w, h);
+  if (big > 800) { w = Math.round(w * 800 / big); h = Math.round(h * 800 / big); }
+  return [Math.max(8, w), Math.max(8, h)];
+}
+function request(scale) {
+  const my = ++seq;
+  const [w, h] = size();
+  const rw = Math.max(8, Math.round(w * scale)), rh = Math.max(8, Math.round(h * scale));
+  const mode = document.getElementById("mode").value;
+  const url = "/api/render?w=" + rw + "&h=" + rh + "&mode=" + mode + "&pose=" + pose.map(x => x.toFixed(6)).join(",");
+  const t0 = performance.now();
+  fetch(url).then(r => r.ok ? r.blob() : r.text().then(t => Promise.reject(t))).then(b => createImageBitmap(b)).then(img => {
+    if (my !== seq && scale < 1) return;  // a newer view is on its way
+    canvas.width = w; canvas.height = h;
+    ctx.imageSmoothingEnabled = scale < 1;
+    ctx.drawImage(img, 0, 0, w, h);
+    statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms";
+    document.body.dataset.images = (parseInt(document.body.dataset.images || "0") + 1).toString();
+  }).catch(e => { statusEl.textContent = "render failed: " + e; });
+}
+function changed() {
+  document.getElementById("pose").textContent = pose.map(x => x.toFixed(6)).join(",");
+  request(0.25);
+  clearTimeout(restTimer);
+  restTimer = setTimeout(() => request(1), 250);
+}
+function jump(i) {
+  pose = info.cameras[i].slice();
+  // Orbit about the point the camera looks at, at the scene centre's depth.
+  const o = col(pose, 3), f = mul(col(pose, 2), -1);
+  const d = info.scene === "forward" ? 5.33 : Math.max(0.1, dot(mul(o, -1), f));
+  target = add(o, mul(f, d));
+  changed();
+}
+let drag = null;
+canvas.addEventListener("contextmenu", e => e.preventDefault());
+canvas.addEventListener("mousedown", e => { drag = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey }; });
+window.addEventListener("mouseup", () => { drag = null; });
+window.addEventListener("mousemove", e => {
+  if (!drag || !pose) return;
+  const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+  drag.x = e.clientX; drag.y = e.clientY;
+  if (drag.pan) {
+    const dist = norm(sub(col(pose, 3), target)) / 400;
+    const move = add(mul(col(pose, 0), -dx * dist), mul(col(pose, 1), dy * dist));
+    setCol(pose, 3, add(col(pose, 3), move));
+    target = add(target, move);
+  } else {
+    rotatePose(up, -dx * 0.01);
+    rotatePose(col(pose, 0), -dy * 0.01);
+  }
+  changed();
+});
+canvas.addEventListener("wheel", e => {
+  e.preventDefault();
+  if (!pose) return;
+  const o = col(pose, 3), k = Math.exp(Math.sign(e.deltaY) * 0.1);
+  setCol(pose, 3, add(target, mul(sub(o, target), k)));
+  changed();
+}, { passive: false });
+window.addEventListener("keydown", e => {
+  if (!pose) return;
+  const step = 0.05 * Math.max(0.1, norm(sub(col(pose, 3), target)));
+  const moves = { w: mul(col(pose, 2), -step), s: mul(col(pose, 2), step), a: mul(col(pose, 0), -step),
+                  d: mul(col(pose, 0), step), q: mul(col(pose, 1), -step), e: mul(col(pose, 1), step) };
+  const m = moves[e.key.toLowerCase()];
+  if (!m) return;
+  setCol(pose, 3, add(col(pose, 3), m));
+  target = add(target, m);
+  changed();
+});
+document.getElementById("mode").addEventListener("change", changed);
+document.getElementById("size").addEventListener("change", changed);
+document.getElementById("cams").addEventListener("change", e => jump(parseInt(e.target.value)));
+fetch("/api/cameras").then(r => r.json()).then(j => {
+  info = j;
+  up = j.scene === "forward" ? [0, 1, 0] : [0, 0, 1];
+  const sel = document.getElementById("cams");
+  j.cameras.forEach((c, i) => { const o = document.createElement("option"); o.value = i; o.textContent = "camera " + i; sel.appendChild(o); });
+  statusEl.textContent = j.cameras.length + " cameras, " + j.scene + " scene";
+  jump(0);
+  // #drag=DX,DY: a scripted drag through the real mouse handlers (the headless-browser test).
+  const m = /drag=(-?[0-9.]+),(-?[0-9.]+)/.exec(location.hash);
+  if (m) {
+    const at = (type, x, y) => canvas.dispatchEvent(new MouseEvent(type, { clientX: x, clientY: y, button: 0, bubbles: true }));
+    at("mousedown", 100, 100);
+    window.dispatchEvent(new MouseEvent("mousemove", { clientX: 100 + parseFloat(m[1]), clientY: 100 + parseFloat(m[2]) }));
+    window.dispatchEvent(new MouseEvent("mouseup", {}));
+  }
+}).catch(e => { statusEl.textContent = "cannot read the cameras: " + e; });
+</script>
+</body></html>
+)ABLENERF_PAGE";
+}
+
+}  // namespace ablenerf

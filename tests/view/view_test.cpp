@@ -1,0 +1,173 @@
+// The web viewer's server (view/view_server.h) over real HTTP on loopback: the page, the cameras,
+// renders equal to eval's renderer for the same pose, bad requests answered with 400 and one line
+// while the server goes on, two clients at once, and a client that sends half a request and stalls.
+#include <arpa/inet.h>
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <torch/torch.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "eval/eval_fixtures.h"
+#include "eval/renderer.h"
+#include "test_util.h"
+#include "util/image_io.h"
+#include "view/view_server.h"
+
+using namespace ablenerf;
+
+namespace {
+
+// A served tiny run: session, server on a free loopback port, serving thread.
+class Served {
+ public:
+  Served() {
+    test::make_tiny_scene(dir_ / "scene", 2, 2, 16, 16, false);
+    test::make_tiny_run(dir_ / "run", dir_ / "scene");
+    session_ = std::make_unique<ViewSession>(dir_ / "run", torch::kCPU);
+    server_ = std::make_unique<ViewServer>(*session_, "127.0.0.1", 0);
+    port_ = server_->bind();
+    thread_ = std::thread([this] { server_->run(); });
+  }
+  ~Served() {
+    server_->stop();
+    thread_.join();
+  }
+  int port() const { return port_; }
+  ViewSession& session() { return *session_; }
+  const test::TempDir& dir() const { return dir_; }
+
+ private:
+  test::TempDir dir_;
+  std::unique_ptr<ViewSession> session_;
+  std::unique_ptr<ViewServer> server_;
+  int port_ = 0;
+  std::thread thread_;
+};
+
+std::string pose_text(const std::vector<float>& p) {
+  std::string s;
+  for (size_t i = 0; i < p.size(); ++i) s += (i ? "," : "") + std::to_string(p[i]);
+  return s;
+}
+
+// A PNG body decoded (through a file: the codec reads files).
+torch::Tensor decode(const std::string& png, const test::TempDir& dir) {
+  test::write_file(dir / "got.png", png);
+  return read_png(dir / "got.png");
+}
+
+}  // namespace
+
+TEST(ViewServer, PageCamerasAndARenderEqualToTheRenderers) {
+  Served s;
+  httplib::Client cli("127.0.0.1", s.port());
+  auto page = cli.Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->body.find("<canvas"), std::string::npos);
+  EXPECT_NE(page->body.find("/api/render"), std::string::npos);
+  EXPECT_EQ(page->body.find("http://"), std::string::npos);  // nothing fetched from elsewhere
+  EXPECT_EQ(page->body.find("https://"), std::string::npos);
+
+  auto cams = cli.Get("/api/cameras");
+  ASSERT_TRUE(cams);
+  ASSERT_EQ(cams->status, 200);
+  const auto j = nlohmann::json::parse(cams->body);
+  EXPECT_EQ(j.at("cameras").size(), 4u);  // 2 train + 2 test
+  EXPECT_EQ(j.at("width"), 16);
+  const auto pose = j.at("cameras")[2].get<std::vector<float>>();
+
+  auto r = cli.Get(("/api/render?w=16&h=12&pose=" + pose_text(pose)).c_str());
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
+  const auto got = decode(r->body, s.dir());
+  ASSERT_EQ(got.sizes(), (std::vector<int64_t>{12, 16, 3}));
+  // The same view through the renderer directly: the dataset's focal at this width, centred.
+  AbleNerf model = load_run_model(RunFolder::open(s.dir() / "run"), torch::kCPU);
+  model->eval();
+  Intrinsics k;
+  k.width = 16, k.height = 12;
+  k.fx = k.fy = j.at("fx").get<double>();
+  k.cx = 8, k.cy = 6;
+  auto c2w = torch::tensor(std::vector<float>(pose.begin(), pose.end())).reshape({3, 4});
+  const torch::NoGradGuard no_grad;
+  const RunFolder run = RunFolder::open(s.dir() / "run");
+  const RenderResult ref = render_image(model, c2w, k, run.scene().near, run.scene().far, run.config.eval.chunk,
+                                        ForwardOptions{}, torch::kCPU);
+  EXPECT_LE((got.to(torch::kInt) - to_uint8(ref.rgb).to(torch::kInt)).abs().max().item<int>(), 0);
+  // Depth mode: a colour map of the same size.
+  auto d = cli.Get(("/api/render?w=16&h=12&mode=depth&pose=" + pose_text(pose)).c_str());
+  ASSERT_TRUE(d);
+  ASSERT_EQ(d->status, 200);
+  EXPECT_EQ(decode(d->body, s.dir()).sizes(), (std::vector<int64_t>{12, 16, 3}));
+}
+
+TEST(ViewServer, BadRequestsGet400AndOneLineAndTheServerGoesOn) {
+  Served s;
+  httplib::Client cli("127.0.0.1", s.port());
+  const std::string ok_pose = "1,0,0,0,0,1,0,0,0,0,1,4";
+  const std::pair<std::string, std::string> bad[] = {
+      {"/api/render?w=16&h=16", "pose"},
+      {"/api/render?w=16&h=16&pose=1,0,0,0,0,1,0,0,0,0,1", "pose"},
+      {"/api/render?w=16&h=16&pose=1,0,0,0,0,1,0,0,0,0,1,nan", "pose"},
+      {"/api/render?w=16&h=16&pose=1,0,0,0,0,1,0,0,0,0,1,4,5", "pose"},
+      {"/api/render?w=5&h=16&pose=" + ok_pose, "w"},
+      {"/api/render?w=16&h=99999&pose=" + ok_pose, "h"},
+      {"/api/render?w=16.5&h=16&pose=" + ok_pose, "w"},
+      {"/api/render?w=16&h=16&mode=normals&pose=" + ok_pose, "mode"},
+  };
+  for (const auto& [url, field] : bad) {
+    auto r = cli.Get(url.c_str());
+    ASSERT_TRUE(r) << url;
+    EXPECT_EQ(r->status, 400) << url;
+    EXPECT_NE(r->body.find(field), std::string::npos) << url << ": " << r->body;
+    EXPECT_EQ(std::count(r->body.begin(), r->body.end(), '\n'), 1) << r->body;
+  }
+  auto missing = cli.Get("/nothing/here");
+  ASSERT_TRUE(missing);
+  EXPECT_EQ(missing->status, 404);
+  auto good = cli.Get(("/api/render?w=8&h=8&pose=" + ok_pose).c_str());
+  ASSERT_TRUE(good);
+  EXPECT_EQ(good->status, 200);
+}
+
+TEST(ViewServer, TwoClientsAndAStalledOne) {
+  Served s;
+  // A client that sends half a request line and then nothing: it holds one connection.
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  ASSERT_GE(fd, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(s.port()));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
+  const char half[] = "GET /api/render?w=16";
+  ASSERT_EQ(::send(fd, half, sizeof(half) - 1, 0), static_cast<ssize_t>(sizeof(half) - 1));
+  // Meanwhile two clients render at once; both get their image.
+  const std::string url = "/api/render?w=16&h=16&pose=1,0,0,0,0,1,0,0,0,0,1,4";
+  int status[2] = {0, 0};
+  std::thread a([&] {
+    httplib::Client c("127.0.0.1", s.port());
+    if (auto r = c.Get(url.c_str())) status[0] = r->status;
+  });
+  std::thread b([&] {
+    httplib::Client c("127.0.0.1", s.port());
+    if (auto r = c.Get(url.c_str())) status[1] = r->status;
+  });
+  a.join();
+  b.join();
+  EXPECT_EQ(status[0], 200);
+  EXPECT_EQ(status[1], 200);
+  ::close(fd);  // a closed tab
+  httplib::Client c("127.0.0.1", s.port());
+  auto after = c.Get("/api/cameras");
+  ASSERT_TRUE(after);
+  EXPECT_EQ(after->status, 200);
+}
