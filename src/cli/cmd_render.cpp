@@ -141,7 +141,9 @@ void run_render(const RenderArgs& a) {
     cams.c2w = poses_to_scene(cams.c2w, scene);
   }
   torch::Tensor poses = cams.c2w;
-  if (!a.path.empty())
+  if (!a.path.empty() && is_path_file(a.path))
+    poses = read_path_file(a.path);  // recorded in the viewer, already in the scene frame
+  else if (!a.path.empty())
     poses = scene.kind == SceneKind::ForwardFacing ? forward_facing_path(parse_path_kind(a.path), a.frames, cams.c2w)
                                                    : camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
   const int n = static_cast<int>(poses.size(0));
@@ -227,7 +229,7 @@ void setup(CLI::App& app) {
   app.add_option("--run", a->run, "Run folder written by `ablenerf train`")->required();
   auto* cams = app.add_option("--cameras", a->cameras, "Render at the poses of this Blender/transforms json");
   auto* path = app.add_option("--path", a->path,
-                              "Camera path around the origin at the training cameras' mean distance: "
+                              "Camera path: FILE.json recorded in `ablenerf view`, or around the origin at the training cameras' mean distance: "
                               "orbit (mean elevation) or spiral (elevation oscillating up to +-15 deg), over the azimuth arc "
                               "the cameras cover (out and back when they did not go all the way round)");
   cams->excludes(path);
@@ -256,7 +258,7 @@ void setup(CLI::App& app) {
                "With a .mp4 --out and no ffmpeg: write PNG frames to OUT_frames/ instead of failing");
   app.add_option("--out", a->out, "Output folder for PNG frames, or FILE.mp4 (needs ffmpeg)")->required();
   app.callback([a] {
-    if (a->cameras.empty() && a->path.empty()) throw InputError("render", "--path", "give --path orbit|spiral or --cameras FILE");
+    if (a->cameras.empty() && a->path.empty()) throw InputError("render", "--path", "give --path orbit|spiral|FILE.json or --cameras FILE");
     run_render(*a);
   });
 }

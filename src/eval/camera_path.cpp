@@ -6,6 +6,9 @@
 #include <vector>
 
 #include "util/errors.h"
+#include "util/fs.h"
+
+#include <nlohmann/json.hpp>
 
 namespace ablenerf {
 namespace {
@@ -105,6 +108,47 @@ torch::Tensor forward_facing_path(PathKind kind, int frames, const torch::Tensor
     poses.push_back(look_at(eye, target, up));
   }
   return torch::stack(poses);
+}
+
+bool is_path_file(const std::string& name) {
+  return name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
+}
+
+torch::Tensor read_path_file(const std::string& path) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_file(path));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(path, "", "invalid JSON");
+  }
+  if (!j.is_object() || j.value("ablenerf_path", 0) != 1)
+    throw InputError(path, "ablenerf_path", "not a camera path recorded by `ablenerf view` (version 1)");
+  if (j.value("coordinates", std::string()) != "scene")
+    throw InputError(path, "coordinates", "must be \"scene\" (the run's scene frame)");
+  if (!j.contains("poses") || !j.at("poses").is_array() || j.at("poses").empty())
+    throw InputError(path, "poses", "expected a non-empty array");
+  const auto& list = j.at("poses");
+  auto out = torch::empty({static_cast<int64_t>(list.size()), 3, 4}, torch::kFloat);
+  for (size_t i = 0; i < list.size(); ++i) {
+    const std::string field = "poses[" + std::to_string(i) + "]";
+    const auto& p = list[i];
+    if (!p.is_array() || p.size() != 12) throw InputError(path, field, "expected 12 numbers");
+    double m[3][4];
+    for (size_t k = 0; k < 12; ++k) {
+      if (!p[k].is_number() || !std::isfinite(p[k].get<double>())) throw InputError(path, field, "expected 12 finite numbers");
+      m[k / 4][k % 4] = p[k].get<double>();
+    }
+    // The rotation part must be one (to 1e-3: the page writes 6 decimals).
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) {
+        double d = 0;
+        for (int r = 0; r < 3; ++r) d += m[r][a] * m[r][b];
+        if (std::abs(d - (a == b ? 1.0 : 0.0)) > 1e-3) throw InputError(path, field, "the 3x3 part is not a rotation");
+      }
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) out[static_cast<int64_t>(i)][r][c] = static_cast<float>(m[r][c]);
+  }
+  return out;
 }
 
 }  // namespace ablenerf

@@ -54,6 +54,15 @@ torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, con
 // swing is kSpiralAmplitudeRad or less, to stay inside [elevation_min, elevation_max].
 torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig);
 
+// A camera path recorded in the viewer (`ablenerf view`, "record"): JSON
+//   {"ablenerf_path": 1, "coordinates": "scene", "poses": [[12 numbers: row-major 3x4
+//    camera-to-world in the run's scene frame], ...]}
+// Returns (N,3,4) float poses. InputError(path, field, ...) on anything else: not JSON, another
+// version or coordinate frame, no poses, a pose that is not 12 finite numbers or not a rotation.
+torch::Tensor read_path_file(const std::string& path);
+// Whether --path names such a file rather than orbit / spiral.
+bool is_path_file(const std::string& name);
+
 // Forward-facing scenes (data.scene = "forward": cameras near z = 0 looking down -z, the nearest
 // content at 1 / 0.75 in front): LLFF's path. The eye goes round an ellipse in the cameras' plane
 // whose half-axes are the largest |x| and |y| of the camera centres (`c2w`, (N,3,4)), looking at

@@ -1,7 +1,9 @@
 // The viewer page served at / by view_server.cpp: plain HTML, CSS and JavaScript, nothing fetched
 // from the internet. The camera is a camera-to-world pose in the scene frame; dragging orbits it
 // about the target (left button: around the scene's up axis and the camera's right axis; right
-// button or shift: pans), the wheel dollies towards the target, and W/A/S/D/Q/E move it. Each change
+// button or shift: pans), the wheel dollies towards the target, and W/A/S/D/Q/E move it; the
+// dataset's cameras are drawn as dots with their viewing direction (a click jumps to one), and
+// "record path" keeps every pose the view takes, saved as path.json for `render --path`. Each change
 // asks for a quarter-size image at once and the full size once the camera rests (older answers are
 // dropped), so the page stays responsive on a CPU. For tests: the current pose is kept in
 // <pre id="pose">, body's data-images counts the images drawn, and #drag=DX,DY in the address
@@ -26,6 +28,7 @@ select, button { font: inherit; }
   <label>camera <select id="cams"></select></label>
   <label>mode <select id="mode"><option>rgb</option><option>depth</option></select></label>
   <label>size <select id="size"><option value="0.5">1/2</option><option value="1" selected>1</option><option value="2">2x</option></select></label>
+  <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
 </div>
 <canvas id="view" width="400" height="400"></canvas>
@@ -33,7 +36,7 @@ select, button { font: inherit; }
 <script>
 "use strict";
 let info = null, pose = null, target = [0, 0, 0], up = [0, 0, 1];
-let seq = 0, restTimer = null;
+let seq = 0, restTimer = null, recording = false, recorded = [], markers = [];
 const canvas = document.getElementById("view"), ctx = canvas.getContext("2d");
 const statusEl = document.getElementById("status");
 const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
@@ -74,12 +77,37 @@ function request(scale) {
     canvas.width = w; canvas.height = h;
     ctx.imageSmoothingEnabled = scale < 1;
     ctx.drawImage(img, 0, 0, w, h);
+    drawMarkers(w, h);
     statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms";
     document.body.dataset.images = (parseInt(document.body.dataset.images || "0") + 1).toString();
   }).catch(e => { statusEl.textContent = "render failed: " + e; });
 }
+// The dataset's cameras drawn where they are in the current view (a dot and the direction each
+// looks); a click on one jumps to it.
+function drawMarkers(w, h) {
+  markers = [];
+  const o = col(pose, 3), fx = info.fx * w / info.width, fy = info.fy * w / info.width;
+  const project = p => {
+    const d = sub(p, o), x = dot(d, col(pose, 0)), y = dot(d, col(pose, 1)), z = dot(d, col(pose, 2));
+    return z < -1e-3 ? [w / 2 + fx * x / -z, h / 2 - fy * y / -z] : null;
+  };
+  ctx.lineWidth = 1.5;
+  info.cameras.forEach((c, i) => {
+    const at = project(col(c, 3));
+    if (!at || at[0] < 0 || at[1] < 0 || at[0] > w || at[1] > h) return;
+    const ahead = project(add(col(c, 3), mul(col(c, 2), -0.15 * norm(sub(col(c, 3), o)))));
+    ctx.strokeStyle = ctx.fillStyle = "#fbbc04";
+    ctx.beginPath(); ctx.arc(at[0], at[1], 3, 0, 2 * Math.PI); ctx.fill();
+    if (ahead) { ctx.beginPath(); ctx.moveTo(at[0], at[1]); ctx.lineTo(ahead[0], ahead[1]); ctx.stroke(); }
+    markers.push([i, at[0] * canvas.clientWidth / w, at[1] * canvas.clientHeight / h]);
+  });
+}
 function changed() {
   document.getElementById("pose").textContent = pose.map(x => x.toFixed(6)).join(",");
+  if (recording && (recorded.length === 0 || recorded[recorded.length - 1].join() !== pose.join())) {
+    recorded.push(pose.slice());
+    document.getElementById("save").textContent = "save path (" + recorded.length + ")";
+  }
   request(0.25);
   clearTimeout(restTimer);
   restTimer = setTimeout(() => request(1), 250);
@@ -94,12 +122,35 @@ function jump(i) {
 }
 let drag = null;
 canvas.addEventListener("contextmenu", e => e.preventDefault());
-canvas.addEventListener("mousedown", e => { drag = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey }; });
-window.addEventListener("mouseup", () => { drag = null; });
+canvas.addEventListener("mousedown", e => { drag = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey, moved: false }; });
+window.addEventListener("mouseup", e => {
+  if (drag && !drag.moved && e.target === canvas) {
+    const r = canvas.getBoundingClientRect(), x = e.clientX - r.left, y = e.clientY - r.top;
+    const hit = markers.find(m => Math.hypot(m[1] - x, m[2] - y) < 8);
+    if (hit) { document.getElementById("cams").value = hit[0]; jump(hit[0]); }
+  }
+  drag = null;
+});
+document.getElementById("rec").addEventListener("click", e => {
+  recording = !recording;
+  e.target.textContent = recording ? "stop recording" : "record path";
+  if (recording) { recorded = [pose.slice()]; }
+  document.getElementById("save").disabled = recorded.length === 0;
+  document.getElementById("save").textContent = "save path (" + recorded.length + ")";
+});
+// The recorded poses as a file for `ablenerf render --run RUN --path path.json --out video.mp4`.
+document.getElementById("save").addEventListener("click", () => {
+  const text = JSON.stringify({ ablenerf_path: 1, coordinates: "scene", poses: recorded });
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(new Blob([text], { type: "application/json" }));
+  a.download = "path.json";
+  a.click();
+});
 window.addEventListener("mousemove", e => {
   if (!drag || !pose) return;
   const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
   drag.x = e.clientX; drag.y = e.clientY;
+  drag.moved = true;
   if (drag.pan) {
     const dist = norm(sub(col(pose, 3), target)) / 400;
     const move = add(mul(col(pose, 0), -dx * dist), mul(col(pose, 1), dy * dist));

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <filesystem>
 #include <nlohmann/json.hpp>
 
 #include "test_util.h"
@@ -42,4 +43,29 @@ TEST(CliCapture, RenderWithTheCapturesOwnPoseEqualsEvalsView) {
   ASSERT_EQ(a.sizes(), b.sizes());
   EXPECT_LE((a - b).abs().max().item<int>(), 1);  // float32 poses through the scene frame and back
   EXPECT_GT(b.to(torch::kFloat).std().item<double>(), 1.0);  // not a blank image
+
+  // The same pose moved into the scene frame by hand (x_scene = scale R (x - centre), axes R c),
+  // twice, as a path recorded in the viewer: `render --path FILE.json` gives eval's view again.
+  const auto R = scene.at("rotation").get<std::vector<double>>();
+  const auto centre = scene.at("centre").get<std::vector<double>>();
+  const double scale = scene.at("scale").get<double>();
+  const auto m = frame.at("transform_matrix");
+  std::vector<double> p(12);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) {
+      double v = 0;
+      for (int k = 0; k < 3; ++k)
+        v += R[static_cast<size_t>(3 * r + k)] * (m[k][c].get<double>() - (c == 3 ? centre[static_cast<size_t>(k)] : 0.0));
+      p[static_cast<size_t>(4 * r + c)] = c == 3 ? scale * v : v;
+    }
+  test::write_file(t / "path.json", json{{"ablenerf_path", 1}, {"coordinates", "scene"}, {"poses", {p, p}}}.dump());
+  r = test::run_cli("render --run " + t / "run" + " --path " + t / "path.json" + " --out " + t / "path_out");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_TRUE(std::filesystem::exists(t / "path_out/frame_0001.png"));
+  EXPECT_LE((read_png(t / "path_out/frame_0000.png").to(torch::kInt) - b).abs().max().item<int>(), 1);
+  // A path file in another frame is refused with one line naming the field.
+  test::write_file(t / "bad_path.json", json{{"ablenerf_path", 1}, {"coordinates", "capture"}, {"poses", {p}}}.dump());
+  r = test::run_cli("render --run " + t / "run" + " --path " + t / "bad_path.json" + " --out " + t / "bad_out");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("coordinates"), std::string::npos) << r.output;
 }

@@ -8,6 +8,7 @@
 
 #include "data/rays.h"
 #include "eval/camera_path.h"
+#include "test_util.h"
 #include "util/errors.h"
 
 using namespace ablenerf;
@@ -142,6 +143,31 @@ TEST(CameraPath, StaysInsideTheArcAndElevationsTheCamerasCover) {
   EXPECT_TRUE(round.full_circle());
   const auto c = camera_path(PathKind::Orbit, 4, round).select(2, 3);
   EXPECT_NEAR(c[1][1].item<double>() / c[1].norm().item<double>(), std::cos(0.4), 1e-5);  // azimuth 90 degrees
+}
+
+TEST(CameraPath, RecordedPathFiles) {
+  test::TempDir t;
+  const std::string ok = "{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": "
+                         "[[1,0,0,0.5, 0,1,0,-1, 0,0,1,2], [0,-1,0,0, 1,0,0,0, 0,0,1,3]]}";
+  test::write_file(t / "p.json", ok);
+  EXPECT_TRUE(is_path_file(t / "p.json"));
+  EXPECT_FALSE(is_path_file("orbit"));
+  const auto poses = read_path_file(t / "p.json");
+  ASSERT_EQ(poses.sizes(), (std::vector<int64_t>{2, 3, 4}));
+  EXPECT_FLOAT_EQ(poses[0][1][3].item<float>(), -1);
+  EXPECT_FLOAT_EQ(poses[1][0][1].item<float>(), -1);
+  const std::pair<std::string, std::string> bad[] = {
+      {"not json", ""},
+      {"{\"ablenerf_path\": 2, \"coordinates\": \"scene\", \"poses\": [[1,0,0,0,0,1,0,0,0,0,1,0]]}", "ablenerf_path"},
+      {"{\"ablenerf_path\": 1, \"coordinates\": \"capture\", \"poses\": [[1,0,0,0,0,1,0,0,0,0,1,0]]}", "coordinates"},
+      {"{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": []}", "poses"},
+      {"{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": [[1,0,0,0,0,1,0,0,0,0,1]]}", "poses[0]"},
+      {"{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": [[2,0,0,0,0,1,0,0,0,0,1,0]]}", "poses[0]"},
+  };
+  for (const auto& [text, field] : bad) {
+    test::write_file(t / "bad.json", text);
+    test::expect_input_error([&] { read_path_file(t / "bad.json"); }, t / "bad.json", field, "", true);
+  }
 }
 
 TEST(CameraPath, ParseKind) {
