@@ -9,6 +9,11 @@
 #include "train/trainer.h"
 #include "util/duration.h"
 #include "util/errors.h"
+#ifdef ABLENERF_HAVE_VIEW
+#include <thread>
+
+#include "view/view_server.h"
+#endif
 
 namespace ablenerf::cli {
 namespace cmd_train {
@@ -20,8 +25,47 @@ struct TrainArgs {
   double time_limit = 0;
   std::string time_budget;
   double dist_timeout = 120;
+  bool view = false;
+  int view_port = 7007;
   ConfigOptions cfg;
 };
+
+// `--view`: trains with the live viewer attached (view/view_server.h). Weights are copied to the
+// viewer between steps only when a render asked for them; pause blocks the training thread there.
+TrainResult train_with_view(const Config& config, TrainOptions o, const TrainArgs& a) {
+#ifdef ABLENERF_HAVE_VIEW
+  if (o.dist) throw InputError("train", "--view", "the viewer attaches to one process, not to a group");
+  struct Live {
+    std::unique_ptr<ViewSession> session;
+    LiveControl control;
+  };
+  auto live = std::make_shared<Live>();
+  o.between_steps = [live](Trainer& t) {
+    if (live->session) view_between_steps(t, *live->session, live->control);
+  };
+  Trainer trainer(config, o);
+  trainer.setup();
+  live->session = std::make_unique<ViewSession>(a.out, o.device, /*live=*/true);
+  ViewServer server(*live->session, "127.0.0.1", a.view_port, &live->control);
+  const int port = server.bind();
+  std::cerr << "train: live view at http://127.0.0.1:" << port << "/" << std::endl;
+  std::thread serving([&] { server.run(); });
+  TrainResult r;
+  try {
+    r = trainer.run();
+  } catch (...) {
+    server.stop();
+    serving.join();
+    throw;
+  }
+  server.stop();
+  serving.join();
+  return r;
+#else
+  (void)config, (void)o, (void)a;
+  throw EnvironmentError("train", "--view: this build has no viewer", "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");
+#endif
+}
 
 void setup(CLI::App& app) {
   auto a = std::make_shared<TrainArgs>();
@@ -36,6 +80,9 @@ void setup(CLI::App& app) {
   app.add_option("--time-budget", a->time_budget,
                  "Train for this wall-clock budget with the schedule laid out over it (train.time_budget_s): "
                  "5m, 90s, 2h, 1h30m or seconds");
+  app.add_flag("--view", a->view, "Serve the live viewer while training (loopback, --view-port): see `ablenerf view`");
+  app.add_option("--view-port", a->view_port, "Port of --view's viewer (0 = any free port)")
+      ->capture_default_str()->check(CLI::Range(0, 65535));
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
@@ -80,7 +127,7 @@ void setup(CLI::App& app) {
     // destroyed on the way out.
     TrainResult r;
     try {
-      r = train(config, o);
+      r = a->view ? train_with_view(config, o, *a) : train(config, o);
     } catch (const TrainingDiverged& e) {
       throw CommandExit(kExitDiverged, e.what());
     }

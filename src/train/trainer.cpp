@@ -44,6 +44,8 @@ constexpr double kRateWindowS = 0.5;
 
 }  // namespace
 
+bool interrupt_requested() { return g_interrupt.load(); }
+
 void install_interrupt_handlers() {
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
@@ -469,6 +471,7 @@ TrainResult Trainer::run() {
     log_step(r);
     held_out_check();
     if (tc.ckpt_every > 0 && s.state.step % tc.ckpt_every == 0 && s.state.step < tc.steps) save();
+    if (opts_.between_steps) opts_.between_steps(*this);
   }
   const StepReport last = flush();
   if (s.cuda) {
@@ -479,6 +482,8 @@ TrainResult Trainer::run() {
   if (s.leader && !opts_.quiet) s.progress->finish("done");
   return TrainResult::Finished;
 }
+
+void Trainer::checkpoint_now() { save(); }
 
 TrainResult train(const Config& config, const TrainOptions& opts) {
   Trainer t(config, opts);

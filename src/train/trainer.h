@@ -14,6 +14,8 @@
 //    step late.
 #include <torch/torch.h>
 
+#include <functional>
+
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -29,6 +31,8 @@ namespace ablenerf {
 
 class Distributed;  // train/distributed.h
 
+class Trainer;
+
 struct TrainOptions {
   std::string data_dir;  // dataset folder (with --resume: may be empty, then run.json's)
   std::string out_dir;   // run folder
@@ -42,6 +46,10 @@ struct TrainOptions {
   double time_limit_s = 0;
   bool quiet = false;  // no progress line (tests)
   Distributed* dist = nullptr;  // null = one process
+  // Called by run() after every step and its hooks, on the training thread, between steps (the
+  // model is not being updated): the live viewer copies weights there, pauses by blocking, and
+  // asks for checkpoints (`train --view`). Empty: nothing.
+  std::function<void(Trainer&)> between_steps;
 };
 
 // The outcome of a call to Trainer::run().
@@ -94,6 +102,8 @@ class Trainer {
 
   AbleNerf& model();
   int64_t steps_done() const;
+  // Writes the checkpoint and weights now (what run() does at its checkpoints).
+  void checkpoint_now();
   bool device_form() const;
   bool graph_captured() const;
 
@@ -124,6 +134,8 @@ TrainResult train(const Config& config, const TrainOptions& opts);
 
 // Installs SIGINT/SIGTERM handlers that ask the training loop to checkpoint and stop.
 void install_interrupt_handlers();
+// Whether such a signal has arrived (a paused live run stops waiting then).
+bool interrupt_requested();
 
 // The views of a held-out split of `size` images that the training-time check renders: `count`
 // of them spread evenly over the split (index floor(i * size / count)), so that on an orbit such as

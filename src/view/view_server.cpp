@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "util/errors.h"
+#include "util/fs.h"
 
 namespace ablenerf {
 
@@ -54,9 +55,40 @@ void bad_request(httplib::Response& res, const std::string& message) {
 
 }  // namespace
 
-ViewServer::ViewServer(ViewSession& session, std::string host, int port)
-    : session_(session), host_(std::move(host)), port_(port), server_(std::make_unique<httplib::Server>()) {
+ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveControl* control)
+    : session_(session), control_(control), host_(std::move(host)), port_(port), server_(std::make_unique<httplib::Server>()) {
   auto& s = *server_;
+  s.Get("/api/state", [this](const httplib::Request&, httplib::Response& res) {
+    const nlohmann::json j{{"step", session_.weights_step()}, {"live", session_.live()},
+                           {"paused", control_ ? control_->paused() : false}};
+    res.set_content(j.dump(), "application/json");
+  });
+  s.Get("/api/log", [this](const httplib::Request&, httplib::Response& res) {
+    // Complete lines only: the trainer may be appending one right now.
+    nlohmann::json out = nlohmann::json::array();
+    std::string text;
+    try {
+      text = read_file(session_.run().log_path());
+    } catch (const std::exception&) {
+    }
+    std::istringstream in(text);
+    std::string line;
+    while (std::getline(in, line)) {
+      if (in.eof()) break;  // no newline yet: being written
+      const auto j = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+      if (!j.is_discarded()) out.push_back(j);
+    }
+    res.set_content(out.dump(), "application/json");
+  });
+  s.Get("/api/control", [this](const httplib::Request& req, httplib::Response& res) {
+    if (!control_) return bad_request(res, "request: action: the run is not being trained here (train --view)");
+    const std::string a = req.get_param_value("action");
+    if (a == "pause") control_->pause();
+    else if (a == "resume") control_->resume();
+    else if (a == "save") control_->request_save();
+    else return bad_request(res, "request: action: must be pause, resume or save");
+    res.set_content("{\"ok\": true}", "application/json");
+  });
   s.Get("/", [](const httplib::Request&, httplib::Response& res) { res.set_content(viewer_page_html(), "text/html"); });
   s.Get("/api/cameras", [this](const httplib::Request&, httplib::Response& res) {
     res.set_content(session_.cameras_json().dump(), "application/json");

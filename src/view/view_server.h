@@ -4,6 +4,9 @@
 //   GET /api/cameras  ViewSession::cameras_json()
 //   GET /api/render?pose=P&w=W&h=H[&mode=rgb|depth]   a PNG of the view from pose P (12 numbers,
 //                     comma-separated: the row-major camera-to-world 3x4 in the scene frame)
+//   GET /api/state    {"step" (of the weights shown; -1 before the first), "live", "paused"}
+//   GET /api/log      the run's log.jsonl records as a JSON array (loss and held-out PSNR curves)
+//   GET /api/control?action=pause|resume|save   a run being trained (`train --view`) only
 // A bad request gets 400 and one line naming the parameter; the server goes on. Connections are
 // served by a thread pool (a slow client holds one thread, not the server); renders take turns.
 #include <memory>
@@ -19,7 +22,8 @@ namespace ablenerf {
 
 class ViewServer {
  public:
-  ViewServer(ViewSession& session, std::string host, int port);
+  // `control`: the live run's buttons (null for a finished run).
+  ViewServer(ViewSession& session, std::string host, int port, LiveControl* control = nullptr);
   ~ViewServer();
   ViewServer(const ViewServer&) = delete;
   ViewServer& operator=(const ViewServer&) = delete;
@@ -33,6 +37,7 @@ class ViewServer {
 
  private:
   ViewSession& session_;
+  LiveControl* control_;
   std::string host_;
   int port_;
   std::unique_ptr<httplib::Server> server_;

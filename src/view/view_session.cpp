@@ -1,21 +1,84 @@
 #include "view/view_session.h"
 
+#include <chrono>
 #include <cstring>
 
 #include "eval/colormap.h"
 #include "eval/renderer.h"
+#include "train/trainer.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
 
 namespace ablenerf {
 
-ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device)
-    : run_(RunFolder::open(run_dir)), device_(device) {
+void LiveControl::pause() {
+  const std::lock_guard<std::mutex> lock(mu_);
+  paused_ = true;
+}
+
+void LiveControl::resume() {
+  {
+    const std::lock_guard<std::mutex> lock(mu_);
+    paused_ = false;
+  }
+  cv_.notify_all();
+}
+
+void LiveControl::request_save() {
+  const std::lock_guard<std::mutex> lock(mu_);
+  save_ = true;
+}
+
+bool LiveControl::paused() const {
+  const std::lock_guard<std::mutex> lock(mu_);
+  return paused_;
+}
+
+bool LiveControl::take_save() {
+  const std::lock_guard<std::mutex> lock(mu_);
+  const bool s = save_;
+  save_ = false;
+  return s;
+}
+
+bool LiveControl::wait_if_paused(std::chrono::milliseconds at_most) {
+  std::unique_lock<std::mutex> lock(mu_);
+  if (paused_) cv_.wait_for(lock, at_most, [this] { return !paused_; });
+  return paused_;
+}
+
+void view_between_steps(Trainer& trainer, ViewSession& session, LiveControl& control) {
+  if (session.wants_weights()) session.set_weights(trainer.model(), trainer.steps_done());
+  do {
+    if (control.take_save()) trainer.checkpoint_now();
+  } while (control.wait_if_paused(std::chrono::milliseconds(100)) && !interrupt_requested());
+}
+
+ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device, bool live)
+    : run_(RunFolder::open(run_dir)), device_(device), live_(live) {
   scene_ = run_.scene();
   if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
   cams_ = capture_cameras(run_.data_dir, scene_, run_.config.data.downscale);
-  model_ = load_run_model(run_, device_);
+  if (live_) {
+    model_ = AbleNerf(run_.config.model, scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
+    model_->to(device_);
+    wants_ = true;  // the first render needs the trainer's weights
+  } else {
+    model_ = load_run_model(run_, device_);
+  }
   model_->eval();
+}
+
+void ViewSession::set_weights(AbleNerf& trained, int64_t step) {
+  const std::lock_guard<std::mutex> lock(mu_);
+  const torch::NoGradGuard no_grad;
+  const auto src = trained->named_parameters(), dst = model_->named_parameters();
+  for (const auto& p : src) dst[p.key()].copy_(p.value());
+  const auto sb = trained->named_buffers(), db = model_->named_buffers();
+  for (const auto& b : sb) db[b.key()].copy_(b.value());
+  step_ = step;
+  copies_ += 1;
+  wants_ = false;
 }
 
 nlohmann::json ViewSession::cameras_json() const {
@@ -35,6 +98,7 @@ nlohmann::json ViewSession::cameras_json() const {
     list.push_back(std::vector<float>(p, p + 12));
   }
   j["cameras"] = list;
+  j["live"] = live_;
   return j;
 }
 
@@ -50,6 +114,7 @@ std::string ViewSession::render_png(const std::array<float, 12>& c2w, int width,
   auto pose = torch::empty({3, 4}, torch::kFloat);
   std::memcpy(pose.data_ptr<float>(), c2w.data(), sizeof(float) * 12);
   torch::Tensor image;
+  if (live_) wants_ = true;  // the next pause between steps brings newer weights
   {
     const std::lock_guard<std::mutex> lock(mu_);
     const torch::NoGradGuard no_grad;

@@ -5,6 +5,10 @@
 #include <torch/torch.h>
 
 #include <array>
+#include <chrono>
+#include <atomic>
+#include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -21,10 +25,50 @@ constexpr int kViewMaxSide = 2048;
 
 enum class ViewMode { Rgb, Depth };
 
+// A run being trained (`train --view`): the viewer's buttons, and the training thread's side of
+// them (called between steps through TrainOptions::between_steps).
+class LiveControl {
+ public:
+  void pause();
+  void resume();
+  void request_save();
+  bool paused() const;
+  // The training thread: takes a pending save request (true once per request).
+  bool take_save();
+  // The training thread: while paused, waits up to `at_most` for a resume; returns whether still
+  // paused.
+  bool wait_if_paused(std::chrono::milliseconds at_most);
+
+ private:
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  bool paused_ = false, save_ = false;
+};
+
+class ViewSession;
+class Trainer;
+
+// The live viewer's work between two training steps (TrainOptions::between_steps of
+// `train --view`): copy the weights when a render asked for them, write a checkpoint when asked,
+// and hold the training thread while paused (still saving on request; Ctrl-C ends the wait).
+void view_between_steps(Trainer& trainer, ViewSession& session, LiveControl& control);
+
 class ViewSession {
  public:
-  // Loads RUN's weights and scene; the dataset's cameras are read without decoding images.
-  ViewSession(const std::string& run_dir, const torch::Device& device);
+  // Loads RUN's weights and scene; the dataset's cameras are read without decoding images. `live`:
+  // the run is being trained in this process; its weights arrive through set_weights, and the
+  // model starts as the configured architecture (no weights file needed).
+  ViewSession(const std::string& run_dir, const torch::Device& device, bool live = false);
+
+  bool live() const { return live_; }
+  // Live runs: whether a render has asked for weights newer than the ones held (an idle viewer
+  // asks for nothing, so training pays nothing for it), and the copy itself (training thread,
+  // between steps).
+  bool wants_weights() const { return wants_.load(); }
+  void set_weights(AbleNerf& trained, int64_t step);
+  int64_t weights_step() const { return step_.load(); }
+  int64_t weight_copies() const { return copies_.load(); }
+  const RunFolder& run() const { return run_; }
 
   // {"scene", "near", "far", "width", "height", "fx", "fy", "cameras": [[12 numbers, row-major
   // camera-to-world 3x4 in the scene frame], ...], "step"}.
@@ -41,6 +85,9 @@ class ViewSession {
   torch::Device device_;
   AbleNerf model_{nullptr};
   std::mutex mu_;
+  bool live_ = false;
+  std::atomic<bool> wants_{false};
+  std::atomic<int64_t> step_{-1}, copies_{0};
 };
 
 }  // namespace ablenerf

@@ -31,6 +31,12 @@ select, button { font: inherit; }
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
 </div>
+<div id="livebar" hidden style="padding: 0 10px 6px; display: flex; gap: 12px; align-items: center; flex-wrap: wrap;">
+  <b>training</b> <span id="step">step -</span>
+  <button id="pause">pause</button> <button id="save-ckpt">save checkpoint</button>
+  <label><input type="checkbox" id="follow"> follow training (re-render every 5 s)</label>
+  <svg id="curves" width="360" height="90" style="background:#303134"></svg>
+</div>
 <canvas id="view" width="400" height="400"></canvas>
 <pre id="pose" hidden></pre>
 <script>
@@ -110,7 +116,7 @@ function changed() {
   }
   request(0.25);
   clearTimeout(restTimer);
-  restTimer = setTimeout(() => request(1), 250);
+  restTimer = setTimeout(() => { restTimer = null; request(1); }, 250);
 }
 function jump(i) {
   pose = info.cameras[i].slice();
@@ -183,7 +189,37 @@ window.addEventListener("keydown", e => {
 document.getElementById("mode").addEventListener("change", changed);
 document.getElementById("size").addEventListener("change", changed);
 document.getElementById("cams").addEventListener("change", e => jump(parseInt(e.target.value)));
+// A run being trained (`train --view`): state, buttons and the loss / held-out PSNR curves.
+function polyline(points, w, h, colour) {
+  if (points.length < 2) return "";
+  const xs = points.map(p => p[0]), ys = points.map(p => p[1]);
+  const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+  const sx = x => 4 + (w - 8) * (x - x0) / Math.max(1e-9, x1 - x0), sy = y => h - 4 - (h - 8) * (y - y0) / Math.max(1e-9, y1 - y0);
+  return '<polyline fill="none" stroke="' + colour + '" points="' + points.map(p => sx(p[0]) + "," + sy(p[1])).join(" ") + '"/>';
+}
+let lastStep = -1;
+function pollLive() {
+  fetch("/api/state").then(r => r.json()).then(st => {
+    document.getElementById("step").textContent = "step " + st.step + (st.paused ? " (paused)" : "");
+    document.getElementById("pause").textContent = st.paused ? "resume" : "pause";
+    document.getElementById("pause").dataset.paused = st.paused ? "1" : "";
+    if (document.getElementById("follow").checked && st.step !== lastStep && !restTimer) request(1);
+    lastStep = st.step;
+  });
+  fetch("/api/log").then(r => r.json()).then(log => {
+    const loss = log.filter(e => e.loss !== undefined && e.step !== undefined).map(e => [e.step, Math.log10(e.loss)]);
+    const psnr = log.filter(e => e.type === "eval" && e.psnr !== null).map(e => [e.step, e.psnr]);
+    document.getElementById("curves").innerHTML = polyline(loss, 360, 90, "#8ab4f8") + polyline(psnr, 360, 90, "#fbbc04") +
+      '<text x="6" y="12" fill="#8ab4f8" font-size="10">log10 loss</text><text x="80" y="12" fill="#fbbc04" font-size="10">held-out PSNR</text>';
+  });
+}
+document.getElementById("pause").addEventListener("click", e => {
+  fetch("/api/control?action=" + (e.target.dataset.paused ? "resume" : "pause")).then(pollLive);
+});
+document.getElementById("save-ckpt").addEventListener("click", () => fetch("/api/control?action=save"));
+setInterval(() => { if (info && info.live) pollLive(); }, 5000);
 fetch("/api/cameras").then(r => r.json()).then(j => {
+  if (j.live) { document.getElementById("livebar").hidden = false; pollLive(); }
   info = j;
   up = j.scene === "forward" ? [0, 1, 0] : [0, 0, 1];
   const sel = document.getElementById("cams");
