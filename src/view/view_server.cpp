@@ -101,9 +101,12 @@ ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveCon
       if (req.has_param("mode")) {
         const std::string m = req.get_param_value("mode");
         if (m == "depth") mode = ViewMode::Depth;
-        else if (m != "rgb") throw InputError("request", "mode", "must be rgb or depth");
+        else if (m == "error") mode = ViewMode::Error;
+        else if (m != "rgb") throw InputError("request", "mode", "must be rgb, depth or error");
       }
-      res.set_content(session_.render_png(pose, w, h, mode), "image/png");
+      int camera = -1;
+      res.set_content(session_.render_png(pose, w, h, mode, &camera), "image/png");
+      if (camera >= 0) res.set_header("X-Nearest-Camera", std::to_string(camera));
       res.set_header("Cache-Control", "no-store");
     } catch (const InputError& e) {
       bad_request(res, e.what());

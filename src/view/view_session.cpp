@@ -1,11 +1,15 @@
 #include "view/view_session.h"
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 
 #include "eval/colormap.h"
+#include "eval/evaluate.h"
 #include "eval/renderer.h"
 #include "train/trainer.h"
+#include "util/image_codec.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
 
@@ -59,6 +63,8 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
   scene_ = run_.scene();
   if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
   cams_ = capture_cameras(run_.data_dir, scene_, run_.config.data.downscale);
+  for (auto& split : read_dataset_json(run_.data_dir, {}, run_.config.data.downscale).splits)
+    for (auto& f : split.frames) frames_.push_back(std::move(f));
   if (live_) {
     model_ = AbleNerf(run_.config.model, scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
     model_->to(device_);
@@ -102,7 +108,25 @@ nlohmann::json ViewSession::cameras_json() const {
   return j;
 }
 
-std::string ViewSession::render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode) {
+int ViewSession::nearest_camera(const std::array<float, 12>& c2w) const {
+  const auto all = cams_.c2w.to(torch::kFloat).contiguous();
+  int best = 0;
+  double best_d = 1e300;
+  for (int64_t i = 0; i < all.size(0); ++i) {
+    const float* p = all[i].data_ptr<float>();
+    double d2 = 0, cosang = 0;
+    for (int r = 0; r < 3; ++r) {
+      d2 += (p[r * 4 + 3] - c2w[static_cast<size_t>(r * 4 + 3)]) * (p[r * 4 + 3] - c2w[static_cast<size_t>(r * 4 + 3)]);
+      cosang += p[r * 4 + 2] * c2w[static_cast<size_t>(r * 4 + 2)];
+    }
+    const double d = std::sqrt(d2) + std::acos(std::clamp(cosang, -1.0, 1.0));
+    if (d < best_d) best_d = d, best = static_cast<int>(i);
+  }
+  return best;
+}
+
+std::string ViewSession::render_png(const std::array<float, 12>& asked, int width, int height, ViewMode mode,
+                                    int* camera) {
   const Intrinsics& d = cams_.intrinsics;
   Intrinsics k;  // the dataset's focal at this width, a pinhole
   k.width = width;
@@ -111,6 +135,28 @@ std::string ViewSession::render_png(const std::array<float, 12>& c2w, int width,
   k.fy = d.fy * width / d.width;
   k.cx = 0.5 * width;
   k.cy = 0.5 * height;
+  std::array<float, 12> c2w = asked;
+  torch::Tensor truth;  // ViewMode::Error: the nearest camera's image at this size, composited
+  if (mode == ViewMode::Error) {
+    const int i = nearest_camera(asked);
+    if (camera) *camera = i;
+    const auto p = cams_.c2w[i].to(torch::kFloat).contiguous();
+    std::memcpy(c2w.data(), p.data_ptr<float>(), sizeof(float) * 12);
+    const FrameJson& f = frames_.at(static_cast<size_t>(i));
+    k = f.camera.scaled(static_cast<double>(width) / f.camera.width, width, height);
+    auto rgba = image_tensor(decode_image_file(f.image).image).to(torch::kFloat).div_(255.0f);
+    if (rgba.size(2) == 1) rgba = rgba.expand({-1, -1, 3});
+    if (rgba.size(2) == 3) rgba = torch::cat({rgba, torch::ones_like(rgba.slice(2, 0, 1))}, 2);
+    // Straight RGBA averaged over areas (as the loader's box downscale), then composited.
+    rgba = torch::nn::functional::interpolate(
+               rgba.permute({2, 0, 1}).unsqueeze(0),
+               torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{height, width}).mode(torch::kArea))
+               .squeeze(0)
+               .permute({1, 2, 0});
+    const float bg = run_.config.data.background == Background::White ? 1.0f : 0.0f;
+    const auto a = rgba.slice(2, 3, 4);
+    truth = rgba.slice(2, 0, 3) * a + bg * (1 - a);
+  }
   auto pose = torch::empty({3, 4}, torch::kFloat);
   std::memcpy(pose.data_ptr<float>(), c2w.data(), sizeof(float) * 12);
   torch::Tensor image;
@@ -122,6 +168,8 @@ std::string ViewSession::render_png(const std::array<float, 12>& c2w, int width,
         render_image(model_, pose.to(device_), k, scene_.near, scene_.far, run_.config.eval.chunk, ForwardOptions{}, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
+    } else if (mode == ViewMode::Error) {
+      image = colormap((r.rgb.to(torch::kCPU) - truth).abs().mean(-1), 0.0, kErrorMapMax);
     } else {
       // As eval's depth maps: unbounded scenes up to twice the cameras' sphere.
       const double far = scene_.kind == SceneKind::Unbounded ? 2.0 : scene_.far;

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "data/dataset.h"
+#include "data/transforms_json.h"
 #include "model/able_nerf.h"
 #include "run/run_folder.h"
 
@@ -23,7 +24,10 @@ namespace ablenerf {
 constexpr int kViewMinSide = 8;
 constexpr int kViewMaxSide = 2048;
 
-enum class ViewMode { Rgb, Depth };
+// Rgb: the render; Depth: attention depth, colour-mapped as eval's maps; Error: the render from
+// the dataset camera nearest the asked pose (its pose and camera, at the asked size) against that
+// camera's image, |render - image| averaged over RGB and colour-mapped on [0, kErrorMapMax].
+enum class ViewMode { Rgb, Depth, Error };
 
 // A run being trained (`train --view`): the viewer's buttons, and the training thread's side of
 // them (called between steps through TrainOptions::between_steps).
@@ -76,12 +80,18 @@ class ViewSession {
 
   // The PNG of the view from `c2w` (row-major 3x4, scene frame, OpenGL axes) through a pinhole
   // with the dataset's focal length scaled to `width` (principal point at the centre).
-  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode);
+  // With ViewMode::Error, `camera` (when not null) receives the index of the camera compared.
+  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode,
+                         int* camera = nullptr);
+  // The dataset camera nearest `c2w` (centre distance plus the angle between viewing directions,
+  // in scene units / radians), as an index of cameras_json()'s list.
+  int nearest_camera(const std::array<float, 12>& c2w) const;
 
  private:
   RunFolder run_;
   SceneFrame scene_;
   CameraList cams_;
+  std::vector<FrameJson> frames_;  // every split's frames, in cameras_json()'s order
   torch::Device device_;
   AbleNerf model_{nullptr};
   std::mutex mu_;

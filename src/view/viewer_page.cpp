@@ -26,7 +26,7 @@ select, button { font: inherit; }
 <div id="bar">
   <b>ablenerf view</b>
   <label>camera <select id="cams"></select></label>
-  <label>mode <select id="mode"><option>rgb</option><option>depth</option></select></label>
+  <label>mode <select id="mode"><option>rgb</option><option>depth</option><option>error</option></select></label>
   <label>size <select id="size"><option value="0.5">1/2</option><option value="1" selected>1</option><option value="2">2x</option></select></label>
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
@@ -78,13 +78,16 @@ function request(scale) {
   const mode = document.getElementById("mode").value;
   const url = "/api/render?w=" + rw + "&h=" + rh + "&mode=" + mode + "&pose=" + pose.map(x => x.toFixed(6)).join(",");
   const t0 = performance.now();
-  fetch(url).then(r => r.ok ? r.blob() : r.text().then(t => Promise.reject(t))).then(b => createImageBitmap(b)).then(img => {
+  let nearest = null;
+  fetch(url).then(r => { nearest = r.headers.get("X-Nearest-Camera"); return r.ok ? r.blob() : r.text().then(t => Promise.reject(t)); })
+      .then(b => createImageBitmap(b)).then(img => {
     if (my !== seq && scale < 1) return;  // a newer view is on its way
     canvas.width = w; canvas.height = h;
     ctx.imageSmoothingEnabled = scale < 1;
     ctx.drawImage(img, 0, 0, w, h);
     drawMarkers(w, h);
-    statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms";
+    statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms" +
+      (nearest !== null ? " (error against camera " + nearest + ", from its pose)" : "");
     document.body.dataset.images = (parseInt(document.body.dataset.images || "0") + 1).toString();
   }).catch(e => { statusEl.textContent = "render failed: " + e; });
 }

@@ -109,6 +109,27 @@ TEST(ViewServer, PageCamerasAndARenderEqualToTheRenderers) {
   EXPECT_EQ(decode(d->body, s.dir()).sizes(), (std::vector<int64_t>{12, 16, 3}));
 }
 
+TEST(ViewServer, ErrorModeIsEvalsErrorMapOfTheNearestCamera) {
+  Served s;
+  httplib::Client cli("127.0.0.1", s.port());
+  const auto j = nlohmann::json::parse(cli.Get("/api/cameras")->body);
+  // Camera 2 is the first test view (2 train, then 2 test): nudged a little, it is still nearest.
+  auto pose = j.at("cameras")[2].get<std::vector<float>>();
+  pose[3] += 0.05f;
+  auto r = cli.Get(("/api/render?w=16&h=16&mode=error&pose=" + pose_text(pose)).c_str());
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("X-Nearest-Camera"), "2");
+  // eval's own error map of test view 0 (its loader, its renderer, its colour map).
+  const auto e = test::run_cli("eval --run " + s.dir() / "run" + " --max-images 1");
+  ASSERT_EQ(e.exit_code, 0) << e.output;
+  const auto want = read_png(s.dir() / "run/eval/test/r_0_error.png").to(torch::kInt);
+  const auto got = decode(r->body, s.dir()).to(torch::kInt);
+  ASSERT_EQ(got.sizes(), want.sizes());
+  EXPECT_LE((got - want).abs().max().item<int>(), 1);
+  EXPECT_GT(want.to(torch::kFloat).std().item<double>(), 1.0);  // the map is not flat
+}
+
 TEST(ViewServer, BadRequestsGet400AndOneLineAndTheServerGoesOn) {
   Served s;
   httplib::Client cli("127.0.0.1", s.port());
