@@ -6,8 +6,9 @@
 // "record path" keeps every pose the view takes, saved as path.json for `render --path`. Each change
 // asks for a quarter-size image at once and the full size once the camera rests (older answers are
 // dropped), so the page stays responsive on a CPU. For tests: the current pose is kept in
-// <pre id="pose">, body's data-images counts the images drawn, and #drag=DX,DY in the address
-// plays a drag through the mouse handlers once the cameras are in.
+// <pre id="pose">, body's data-images counts the images drawn (data-first-image-ms and
+// data-first-full-ms time the first ones), #drag=DX,DY in the address plays a drag through the
+// mouse handlers once the cameras are in, and #size=WxH fixes the image size.
 #include "view/view_server.h"
 
 namespace ablenerf {
@@ -65,6 +66,8 @@ function rotatePose(k, t) {
   pose = p;
 }
 function size() {
+  const fixed = /size=([0-9]+)x([0-9]+)/.exec(location.hash);  // #size=WxH: a fixed size (benchmarks)
+  if (fixed) return [parseInt(fixed[1]), parseInt(fixed[2])];
   const s = parseFloat(document.getElementById("size").value);
   let w = Math.round(info.width * s), h = Math.round(info.height * s);
   const big = Math.max(w, h);
@@ -89,6 +92,9 @@ function request(scale) {
     statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms" +
       (nearest !== null ? " (error against camera " + nearest + ", from its pose)" : "");
     document.body.dataset.images = (parseInt(document.body.dataset.images || "0") + 1).toString();
+    // Milliseconds from navigation to the first image and to the first full-size one.
+    if (!document.body.dataset.firstImageMs) document.body.dataset.firstImageMs = Math.round(performance.now());
+    if (scale === 1 && !document.body.dataset.firstFullMs) document.body.dataset.firstFullMs = Math.round(performance.now());
   }).catch(e => { statusEl.textContent = "render failed: " + e; });
 }
 // The dataset's cameras drawn where they are in the current view (a dot and the direction each

@@ -25,9 +25,11 @@ bool have_chromium() { return std::system("command -v chromium > /dev/null 2>&1"
 
 // Chromium, headless, on `url`; its stdout into `out`. Virtual time lets the page's timers run
 // without waiting; network fetches (the renders) still complete.
+// A fresh profile per call (next to `out`): nothing carried over between runs or tests.
 int chromium(const std::string& args, const std::string& url, const std::string& out) {
   const std::string cmd = "timeout 120 chromium --headless=new --no-sandbox --disable-gpu --no-first-run "
-                          "--disable-dev-shm-usage --window-size=420,360 --virtual-time-budget=15000 " +
+                          "--disable-dev-shm-usage --user-data-dir='" + out + ".profile' --window-size=420,360 "
+                          "--virtual-time-budget=15000 " +
                           args + " '" + url + "' > '" + out + "' 2> '" + out + ".log'";
   return std::system(cmd.c_str());
 }
