@@ -2,7 +2,7 @@
 // from the internet. The camera is a camera-to-world pose in the scene frame; dragging orbits it
 // about the target (left button: around the scene's up axis and the camera's right axis; right
 // button or shift: pans), the wheel dollies towards the target, and W/A/S/D/Q/E move it; the
-// dataset's cameras are drawn as dots with their viewing direction (a click jumps to one), and
+// dataset's cameras are drawn as small frusta (a click jumps to one), and
 // "record path" keeps every pose the view takes, saved as path.json for `render --path`. Each change
 // asks for a quarter-size image at once and the full size once the camera rests (older answers are
 // dropped), so the page stays responsive on a CPU. For tests: the current pose is kept in
@@ -32,7 +32,7 @@ select, button { font: inherit; }
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
 </div>
-<div id="livebar" hidden style="padding: 0 10px 6px; display: flex; gap: 12px; align-items: center; flex-wrap: wrap;">
+<div id="livebar" style="padding: 0 10px 6px; display: none; gap: 12px; align-items: center; flex-wrap: wrap;">
   <b>training</b> <span id="step">step -</span>
   <button id="pause">pause</button> <button id="save-ckpt">save checkpoint</button>
   <label><input type="checkbox" id="follow"> follow training (re-render every 5 s)</label>
@@ -97,8 +97,8 @@ function request(scale) {
     if (scale === 1 && !document.body.dataset.firstFullMs) document.body.dataset.firstFullMs = Math.round(performance.now());
   }).catch(e => { statusEl.textContent = "render failed: " + e; });
 }
-// The dataset's cameras drawn where they are in the current view (a dot and the direction each
-// looks); a click on one jumps to it.
+// The dataset's cameras drawn where they are in the current view (a dot and its frustum); a click
+// on one jumps to it.
 function drawMarkers(w, h) {
   markers = [];
   const o = col(pose, 3), fx = info.fx * w / info.width, fy = info.fy * w / info.width;
@@ -110,10 +110,19 @@ function drawMarkers(w, h) {
   info.cameras.forEach((c, i) => {
     const at = project(col(c, 3));
     if (!at || at[0] < 0 || at[1] < 0 || at[0] > w || at[1] > h) return;
-    const ahead = project(add(col(c, 3), mul(col(c, 2), -0.15 * norm(sub(col(c, 3), o)))));
+    // The camera's frustum: its image plane's corners at a depth of 8% of its distance from us.
+    const s = 0.08 * norm(sub(col(c, 3), o)), hx = 0.5 * info.width / info.fx, hy = 0.5 * info.height / info.fy;
+    const corner = (sx, sy) => project(add(col(c, 3), add(add(mul(col(c, 0), sx * hx * s), mul(col(c, 1), sy * hy * s)), mul(col(c, 2), -s))));
+    const corners = [corner(-1, -1), corner(1, -1), corner(1, 1), corner(-1, 1)];
     ctx.strokeStyle = ctx.fillStyle = "#fbbc04";
-    ctx.beginPath(); ctx.arc(at[0], at[1], 3, 0, 2 * Math.PI); ctx.fill();
-    if (ahead) { ctx.beginPath(); ctx.moveTo(at[0], at[1]); ctx.lineTo(ahead[0], ahead[1]); ctx.stroke(); }
+    ctx.beginPath(); ctx.arc(at[0], at[1], 2.5, 0, 2 * Math.PI); ctx.fill();
+    if (corners.every(q => q)) {
+      ctx.beginPath();
+      corners.forEach(q => { ctx.moveTo(at[0], at[1]); ctx.lineTo(q[0], q[1]); });
+      ctx.moveTo(corners[3][0], corners[3][1]);
+      corners.forEach(q => ctx.lineTo(q[0], q[1]));
+      ctx.stroke();
+    }
     markers.push([i, at[0] * canvas.clientWidth / w, at[1] * canvas.clientHeight / h]);
   });
 }
@@ -228,7 +237,7 @@ document.getElementById("pause").addEventListener("click", e => {
 document.getElementById("save-ckpt").addEventListener("click", () => fetch("/api/control?action=save"));
 setInterval(() => { if (info && info.live) pollLive(); }, 5000);
 fetch("/api/cameras").then(r => r.json()).then(j => {
-  if (j.live) { document.getElementById("livebar").hidden = false; pollLive(); }
+  if (j.live) { document.getElementById("livebar").style.display = "flex"; pollLive(); }
   info = j;
   up = j.scene === "forward" ? [0, 1, 0] : [0, 0, 1];
   const sel = document.getElementById("cams");

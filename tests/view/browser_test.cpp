@@ -81,6 +81,9 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   }
   EXPECT_EQ(plain.pose, cam0);
   EXPECT_GE(plain.images, 1);
+  // A finished run: the training bar stays hidden (it was once shown by a CSS display that
+  // overrode the hidden attribute).
+  EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"), std::string::npos);
   // The drag moved the camera, and a view was drawn (the first camera's quarter-size answer may be
   // dropped as stale once the drag asked for the moved view).
   EXPECT_FALSE(dragged.pose.empty());
