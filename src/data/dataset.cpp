@@ -230,7 +230,10 @@ Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
 }
 
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale) {
-  const DatasetJson js = read_dataset_json(root, {}, downscale);
+  return capture_cameras(read_dataset_json(root, {}, downscale), scene, downscale);
+}
+
+CameraList capture_cameras(const DatasetJson& js, const SceneFrame& scene, int downscale) {
   CameraList cl;
   std::vector<torch::Tensor> poses;
   for (const auto& s : js.splits)

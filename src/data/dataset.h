@@ -76,6 +76,8 @@ CameraList load_cameras(const std::string& json_path, int width = 0, int height 
 // Every camera of a capture folder (any format; every split, in split order), poses moved into
 // `scene`, intrinsics those of the first image at `downscale` (lens included). No image is decoded.
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale);
+// The same from metadata already read (read_dataset_json(root, {}, downscale)).
+CameraList capture_cameras(const DatasetJson& capture, const SceneFrame& scene, int downscale);
 
 // Poses (N,3,4) given in a capture's own coordinates, moved into its scene frame.
 torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene);

@@ -81,8 +81,6 @@ double percentile(std::vector<double> v, double q) {
 // milliseconds.
 constexpr size_t kMaxBoundPoints = 20000;
 
-// The closest content in front of the cameras, capture units: the 1st percentile of the sparse
-// points' depths, else the smallest LLFF near bound.
 // Depths (capture units, along each optical axis) of the sparse points in front of each camera;
 // InputError(root, "points") when none is.
 std::vector<double> point_depths(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
@@ -99,12 +97,17 @@ std::vector<double> point_depths(const DatasetJson& cap, const std::vector<Pose3
   return depths;
 }
 
+// The smallest near and largest far of the LLFF bounds (capture units); the capture has some.
+std::array<double, 2> bounds_range(const DatasetJson& cap) {
+  std::array<double, 2> r = cap.bounds.front();
+  for (const auto& b : cap.bounds) r[0] = std::min(r[0], b[0]), r[1] = std::max(r[1], b[1]);
+  return r;
+}
+
+// The closest content in front of the cameras, capture units: the 1st percentile of the sparse
+// points' depths, else the smallest LLFF near bound.
 double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
-  if (cap.points.empty()) {
-    double lo = cap.bounds[0][0];
-    for (const auto& b : cap.bounds) lo = std::min(lo, b[0]);
-    return lo;
-  }
+  if (cap.points.empty()) return bounds_range(cap)[0];
   return percentile(point_depths(cap, poses, root), 0.01);
 }
 
@@ -238,12 +241,14 @@ SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, Scen
   V3 mean{0, 0, 0}, up{0, 0, 0};
   double A[3][3] = {{0}};
   V3 b{0, 0, 0};
+  V3 back{0, 0, 0};  // the sum of the cameras' backward axes
   for (const auto& p : poses) {
     const V3 o = column(p, 3), y = column(p, 1), z = column(p, 2);
     const V3 d{-z[0], -z[1], -z[2]};
     for (int i = 0; i < 3; ++i) {
       mean[static_cast<size_t>(i)] += o[static_cast<size_t>(i)] / static_cast<double>(poses.size());
       up[static_cast<size_t>(i)] += y[static_cast<size_t>(i)];
+      back[static_cast<size_t>(i)] += z[static_cast<size_t>(i)];
     }
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
@@ -257,11 +262,6 @@ SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, Scen
   if (!(spread > 1e-9 * (1 + norm(mean))))
     throw InputError(root, "poses", "every camera is at the same point (degenerate poses: nothing to triangulate)");
   // Forward-facing: every optical axis close to the mean one, and a known near bound.
-  V3 back{0, 0, 0};
-  for (const auto& p : poses) {
-    const V3 z = column(p, 2);
-    for (size_t i = 0; i < 3; ++i) back[i] += z[i];
-  }
   const double back_norm = norm(back);
   bool facing_one_way = back_norm > 1e-9;
   if (facing_one_way) {
@@ -306,8 +306,7 @@ SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, Scen
     f.far = 1.5 * f.scale * percentile(depths, 0.99);
     f.bounds_source = "points";
   } else if (!cap.bounds.empty()) {
-    double lo = cap.bounds[0][0], hi = cap.bounds[0][1];
-    for (const auto& b2 : cap.bounds) lo = std::min(lo, b2[0]), hi = std::max(hi, b2[1]);
+    const auto [lo, hi] = bounds_range(cap);
     f.near = 0.9 * lo * f.scale;
     f.far = 1.1 * hi * f.scale;
     f.bounds_source = "llff bounds";

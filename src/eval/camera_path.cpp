@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 #include <vector>
 
+#include "data/transforms_json.h"
 #include "util/errors.h"
 #include "util/fs.h"
 
@@ -135,18 +137,12 @@ torch::Tensor read_path_file(const std::string& path) {
     if (!p.is_array() || p.size() != 12) throw InputError(path, field, "expected 12 numbers");
     double m[3][4];
     for (size_t k = 0; k < 12; ++k) {
-      if (!p[k].is_number() || !std::isfinite(p[k].get<double>())) throw InputError(path, field, "expected 12 finite numbers");
+      if (!p[k].is_number()) throw InputError(path, field, "expected 12 numbers");
       m[k / 4][k % 4] = p[k].get<double>();
     }
-    // The rotation part must be one (to 1e-3: the page writes 6 decimals).
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b) {
-        double d = 0;
-        for (int r = 0; r < 3; ++r) d += m[r][a] * m[r][b];
-        if (std::abs(d - (a == b ? 1.0 : 0.0)) > 1e-3) throw InputError(path, field, "the 3x3 part is not a rotation");
-      }
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 4; ++c) out[static_cast<int64_t>(i)][r][c] = static_cast<float>(m[r][c]);
+    // Finite and rigid, as every dataset pose (the page writes 6 decimals, well inside the tolerance).
+    const Pose34 pose = checked_pose(m, path, field);
+    std::memcpy(out[static_cast<int64_t>(i)].data_ptr<float>(), pose.data(), sizeof(float) * pose.size());
   }
   return out;
 }

@@ -15,25 +15,27 @@ struct NdcRay {
   torch::Tensor o, d;
 };
 
-NdcRay ndc_ray(const torch::Tensor& o_in, const torch::Tensor& d, const NdcProjection& p) {
-  const auto dz = d.select(-1, 2).unsqueeze(-1);
-  // Move the origin along the ray to the near plane z = -near.
-  const auto t = -(kNdcNear + o_in.select(-1, 2).unsqueeze(-1)) / dz;
-  const auto o = o_in + t * d;
-  const auto ox = o.select(-1, 0), oy = o.select(-1, 1), oz = o.select(-1, 2);
-  const auto dx = d.select(-1, 0), dy = d.select(-1, 1), dzs = d.select(-1, 2);
-  NdcRay r;
-  r.o = torch::stack({-p.a * ox / oz, -p.b * oy / oz, 1 + 2 * kNdcNear / oz}, -1);
-  r.d = torch::stack({-p.a * (dx / dzs - ox / oz), -p.b * (dy / dzs - oy / oz), -2 * kNdcNear / oz}, -1);
-  return r;
-}
-
 }  // namespace
 
 torch::Tensor points_to_ndc(const torch::Tensor& x, const NdcProjection& p) {
   const auto z = x.select(-1, 2);
   return torch::stack({-p.a * x.select(-1, 0) / z, -p.b * x.select(-1, 1) / z, 1 + 2 * kNdcNear / z}, -1);
 }
+
+namespace {
+
+NdcRay ndc_ray(const torch::Tensor& o_in, const torch::Tensor& d, const NdcProjection& p) {
+  const auto dz = d.select(-1, 2);
+  // Move the origin along the ray to the near plane z = -near; its image is the NDC origin.
+  const auto o = o_in + (-(kNdcNear + o_in.select(-1, 2)) / dz).unsqueeze(-1) * d;
+  const auto ox = o.select(-1, 0), oy = o.select(-1, 1), oz = o.select(-1, 2);
+  NdcRay r;
+  r.o = points_to_ndc(o, p);
+  r.d = torch::stack({-p.a * (d.select(-1, 0) / dz - ox / oz), -p.b * (d.select(-1, 1) / dz - oy / oz), -2 * kNdcNear / oz}, -1);
+  return r;
+}
+
+}  // namespace
 
 Rays rays_to_ndc(const Rays& rays, const NdcProjection& p) {
   const NdcRay r = ndc_ray(rays.origins, rays.directions, p);

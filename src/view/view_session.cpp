@@ -62,8 +62,9 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
     : run_(RunFolder::open(run_dir)), device_(device), live_(live) {
   scene_ = run_.scene();
   if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
-  cams_ = capture_cameras(run_.data_dir, scene_, run_.config.data.downscale);
-  for (auto& split : read_dataset_json(run_.data_dir, {}, run_.config.data.downscale).splits)
+  DatasetJson capture = read_dataset_json(run_.data_dir, {}, run_.config.data.downscale);
+  cams_ = capture_cameras(capture, scene_, run_.config.data.downscale);
+  for (auto& split : capture.splits)
     for (auto& f : split.frames) frames_.push_back(std::move(f));
   if (live_) {
     model_ = AbleNerf(run_.config.model, scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
