@@ -18,6 +18,7 @@
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
 #   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS)
+#   view       the web viewer on the GPU: launch to first answer, render + PNG times at 32-800 pixels
 set -uo pipefail
 cd "$(dirname "$0")/.."
 . scripts/lib.sh
@@ -25,7 +26,7 @@ OUT=${OUT:-/tmp/gpu}
 mkdir -p "$OUT"
 root=$PWD/.carry/root
 export LD_LIBRARY_PATH=$root/usr/lib/x86_64-linux-gnu:$root/lib/x86_64-linux-gnu:${LD_LIBRARY_PATH:-}
-bin=build-cuda/ablenerf
+bin=${ABLENERF_BIN:-build-cuda/ablenerf}  # another binary for a dry run of a stage on a CPU machine
 lego=.carry/lego   # lego's train split + the first 20 test views (docs/GPU.md)
 # LPIPS weights: the repository's assets/ copy, unless the fp32 original is carried.
 [ -f .carry/weights/lpips_alex_v0.1.pt ] && export ABLENERF_LPIPS_WEIGHTS=$PWD/.carry/weights/lpips_alex_v0.1.pt
@@ -58,6 +59,51 @@ stage_build() {
   local rc=$?
   echo "build rc $rc in $((SECONDS - t0)) s"
   [ $rc -eq 0 ] || grep -E "error|Error" "$OUT/build.log" | head -40
+  # The viewer links Debian's cpp-httplib from .carry/root; should that library not load on this
+  # machine, rebuild without the viewer rather than lose the session's other stages.
+  if [ -x "$bin" ] && ! "$bin" --version > "$OUT/start.log" 2>&1; then
+    echo "build: $bin does not start ($(head -c 300 "$OUT/start.log")); rebuilding with ABLENERF_VIEW=OFF"
+    cmake -S . -B build-cuda -DABLENERF_VIEW=OFF >> "$OUT/cmake.log" 2>&1 &&
+      cmake --build build-cuda -j "$(nproc)" "${targets[@]}" >> "$OUT/build.log" 2>&1 || rc=1
+  fi
+  return $rc
+}
+
+# The viewer on the GPU: the same requests as docs/BENCHMARKS.md's CPU rows (one render + PNG per
+# request, median of 7 timed requests at 32, 100, 128, 400 and 800 pixels square, camera 0's pose) on
+# the lego5 stage's run (/tmp/lego5, or VIEW_RUN), and the time from launch to the server answering.
+stage_view() {
+  local run=${VIEW_RUN:-/tmp/lego5} port=7311 pid rc
+  [ -d "$run" ] || { echo "view: no run in $run (run the lego5 stage first)"; return 1; }
+  date +%s.%N > "$OUT/view_launch"
+  $bin view --run "$run" --port $port --device "${VIEW_DEVICE:-cuda}" > "$OUT/view.log" 2>&1 &
+  pid=$!
+  python3 - "$port" "$OUT/view_launch" $pid <<'PY'
+import json, os, statistics, sys, time, urllib.request
+port, launch, pid = int(sys.argv[1]), float(open(sys.argv[2]).read()), int(sys.argv[3])
+base = f"http://127.0.0.1:{port}"
+while True:
+    try:
+        cams = json.load(urllib.request.urlopen(base + "/api/cameras", timeout=5)); break
+    except OSError:
+        os.kill(pid, 0)  # raises when the server ended
+        if time.time() - launch > 60: sys.exit("view: no answer in 60 s")
+        time.sleep(0.05)
+print(f"view: server answering {time.time() - launch:.2f} s after launch")
+pose = ",".join(f"{v:.6f}" for v in cams["cameras"][0])
+for size in (32, 100, 128, 400, 800):
+    times = []
+    for i in range(8):
+        t = time.perf_counter()
+        urllib.request.urlopen(f"{base}/api/render?w={size}&h={size}&pose={pose}", timeout=120).read()
+        times.append(time.perf_counter() - t)
+    times = sorted(times[1:])  # the first request of a size warms its shapes
+    med = statistics.median(times)
+    print(f"view: {size}x{size} render + PNG median {med:.3f} s ({1/med:.1f} frames/s), min {times[0]:.3f} max {times[-1]:.3f}")
+PY
+  rc=$?
+  kill $pid 2>/dev/null; wait $pid 2>/dev/null
+  [ $rc -eq 0 ] || tail -3 "$OUT/view.log"
   return $rc
 }
 

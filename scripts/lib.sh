@@ -81,7 +81,14 @@ ablenerf_cuda_cmake_args() {
     local lib=$root/usr/lib/x86_64-linux-gnu
     ABLENERF_CUDA_CMAKE_ARGS+=(
       -DPNG_LIBRARY="$lib/libpng16.so" -DPNG_PNG_INCLUDE_DIR="$root/usr/include"
-      -DZLIB_LIBRARY="$lib/libz.so" -DZLIB_INCLUDE_DIR="$root/usr/include")
+      -DZLIB_LIBRARY="$lib/libz.so" -DZLIB_INCLUDE_DIR="$root/usr/include"
+      -DJPEG_LIBRARY="$lib/libjpeg.so" -DJPEG_INCLUDE_DIR="$root/usr/include")
+    # The viewer's cpp-httplib, when scripts/carry.sh unpacked it (the headers must match the library).
+    if [ -f "$lib/libcpp-httplib.so" ]; then
+      ABLENERF_CUDA_CMAKE_ARGS+=(
+        -DHTTPLIB_LIBRARY="$lib/libcpp-httplib.so" -DHTTPLIB_INCLUDE_DIR="$root/usr/include"
+        -DOPENSSL_SSL_INCLUDE_DIR="$root/usr/include")
+    fi
   fi
 }
 

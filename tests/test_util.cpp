@@ -110,4 +110,23 @@ void expect_input_error(const std::function<void()>& f, const std::string& file,
   }
 }
 
+std::string npy_file(const std::string& dict, const std::string& data, int major) {
+  const size_t prefix = 6 + 2 + (major == 1 ? 2 : 4);
+  std::string header = dict;
+  while ((prefix + header.size() + 1) % 64 != 0) header += ' ';
+  header += '\n';
+  std::string out = "\x93NUMPY";
+  out += static_cast<char>(major);
+  out += '\0';
+  const size_t len = header.size();
+  for (size_t k = 0; k < (major == 1 ? 2u : 4u); ++k) out += static_cast<char>((len >> (8 * k)) & 0xff);
+  return out + header + data;
+}
+
+std::string llff_poses_bounds_npy(const std::vector<double>& rows) {
+  if (rows.size() % 17 != 0) throw std::invalid_argument("llff_poses_bounds_npy: not rows of 17 numbers");
+  return npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (" + std::to_string(rows.size() / 17) + ", 17), }",
+                  std::string(reinterpret_cast<const char*>(rows.data()), rows.size() * sizeof(double)));
+}
+
 }  // namespace ablenerf::test

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "data/rays.h"
 
@@ -43,6 +44,12 @@ CommandResult run_cli(const std::string& args);
 
 // Writes a text file (creating parent folders).
 void write_file(const std::string& path, const std::string& text);
+
+// A .npy file: magic, version `major`.0, the header length, `dict` padded with spaces and a '\n'
+// to a multiple of 64 bytes (as numpy pads it), then `data`.
+std::string npy_file(const std::string& dict, const std::string& data, int major = 1);
+// LLFF's poses_bounds.npy: float64 (n, 17), `rows` holding the n rows one after another.
+std::string llff_poses_bounds_npy(const std::vector<double>& rows);
 
 // The pixel footprint of the Blender scenes: mip-NeRF's base radius (2/sqrt(12) / fx) of an
 // 800x800 image with camera_angle_x 0.6911, the radius of the paper's rays (data/rays.h).

@@ -7,6 +7,7 @@
 #include "cli/common.h"
 #include "data/load_options.h"
 #include "data/dataset.h"
+#include "eval/camera_path.h"
 
 namespace ablenerf::cli {
 namespace cmd_info {
@@ -43,6 +44,16 @@ nlohmann::json dataset_summary(const Dataset& ds) {
     splits[name] = sj;
   }
   j["splits"] = splits;
+  // Where the cameras sit, seen from the scene's centre with +z up (what `render --path` sweeps):
+  // the azimuth arc they cover (360 when they go all the way round) and their elevations.
+  std::vector<torch::Tensor> poses;
+  for (const auto& [name, s] : ds.splits) poses.push_back(s.c2w);
+  const CameraRig rig = camera_rig(torch::cat(poses));
+  const double deg = 180.0 / M_PI;
+  j["coverage"] = {{"azimuth_deg", rig.full_circle() ? 360.0 : rig.azimuth_span * deg},
+                   {"elevation_min_deg", rig.elevation_min * deg},
+                   {"elevation_max_deg", rig.elevation_max * deg},
+                   {"mean_distance", rig.distance}};
   return j;
 }
 

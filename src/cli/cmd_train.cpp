@@ -10,7 +10,6 @@
 #include "util/duration.h"
 #include "util/errors.h"
 #ifdef ABLENERF_HAVE_VIEW
-#include <thread>
 
 #include "view/view_server.h"
 #endif
@@ -49,18 +48,8 @@ TrainResult train_with_view(const Config& config, TrainOptions o, const TrainArg
   ViewServer server(*live->session, "127.0.0.1", a.view_port, &live->control);
   const int port = server.bind();
   std::cerr << "train: live view at http://127.0.0.1:" << port << "/" << std::endl;
-  std::thread serving([&] { server.run(); });
-  TrainResult r;
-  try {
-    r = trainer.run();
-  } catch (...) {
-    server.stop();
-    serving.join();
-    throw;
-  }
-  server.stop();
-  serving.join();
-  return r;
+  const ServingThread serving(server);
+  return trainer.run();
 #else
   (void)config, (void)o, (void)a;
   throw EnvironmentError("train", "--view: this build has no viewer", "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");

@@ -229,6 +229,12 @@ Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
   return ds;
 }
 
+torch::Tensor frame_photo_rgba(const FrameJson& frame, int full_h, int full_w, int downscale) {
+  const int64_t h = full_h / downscale, w = full_w / downscale;
+  const int64_t want_h = frame.prescaled ? h : full_h, want_w = frame.prescaled ? w : full_w;
+  return frame_rgba(frame, decode_frame(frame, want_h, want_w).image, want_h, want_w, downscale, h, w);
+}
+
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale) {
   return capture_cameras(read_dataset_json(root, {}, downscale), scene, downscale);
 }

@@ -79,6 +79,12 @@ CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int
 // The same from metadata already read (read_dataset_json(root, {}, downscale)).
 CameraList capture_cameras(const DatasetJson& capture, const SceneFrame& scene, int downscale);
 
+// One frame's photo as the loader reads it: (h, w, 4) float straight RGBA (alpha 1 for RGB images),
+// turned upright by its EXIF orientation when the capture's size says so, at the capture's size
+// (full_h x full_w, DatasetJson's) divided by `downscale`: box-downscaled, or the pre-downscaled
+// images_N copy cropped. Bad image: InputError naming the file and its json field.
+torch::Tensor frame_photo_rgba(const FrameJson& frame, int full_h, int full_w, int downscale);
+
 // Poses (N,3,4) given in a capture's own coordinates, moved into its scene frame.
 torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene);
 

@@ -147,4 +147,11 @@ void ViewServer::stop() {
   if (server_) server_->stop();
 }
 
+ServingThread::ServingThread(ViewServer& server) : server_(server), thread_([&server] { server.run(); }) {}
+
+ServingThread::~ServingThread() {
+  server_.stop();
+  thread_.join();
+}
+
 }  // namespace ablenerf

@@ -12,6 +12,7 @@
 // served by a thread pool (a slow client holds one thread, not the server); renders take turns.
 #include <memory>
 #include <string>
+#include <thread>
 
 #include "view/view_session.h"
 
@@ -42,6 +43,20 @@ class ViewServer {
   std::string host_;
   int port_;
   std::unique_ptr<httplib::Server> server_;
+};
+
+// Serves a bound ViewServer on a thread of its own for this object's lifetime: the destructor stops
+// the server and joins the thread, on every path out of the scope (exceptions, failed assertions).
+class ServingThread {
+ public:
+  explicit ServingThread(ViewServer& server);
+  ~ServingThread();
+  ServingThread(const ServingThread&) = delete;
+  ServingThread& operator=(const ServingThread&) = delete;
+
+ private:
+  ViewServer& server_;
+  std::thread thread_;
 };
 
 // The viewer page's HTML (with its script and style inline).

@@ -64,6 +64,8 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
   if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
   DatasetJson capture = read_dataset_json(run_.data_dir, {}, run_.config.data.downscale);
   cams_ = capture_cameras(capture, scene_, run_.config.data.downscale);
+  capture_h_ = capture.height;
+  capture_w_ = capture.width;
   for (auto& split : capture.splits)
     for (auto& f : split.frames) frames_.push_back(std::move(f));
   if (live_) {
@@ -145,10 +147,9 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
     std::memcpy(c2w.data(), p.data_ptr<float>(), sizeof(float) * 12);
     const FrameJson& f = frames_.at(static_cast<size_t>(i));
     k = f.camera.scaled(static_cast<double>(width) / f.camera.width, width, height);
-    auto rgba = image_tensor(decode_image_file(f.image).image).to(torch::kFloat).div_(255.0f);
-    if (rgba.size(2) == 1) rgba = rgba.expand({-1, -1, 3});
-    if (rgba.size(2) == 3) rgba = torch::cat({rgba, torch::ones_like(rgba.slice(2, 0, 1))}, 2);
-    // Straight RGBA averaged over areas (as the loader's box downscale), then composited.
+    // The photo as the loader reads it (upright, at the run's downscale), straight RGBA averaged
+    // over areas to the asked size (as the loader's box downscale), then composited.
+    auto rgba = frame_photo_rgba(f, capture_h_, capture_w_, run_.config.data.downscale);
     rgba = torch::nn::functional::interpolate(
                rgba.permute({2, 0, 1}).unsqueeze(0),
                torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{height, width}).mode(torch::kArea))

@@ -92,6 +92,7 @@ class ViewSession {
   SceneFrame scene_;
   CameraList cams_;
   std::vector<FrameJson> frames_;  // every split's frames, in cameras_json()'s order
+  int capture_h_ = 0, capture_w_ = 0;  // the capture's full image size
   torch::Device device_;
   AbleNerf model_{nullptr};
   std::mutex mu_;

@@ -3,7 +3,13 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+#include "test_geometry.h"
 #include "test_util.h"
+#include "util/image_io.h"
 
 using namespace ablenerf;
 
@@ -42,4 +48,32 @@ TEST(Cli, BadInputExitsTwoWithOneLine) {
   auto r4 = test::run_cli("info --set model.no_such_key=3");
   EXPECT_EQ(r4.exit_code, 2);
   EXPECT_NE(r4.output.find("model.no_such_key"), std::string::npos) << r4.output;
+}
+
+// `info` says where the cameras are: seven cameras 4 units from the origin on an arc from azimuth
+// 20 to 110 degrees, at elevations 10 and 40 degrees in turn, cover 90 degrees of azimuth.
+TEST(Cli, InfoReportsTheCamerasCoverage) {
+  test::TempDir t;
+  std::ostringstream js;
+  js.precision(17);
+  std::filesystem::create_directories(t / "train");
+  js << "{\"camera_angle_x\": 0.7, \"frames\": [";
+  for (int i = 0; i < 7; ++i) {
+    const double az = (20.0 + 15.0 * i) * M_PI / 180, el = (i % 2 ? 40.0 : 10.0) * M_PI / 180;
+    const test::V3 eye{4 * std::cos(el) * std::cos(az), 4 * std::cos(el) * std::sin(az), 4 * std::sin(el)};
+    const test::Frame3 f = test::look_at(eye, {0, 0, 0}, {0, 0, 1});
+    js << (i ? "," : "") << "{\"file_path\": \"./train/r_" << i << "\", \"transform_matrix\": [";
+    for (size_t r = 0; r < 3; ++r) js << "[" << f.right[r] << "," << f.up[r] << "," << f.back[r] << "," << f.eye[r] << "],";
+    js << "[0,0,0,1]]}";
+    write_png(t / ("train/r_" + std::to_string(i) + ".png"), torch::full({4, 4, 4}, 0.5f));
+  }
+  js << "]}";
+  test::write_file(t / "transforms_train.json", js.str());
+  auto r = test::run_cli("info --data " + t.path());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto cov = nlohmann::json::parse(r.output.substr(r.output.find('{')))["dataset"]["coverage"];
+  EXPECT_NEAR(cov["azimuth_deg"].get<double>(), 90.0, 1e-3);
+  EXPECT_NEAR(cov["elevation_min_deg"].get<double>(), 10.0, 1e-3);
+  EXPECT_NEAR(cov["elevation_max_deg"].get<double>(), 40.0, 1e-3);
+  EXPECT_NEAR(cov["mean_distance"].get<double>(), 4.0, 1e-4);
 }

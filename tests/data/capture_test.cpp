@@ -17,6 +17,7 @@
 
 #include "data/dataset.h"
 #include "jpeg_writer.h"
+#include "test_geometry.h"
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/image_io.h"
@@ -26,27 +27,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-using V3 = std::array<double, 3>;
-V3 sub3(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-double dot3(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 cross3(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-V3 unit3(const V3& a) {
-  const double n = std::sqrt(dot3(a, a));
-  return {a[0] / n, a[1] / n, a[2] / n};
-}
-
-// A camera at `eye` looking at `target`: its right, up and backward axes (OpenGL), world up `up`.
-struct Frame3 {
-  V3 right, up, back, eye;
-};
-Frame3 look_at(const V3& eye, const V3& target, const V3& up) {
-  Frame3 f;
-  f.back = unit3(sub3(eye, target));
-  f.right = unit3(cross3(up, f.back));
-  f.up = cross3(f.back, f.right);
-  f.eye = eye;
-  return f;
-}
+using test::cross3;
+using test::dot3;
+using test::Frame3;
+using test::look_at;
+using test::sub3;
+using test::unit3;
+using test::V3;
 
 // Cameras on a tilted circle around `target` (radius 4, 1.5 above it along `up`).
 std::vector<Frame3> ring(int n, const V3& target, const V3& up) {
@@ -228,15 +215,7 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
     rows.push_back(3.0 + 0.1 * static_cast<double>(i));  // near
     rows.push_back(5.0 + 0.2 * static_cast<double>(i));  // far
   }
-  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + std::to_string(frames.size()) + ", 17), }";
-  while ((10 + header.size() + 1) % 64) header += ' ';
-  header += '\n';
-  std::string npy = std::string("\x93NUMPY\x01\x00", 8);
-  npy += static_cast<char>(header.size() & 0xff);
-  npy += static_cast<char>(header.size() >> 8);
-  npy += header;
-  npy.append(reinterpret_cast<const char*>(rows.data()), rows.size() * sizeof(double));
-  test::write_file(t / "poses_bounds.npy", npy);
+  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
   for (size_t i = 0; i < frames.size(); ++i) {
     const std::string stem = "IMG_" + std::to_string(100 + i);
     write_image(t / ("images/" + stem + ".png"), W, H, 100);
@@ -255,6 +234,13 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
     EXPECT_NEAR(ds.intrinsics.fx, 50.0 / down, 1e-9);
     // downscale 2 reads images_2 (value 200), not a box-downscale of images/ (value 100).
     EXPECT_NEAR(ds.split("train").images.mean().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
+    {  // and so does one frame read on its own (the viewer's error mode)
+      const DatasetJson js = read_dataset_json(t.path(), {}, down);
+      const auto rgba = frame_photo_rgba(js.splits.front().frames.front(), js.height, js.width, down);
+      ASSERT_EQ(rgba.sizes(), (std::vector<int64_t>{H / down, W / down, 4}));
+      EXPECT_NEAR(rgba.slice(2, 0, 3).min().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
+      EXPECT_NEAR(rgba.slice(2, 0, 3).max().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
+    }
     // Near/far from the per-image bounds (3.0 .. 6.8 capture units), with the loader's margins.
     EXPECT_EQ(ds.scene.bounds_source, "llff bounds");
     EXPECT_NEAR(ds.scene.near, 0.9 * 3.0 * ds.scene.scale, 1e-9);
@@ -386,6 +372,14 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
       for (int ch = 0; ch < 3; ++ch)
         worst = std::max(worst, std::abs(im[r][c][ch].item<double>() * 255 - px[static_cast<size_t>(((7 - c) * sw + r) * 3 + ch)]));
   EXPECT_LT(worst, 6);  // JPEG at quality 100 with 4:4:4 sampling: a few levels of rounding
+  // One frame read on its own (the viewer's error mode): the loader's upright pixels, alpha 1.
+  {
+    const DatasetJson js = read_dataset_json(t.path(), {}, 1);
+    const auto rgba = frame_photo_rgba(js.splits.front().frames.front(), js.height, js.width, 1);  // train's first
+    ASSERT_EQ(rgba.sizes(), (std::vector<int64_t>{16, 8, 4}));
+    EXPECT_TRUE(torch::equal(rgba.slice(2, 0, 3), im));
+    EXPECT_EQ(rgba.select(2, 3).min().item<float>(), 1.0f);
+  }
   // The capture says 16x8: the stored pixels, untouched.
   test::write_file(t / "transforms.json", json_with(16, 8));
   ds = Dataset::load(t.path());

@@ -22,6 +22,8 @@
 using namespace ablenerf;
 namespace fs = std::filesystem;
 
+using test::npy_file;
+
 namespace {
 
 // Little- or big-endian bytes of each value, as float64 or float32.
@@ -45,21 +47,6 @@ std::string raw_values(const std::vector<double>& v, bool f32, bool big_endian =
     }
   }
   return out;
-}
-
-// A .npy file: magic, version `major`.0, the header length, `dict` padded with spaces and a '\n'
-// to a multiple of 64 bytes (as numpy pads it), then `data`.
-std::string npy_file(const std::string& dict, const std::string& data, int major = 1) {
-  const size_t prefix = 6 + 2 + (major == 1 ? 2 : 4);
-  std::string header = dict;
-  while ((prefix + header.size() + 1) % 64 != 0) header += ' ';
-  header += '\n';
-  std::string out = "\x93NUMPY";
-  out += static_cast<char>(major);
-  out += '\0';
-  const size_t len = header.size();
-  for (size_t k = 0; k < (major == 1 ? 2u : 4u); ++k) out += static_cast<char>((len >> (8 * k)) & 0xff);
-  return out + header + data;
 }
 
 void expect_npy_refused(const std::function<void()>& f, const std::string& field, const std::string& what) {

@@ -7,6 +7,7 @@
 
 #include <cmath>
 
+#include "test_geometry.h"
 #include "test_util.h"
 #include "util/errors.h"
 
@@ -14,24 +15,21 @@ using namespace ablenerf;
 
 namespace {
 
-using V3 = std::array<double, 3>;
-V3 minus(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-double dotp(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-V3 crossp(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
-V3 unitv(const V3& a) {
-  const double n = std::sqrt(dotp(a, a));
-  return {a[0] / n, a[1] / n, a[2] / n};
-}
+using test::cross3;
+using test::dot3;
+using test::sub3;
+using test::unit3;
+using test::V3;
 
 // OpenGL camera-to-world pose at `eye` looking at `target` with world up `up`.
 Pose34 look_at_pose(const V3& eye, const V3& target, const V3& up) {
-  const V3 back = unitv(minus(eye, target)), right = unitv(crossp(up, back)), cam_up = crossp(back, right);
+  const test::Frame3 f = test::look_at(eye, target, up);
   Pose34 p{};
   for (size_t r = 0; r < 3; ++r) {
-    p[r * 4 + 0] = static_cast<float>(right[r]);
-    p[r * 4 + 1] = static_cast<float>(cam_up[r]);
-    p[r * 4 + 2] = static_cast<float>(back[r]);
-    p[r * 4 + 3] = static_cast<float>(eye[r]);
+    p[r * 4 + 0] = static_cast<float>(f.right[r]);
+    p[r * 4 + 1] = static_cast<float>(f.up[r]);
+    p[r * 4 + 2] = static_cast<float>(f.back[r]);
+    p[r * 4 + 3] = static_cast<float>(f.eye[r]);
   }
   return p;
 }
@@ -52,7 +50,7 @@ DatasetJson capture_of(const std::vector<Pose34>& poses) {
 // Cameras on a circle of radius `radius` around `target` in the plane normal to `up`, `height`
 // above it, all looking at `target`.
 std::vector<Pose34> ring_poses(int n, const V3& target, const V3& up, double radius, double height) {
-  const V3 u = unitv(up), a = unitv(crossp(u, {0.5, 0.2, 0.1})), b = crossp(u, a);
+  const V3 u = unit3(up), a = unit3(cross3(u, {0.5, 0.2, 0.1})), b = cross3(u, a);
   std::vector<Pose34> out;
   for (int i = 0; i < n; ++i) {
     const double th = 2 * M_PI * i / n + 0.3;
@@ -68,7 +66,7 @@ V3 col(const Pose34& p, size_t c) { return {p[c], p[4 + c], p[8 + c]}; }
 }  // namespace
 
 TEST(SceneFrame, RingAroundATiltedTargetIsCentredUprightAndUnitSized) {
-  const V3 target{5, -2, 7}, up = unitv({0.3, 0.4, 1.0});
+  const V3 target{5, -2, 7}, up = unit3({0.3, 0.4, 1.0});
   const auto poses = ring_poses(12, target, up, 3.0, 1.0);
   const SceneFrame f = fit_scene_frame(capture_of(poses), "cap", SceneKind::Auto, 2, 6, false);
   EXPECT_EQ(f.kind, SceneKind::Unbounded);  // auto: a real capture is unbounded
@@ -84,9 +82,9 @@ TEST(SceneFrame, RingAroundATiltedTargetIsCentredUprightAndUnitSized) {
   for (const auto& p : poses) {
     const Pose34 s = f.to_scene(p);
     EXPECT_NEAR(s[11], 1 / std::sqrt(10.0), 1e-5);
-    EXPECT_NEAR(std::sqrt(dotp(col(s, 3), col(s, 3))), 1.0, 1e-5);
+    EXPECT_NEAR(std::sqrt(dot3(col(s, 3), col(s, 3))), 1.0, 1e-5);
     // Rotations stay rotations, and to_capture undoes to_scene.
-    EXPECT_NEAR(dotp(col(s, 0), col(s, 1)), 0, 1e-6);
+    EXPECT_NEAR(dot3(col(s, 0), col(s, 1)), 0, 1e-6);
     const Pose34 back = f.to_capture(s);
     for (size_t k = 0; k < 12; ++k) EXPECT_NEAR(back[k], p[k], 1e-5);
   }

@@ -36,7 +36,7 @@ void write_split(const std::string& dir, const std::string& split, int n, int w,
     const auto eye = torch::tensor({kCameraDistance * std::cos(el) * std::cos(az),
                                     kCameraDistance * std::cos(el) * std::sin(az), kCameraDistance * std::sin(el)},
                                    torch::kDouble);
-    const auto pose = look_at(eye, torch::zeros({3}, torch::kDouble), torch::tensor({0.0, 0.0, 1.0}, torch::kDouble));
+    const auto pose = ablenerf::look_at(eye, torch::zeros({3}, torch::kDouble), torch::tensor({0.0, 0.0, 1.0}, torch::kDouble));
     // Smooth colour ramps in the opaque left half, transparent right half.
     auto ys = torch::linspace(0, 1, h).view({h, 1}).expand({h, w});
     auto xs = torch::linspace(0, 1, w).view({1, w}).expand({h, w});

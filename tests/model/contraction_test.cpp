@@ -89,7 +89,7 @@ TEST(Contraction, MonteCarloVarianceOfContractedSamples) {
   const auto dv = d[0];
   const auto ddT = torch::outer(dv, dv);
   const auto Sfull = 4e-4 * ddT + 1e-4 * (torch::eye(3, torch::kFloat64) - ddT / dv.dot(dv));
-  const auto L = torch::linalg::cholesky(Sfull);
+  const auto L = torch::linalg_cholesky(Sfull);  // (torch::linalg:: needs torch/linalg.h in LibTorch 2.x)
   auto gen = at::detail::createCPUGenerator(11);
   const int64_t n = 400000;
   const auto z = at::normal(0.0, 1.0, {n, 3}, gen).to(torch::kFloat64);

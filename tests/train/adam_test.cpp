@@ -4,6 +4,7 @@
 // some steps, a learning-rate change) and skip non-finite steps without touching anything.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
+#include <torch/version.h>
 
 #include <cmath>
 #include <limits>
@@ -75,11 +76,17 @@ void follow_reference(const AdamSettings& settings) {
   }
   // The state lives where checkpoints read it: per-parameter moments and step counts.
   for (size_t i = 0; i < mine.size(); ++i) {
+    // The optimiser's state is keyed by the parameter's TensorImpl: its address as text in
+    // LibTorch 1.x, the pointer itself from 2.0.
+#if TORCH_VERSION_MAJOR >= 2
+    const auto key = [](const torch::Tensor& p) { return static_cast<void*>(p.unsafeGetTensorImpl()); };
+#else
     const auto key = [](const torch::Tensor& p) {
       std::ostringstream os;
       os << p.unsafeGetTensorImpl();
       return os.str();
     };
+#endif
     auto& a = static_cast<torch::optim::AdamParamState&>(*adam.optim().state().at(key(mine[i])));
     auto& b = static_cast<torch::optim::AdamParamState&>(*reference.state().at(key(ref[i])));
     EXPECT_EQ(a.step(), b.step()) << "parameter " << i;

@@ -40,15 +40,7 @@ void write_forward_capture(const std::string& dir, int res) {
       rows.push_back(4.0 - synth::kSceneBound);
       rows.push_back(100.0);
     }
-  std::string header = "{'descr': '<f8', 'fortran_order': False, 'shape': (" + std::to_string(k) + ", 17), }";
-  while ((10 + header.size() + 1) % 64) header += ' ';
-  header += '\n';
-  std::string npy("\x93NUMPY\x01\x00", 8);
-  npy += static_cast<char>(header.size() & 0xff);
-  npy += static_cast<char>(header.size() >> 8);
-  npy += header;
-  npy.append(reinterpret_cast<const char*>(rows.data()), rows.size() * sizeof(double));
-  test::write_file(dir + "/poses_bounds.npy", npy);
+  test::write_file(dir + "/poses_bounds.npy", test::llff_poses_bounds_npy(rows));
 }
 
 }  // namespace

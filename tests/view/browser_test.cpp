@@ -57,7 +57,7 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   ViewSession session(t / "run", torch::kCPU);
   ViewServer server(session, "127.0.0.1", 0);
   const int port = server.bind();
-  std::thread serving([&] { server.run(); });
+  auto serving = std::make_unique<ServingThread>(server);
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
 
   ASSERT_EQ(chromium("--dump-dom", url, t / "plain.html"), 0) << read_file(t / "plain.html.log");
@@ -68,8 +68,7 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   const std::string shot = fs::absolute("artifacts/viewer.png").string();
   fs::remove(shot);
   ASSERT_EQ(chromium("--screenshot='" + shot + "'", url, t / "shot.out"), 0) << read_file(t / "shot.out.log");
-  server.stop();
-  serving.join();
+  serving.reset();  // the server stops here
 
   // The page read the cameras (the pose is camera 0's), and images arrived and were drawn.
   const auto cams = session.cameras_json();

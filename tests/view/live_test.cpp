@@ -56,7 +56,7 @@ TEST(LiveView, PauseSaveResumeAndNoCopiesWhileIdle) {
   session = std::make_unique<ViewSession>(t / "run", torch::kCPU, /*live=*/true);
   ViewServer server(*session, "127.0.0.1", 0, &control);
   const int port = server.bind();
-  std::thread serving([&] { server.run(); });
+  const ServingThread serving(server);
   httplib::Client cli("127.0.0.1", port);
 
   control.pause();  // before the first step: the run stops after step 1
@@ -106,6 +106,4 @@ TEST(LiveView, PauseSaveResumeAndNoCopiesWhileIdle) {
   auto bad = cli.Get("/api/control?action=explode");
   ASSERT_TRUE(bad);
   EXPECT_EQ(bad->status, 400);
-  server.stop();
-  serving.join();
 }

@@ -32,11 +32,7 @@ class Served {
     session_ = std::make_unique<ViewSession>(dir_ / "run", torch::kCPU);
     server_ = std::make_unique<ViewServer>(*session_, "127.0.0.1", 0);
     port_ = server_->bind();
-    thread_ = std::thread([this] { server_->run(); });
-  }
-  ~Served() {
-    server_->stop();
-    thread_.join();
+    serving_ = std::make_unique<ServingThread>(*server_);
   }
   int port() const { return port_; }
   ViewSession& session() { return *session_; }
@@ -47,7 +43,7 @@ class Served {
   std::unique_ptr<ViewSession> session_;
   std::unique_ptr<ViewServer> server_;
   int port_ = 0;
-  std::thread thread_;
+  std::unique_ptr<ServingThread> serving_;  // declared last: stopped and joined first
 };
 
 std::string pose_text(const std::vector<float>& p) {
