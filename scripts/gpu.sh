@@ -18,6 +18,7 @@
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
 #   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS)
+#   profile    bench --trace at 1024-ray steps: the GPU's kernels by time per step (Kineto), trace in $OUT
 #   view       the web viewer on the GPU: launch to first answer, render + PNG times at 32-800 pixels
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -145,6 +146,25 @@ print("speedup", j["speedup"])
 PY
   done
   return $rc
+}
+
+# Where the GPU's time goes: bench --trace on the fast settings (Kineto: the kernels inside the CUDA
+# graph's replays too), 1024-ray steps; the trace (for Perfetto) and the report stay in $OUT.
+stage_profile() {
+  $bin bench --config configs/blender.toml --device cuda --rays 1024 --micro-batch 1024 --render-rays 16384 \
+    --steps ${BENCH_STEPS:-10} --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused \
+    --trace "$OUT/trace_1024.json" > "$OUT/profile_1024.json" 2> "$OUT/profile_1024.err" || { tail -5 "$OUT/profile_1024.err"; return 1; }
+  python3 - "$OUT/profile_1024.json" <<'PY'
+import json, sys
+t = json.load(open(sys.argv[1]))["trace"]
+print(f"host: {t['ops_per_step']:.0f} ops, {t['self_ms_per_step']:.2f} ms self time per step")
+g = t.get("gpu")
+if not g:
+    print("no GPU events in the trace (Kineto/CUPTI unavailable?)"); sys.exit(0)
+print(f"gpu: {g['events_per_step']:.0f} kernels/copies per step, busy {g['busy_ms_per_step']:.3f} ms per step")
+for k in g["top"]:
+    print(f"  {k['ms_per_step']:8.3f} ms {100*k['share']:5.1f}% x{k['calls_per_step']:.0f}  {k['kernel'][:110]}")
+PY
 }
 
 stage_peerbench() {

@@ -78,8 +78,12 @@ void setup(CLI::App& app) {
         write_file_atomic(a->trace, m.trace_json);
         report["trace"] = trace_summary(m.trace_json, o.trace_steps, kTraceTopOps);
         report["trace"]["file"] = a->trace;
-        report["trace"]["note"] = "profiled steps, run after the timed ones; the calling thread's ops only (with the "
-                                  "CPU ray split: the first slice's forward/backward and the rest of the step)";
+        report["trace"]["note"] =
+            report["trace"].contains("gpu")
+                ? "profiled steps, run after the timed ones (Kineto): host ops by self time, and under \"gpu\" "
+                  "the device's kernels, copies and fills by their GPU time"
+                : "profiled steps, run after the timed ones; the calling thread's ops only (with the CPU ray split: "
+                  "the first slice's forward/backward and the rest of the step)";
       }
       std::cout << report.dump(2) << std::endl;
       return;

@@ -5,10 +5,14 @@
 #include <torch/csrc/autograd/profiler_legacy.h>
 #include <torch/version.h>
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <filesystem>
 #include <map>
+#include <set>
 #include <sstream>
 #include <string>
 #include <stdexcept>
@@ -18,12 +22,16 @@
 #include "model/ipe.h"
 #include "model/view_encoding.h"
 #include "train/trainer.h"
+#include "util/fs.h"
 
 // Device-side peak memory needs the CUDA caching allocator, which only CUDA builds of LibTorch
 // link; build with -DABLENERF_WITH_CUDA against such a LibTorch (>= 2) to report it.
 #if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
 #include <c10/cuda/CUDACachingAllocator.h>
 #define ABLENERF_CUDA_MEMORY_STATS 1
+// On CUDA, `--trace` records the GPU's kernels too, through LibTorch's Kineto profiler (CUPTI).
+#include <torch/csrc/autograd/profiler_kineto.h>
+#define ABLENERF_KINETO_TRACE 1
 #endif
 
 namespace ablenerf {
@@ -31,6 +39,7 @@ namespace ablenerf {
 namespace {
 
 constexpr double kFlopPerMac = 2.0;
+constexpr size_t kMaxOpName = 200;  // kernel names are whole template signatures
 // The backward of a product whose two operands both need gradients is two products of the same
 // size (one per operand); a product with one constant operand (input features, no-grad probes)
 // needs only the other operand's gradient.
@@ -206,6 +215,44 @@ Rays bench_rays(int64_t n, uint64_t seed, const torch::Device& d) {
 
 }  // namespace
 
+namespace {
+
+// `steps` more training steps under LibTorch's profiler, as Chrome trace JSON. On CUDA with
+// LibTorch >= 2: Kineto, the host's ops and the GPU's kernels, memcpys and memsets (CUPTI); so the
+// trace says where device time goes inside a CUDA graph's replay as well. Otherwise the legacy
+// profiler: the calling thread's ops.
+std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& device) {
+#ifdef ABLENERF_KINETO_TRACE
+  if (device.is_cuda()) {
+    namespace prof = torch::profiler::impl;
+    namespace ap = torch::autograd::profiler;
+    const prof::ProfilerConfig config(prof::ProfilerState::KINETO);
+    const std::set<prof::ActivityType> activities{prof::ActivityType::CPU, prof::ActivityType::CUDA};
+    ap::prepareProfiler(config, activities);
+    ap::enableProfiler(config, activities);
+    for (int64_t i = 0; i < steps; ++i) trainer.step();
+    trainer.flush();
+    torch::cuda::synchronize();
+    const auto result = ap::disableProfiler();
+    const auto file = std::filesystem::temp_directory_path() / ("ablenerf_trace_" + std::to_string(::getpid()) + ".json");
+    result->save(file.string());
+    std::string json = read_file(file.string());
+    std::filesystem::remove(file);
+    return json;
+  }
+#endif
+  (void)device;
+  std::ostringstream trace;
+  {
+    torch::autograd::profiler::RecordProfile record(trace);
+    for (int64_t i = 0; i < steps; ++i) trainer.step();
+    trainer.flush();
+  }
+  return trace.str();
+}
+
+}  // namespace
+
 BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   BenchMeasurements m;
   m.threads = at::get_num_threads();
@@ -236,15 +283,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   m.graph = trainer.graph_captured();
   m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
   trainer.flush();
-  if (o.trace_steps > 0) {
-    std::ostringstream trace;
-    {
-      torch::autograd::profiler::RecordProfile record(trace);
-      for (int64_t i = 0; i < o.trace_steps; ++i) trainer.step();
-      trainer.flush();
-    }
-    m.trace_json = trace.str();
-  }
+  if (o.trace_steps > 0) m.trace_json = trace_steps(trainer, o.trace_steps, d);
   {
     const auto rays = bench_rays(render_rays, o.seed + 1, d);
     model->eval();
@@ -312,12 +351,27 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
     std::string name;
   };
   std::map<std::string, std::vector<Event>> by_thread;
+  // Kineto's device-side events (a CUDA trace): kernels, copies and fills, each timed on the GPU.
+  std::map<std::string, double> device_us;
+  std::map<std::string, int64_t> device_calls;
+  double device_total_us = 0;
+  int64_t device_events = 0;
   for (const auto& e : events) {
     if (!e.is_object() || e.value("ph", "") != "X") continue;
     if (!e.contains("ts") || !e.contains("dur") || !e["ts"].is_number() || !e["dur"].is_number())
       throw std::invalid_argument("trace_summary: an \"X\" event without numeric ts and dur");
-    const double ts = e["ts"].get<double>();
-    by_thread[e.contains("tid") ? e["tid"].dump() : ""].push_back({ts, ts + e["dur"].get<double>(), e.value("name", "?")});
+    const std::string cat = e.contains("cat") && e["cat"].is_string() ? e["cat"].get<std::string>() : "";
+    if (cat == "gpu_user_annotation") continue;  // a span over kernels listed on their own
+    const double ts = e["ts"].get<double>(), dur = e["dur"].get<double>();
+    if (cat == "kernel" || cat == "gpu_memcpy" || cat == "gpu_memset") {
+      const std::string name = e.value("name", "?").substr(0, kMaxOpName);
+      device_us[name] += dur;
+      device_calls[name] += 1;
+      device_total_us += dur;
+      ++device_events;
+      continue;
+    }
+    by_thread[e.contains("tid") ? e["tid"].dump() : ""].push_back({ts, ts + dur, e.value("name", "?")});
   }
   std::map<std::string, double> self_us;
   std::map<std::string, int64_t> calls;
@@ -356,6 +410,21 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
     out["top"].push_back({{"op", ranked[i].first},
                           {"self_ms_per_step", ranked[i].second / 1000.0 / per_step},
                           {"calls_per_step", static_cast<double>(calls[ranked[i].first]) / per_step}});
+  if (device_events > 0) {
+    std::vector<std::pair<std::string, double>> by_time(device_us.begin(), device_us.end());
+    std::sort(by_time.begin(), by_time.end(), [](const auto& a, const auto& b) {
+      return a.second != b.second ? a.second > b.second : a.first < b.first;
+    });
+    nlohmann::json gpu{{"events_per_step", static_cast<double>(device_events) / per_step},
+                       {"busy_ms_per_step", device_total_us / 1000.0 / per_step},
+                       {"top", nlohmann::json::array()}};
+    for (size_t i = 0; i < std::min(top, by_time.size()); ++i)
+      gpu["top"].push_back({{"kernel", by_time[i].first},
+                            {"ms_per_step", by_time[i].second / 1000.0 / per_step},
+                            {"share", by_time[i].second / device_total_us},
+                            {"calls_per_step", static_cast<double>(device_calls[by_time[i].first]) / per_step}});
+    out["gpu"] = gpu;
+  }
   return out;
 }
 

@@ -59,14 +59,18 @@ struct BenchMeasurements {
   // The operator trace of BenchOptions::trace_steps training steps (Chrome trace JSON, one "X"
   // event per LibTorch op with its start and duration in microseconds), or empty. The legacy
   // profiler records the calling thread only: with the CPU ray split (compute.cpu_split = "rays")
-  // it holds the first slice's forward and backward and the whole rest of the step.
+  // it holds the first slice's forward and backward and the whole rest of the step. On CUDA with
+  // LibTorch >= 2 it is Kineto's trace instead: host ops plus the GPU's kernels (CUPTI).
   std::string trace_json;
 };
 
 // What a trace spends per step: every op's self time (its duration less that of the ops nested
 // in it on the same thread) summed by name, divided by `steps`. Returns {"steps", "ops_per_step",
 // "self_ms_per_step", "top": [{"op", "self_ms_per_step", "calls_per_step"}, ...]} with the `top`
-// ops of largest self time first. Throws std::invalid_argument when the trace is not such JSON.
+// ops of largest self time first. A CUDA trace (Kineto's: events of category "kernel",
+// "gpu_memcpy" or "gpu_memset") adds "gpu": {"events_per_step", "busy_ms_per_step" (their summed
+// durations), "top": [{"kernel", "ms_per_step", "share", "calls_per_step"}, ...]}; those events
+// are left out of the host's self times. Throws std::invalid_argument when the trace is not such JSON.
 nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top);
 
 // Median of a non-empty list (mean of the middle two for an even count).

@@ -165,6 +165,36 @@ TEST(BenchTrace, SelfTimesFromNestedEvents) {
   EXPECT_THROW(trace_summary(R"([{"name": "x", "ph": "X", "ts": "a", "dur": 1}])", 1, 3), std::invalid_argument);
 }
 
+TEST(BenchTrace, DeviceEventsOfAKinetoTraceAreSummedApart) {
+  // A CUDA trace: the host's "aten::mm" (0-50) launching "cudaLaunchKernel" (10-15), and on the
+  // GPU's stream two "gemm" kernels (60 and 40 us), one "fill" memset (10 us) and an annotation
+  // spanning them (left out). One step: gemm 100 us (2 calls, 100/110 of the busy time), fill 10.
+  const std::string trace = R"json({"traceEvents": [
+    {"name": "aten::mm", "cat": "cpu_op", "ph": "X", "ts": 0, "dur": 50, "tid": 1},
+    {"name": "cudaLaunchKernel", "cat": "cuda_runtime", "ph": "X", "ts": 10, "dur": 5, "tid": 1},
+    {"name": "gemm", "cat": "kernel", "ph": "X", "ts": 20, "dur": 60, "tid": 7},
+    {"name": "gemm", "cat": "kernel", "ph": "X", "ts": 90, "dur": 40, "tid": 7},
+    {"name": "Memset (Device)", "cat": "gpu_memset", "ph": "X", "ts": 130, "dur": 10, "tid": 7},
+    {"name": "step", "cat": "gpu_user_annotation", "ph": "X", "ts": 20, "dur": 120, "tid": 7},
+    {"ph": "f", "name": "flow", "ts": 20, "tid": 7}
+  ]})json";
+  const auto j = trace_summary(trace, 1, 5);
+  EXPECT_DOUBLE_EQ(j["ops_per_step"].get<double>(), 2.0);  // the host's two events only
+  EXPECT_NEAR(j["self_ms_per_step"].get<double>(), 0.050, 1e-12);
+  ASSERT_TRUE(j.contains("gpu"));
+  const auto& g = j["gpu"];
+  EXPECT_DOUBLE_EQ(g["events_per_step"].get<double>(), 3.0);
+  EXPECT_NEAR(g["busy_ms_per_step"].get<double>(), 0.110, 1e-12);
+  ASSERT_EQ(g["top"].size(), 2u);
+  EXPECT_EQ(g["top"][0]["kernel"], "gemm");
+  EXPECT_NEAR(g["top"][0]["ms_per_step"].get<double>(), 0.100, 1e-12);
+  EXPECT_NEAR(g["top"][0]["share"].get<double>(), 100.0 / 110.0, 1e-12);
+  EXPECT_DOUBLE_EQ(g["top"][0]["calls_per_step"].get<double>(), 2.0);
+  EXPECT_EQ(g["top"][1]["kernel"], "Memset (Device)");
+  // A host-only trace has no "gpu" part.
+  EXPECT_FALSE(trace_summary(R"([{"name": "mm", "ph": "X", "ts": 0, "dur": 3, "tid": 1}])", 1, 5).contains("gpu"));
+}
+
 TEST(BenchTrace, TinyRunRecordsTheStepsOps) {
   const Config cfg = tiny_bench_config();
   BenchOptions o = tiny_bench_options();
