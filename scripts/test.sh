@@ -34,14 +34,19 @@ fi
 ablenerf_plan   # the build folder, shared with setup.sh and check_readme.sh
 tests/scripts/setup_plan_test.sh   # setup.sh's choice of LibTorch and folder (stub python3; a second)
 scripts/setup.sh
-# Debian's Chromium for the viewer's headless-browser test (tests/view/browser_test.cpp skips
-# without it); a failed install leaves that one test skipped, not the run failed.
-if ! command -v chromium >/dev/null && [ "${ABLENERF_SKIP_APT:-0}" != 1 ] && command -v apt-get >/dev/null; then
+# Programs only some tests need, from Debian: Chromium for the viewer's headless-browser test
+# (tests/view/browser_test.cpp) and COLMAP for `process` on photos rendered by the test
+# (tests/cli/process_cli_test.cpp). Each test skips without its program; a failed install leaves
+# those tests skipped, not the run failed.
+optional=()
+command -v chromium >/dev/null || optional+=(chromium)
+command -v colmap >/dev/null || optional+=(colmap)
+if [ ${#optional[@]} -gt 0 ] && [ "${ABLENERF_SKIP_APT:-0}" != 1 ] && command -v apt-get >/dev/null; then
   sudo_cmd=()
   [ "$(id -u)" -ne 0 ] && sudo_cmd=(sudo)
-  echo "test: installing chromium (the viewer's browser test)"
-  DEBIAN_FRONTEND=noninteractive timeout 900 "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends chromium \
-    >/dev/null 2>&1 || echo "test: warning: chromium not installed; the browser test will be skipped" >&2
+  echo "test: installing ${optional[*]} (the viewer's browser test, process with COLMAP)"
+  DEBIAN_FRONTEND=noninteractive timeout 900 "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${optional[@]}" \
+    >/dev/null 2>&1 || echo "test: warning: ${optional[*]} not installed; the tests that need them will be skipped" >&2
 fi
 (cd "$ABLENERF_BUILD_DIR" && ctest --output-on-failure --timeout 900 -j "${ABLENERF_TEST_JOBS:-1}")
 if [ "${ABLENERF_README_CHECK:-1}" != 0 ]; then

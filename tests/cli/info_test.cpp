@@ -14,7 +14,7 @@
 using namespace ablenerf;
 
 TEST(Cli, HelpForEverySubcommand) {
-  for (const char* sub : {"synth", "train", "eval", "render", "bench", "export", "import", "info", "metrics"}) {
+  for (const char* sub : {"synth", "process", "train", "eval", "render", "view", "bench", "export", "import", "info", "metrics"}) {
     auto r = test::run_cli(std::string(sub) + " --help");
     EXPECT_EQ(r.exit_code, 0) << sub << ": " << r.output;
     EXPECT_NE(r.output.find("Usage"), std::string::npos) << sub;

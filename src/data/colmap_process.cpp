@@ -1,0 +1,186 @@
+#include "data/colmap_process.h"
+
+#include <algorithm>
+#include <cctype>
+#include <chrono>
+#include <filesystem>
+#include <ostream>
+#include <thread>
+
+#include "data/colmap_model.h"
+#include "util/errors.h"
+#include "util/fs.h"
+#include "util/subprocess.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+
+namespace {
+
+const std::vector<std::string> kSfmCameraModels{"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV",
+                                              "OPENCV_FISHEYE"};
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return s;
+}
+
+void check_options(const ProcessOptions& o) {
+  if (o.images.empty() == o.video.empty()) throw InputError("process", "--images/--video", "give exactly one of them");
+  if (!o.images.empty() && !fs::is_directory(o.images)) throw InputError(o.images, "--images", "not a folder");
+  if (!o.video.empty() && !fs::is_regular_file(o.video)) throw InputError(o.video, "--video", "not a file");
+  if (o.frames < kMinRegisteredImages)
+    throw InputError("process", "--frames", "at least " + std::to_string(kMinRegisteredImages));
+  if (std::find(kSfmCameraModels.begin(), kSfmCameraModels.end(), o.camera_model) == kSfmCameraModels.end())
+    throw InputError("process", "--camera-model",
+                     "'" + printable(o.camera_model, 40) +
+                         "' is not one of SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE");
+  if (o.matcher != "auto" && o.matcher != "exhaustive" && o.matcher != "sequential")
+    throw InputError("process", "--matcher", "'" + printable(o.matcher, 40) + "' is not auto, exhaustive or sequential");
+  if (o.threads < 0) throw InputError("process", "--threads", "must be >= 0");
+  if (o.out.empty()) throw InputError("process", "--out", "missing");
+  if (fs::exists(o.out) && (!fs::is_directory(o.out) || !fs::is_empty(o.out)))
+    throw InputError(o.out, "--out", "exists and is not an empty folder (nothing is overwritten)");
+}
+
+void require(const std::string& program, const std::string& package) {
+  if (!program_available(program))
+    throw EnvironmentError(program, "not found", "install it: apt-get install " + package);
+}
+
+std::string threads_arg(const ProcessOptions& o) {
+  return std::to_string(o.threads > 0 ? o.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
+}
+
+// COLMAP 3.8's command-line tools create a Qt application; without a display they need this.
+const std::vector<std::pair<std::string, std::string>> kColmapEnv{{"QT_QPA_PLATFORM", "offscreen"}};
+
+// Runs one stage; a failure is the capture's (COLMAP refusing the photos), reported against the log.
+void stage(const std::vector<std::string>& argv, const std::string& log, const std::string& what,
+           std::ostream& progress, const std::vector<std::pair<std::string, std::string>>& env = kColmapEnv) {
+  const auto t0 = std::chrono::steady_clock::now();
+  progress << "process: " << what << "..." << std::flush;
+  const int rc = run_logged(argv, log, env);
+  progress << " " << static_cast<int>(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count())
+           << " s" << std::endl;
+  if (rc != 0)
+    throw InputError(log, argv.size() > 1 ? argv[0] + " " + argv[1] : argv[0],
+                     "failed with exit status " + std::to_string(rc) + " (its output is in this log)");
+}
+
+int copy_photos(const std::vector<std::string>& files, const std::string& images) {
+  fs::create_directories(images);
+  for (const auto& f : files) fs::copy_file(f, fs::path(images) / fs::path(f).filename());
+  return static_cast<int>(files.size());
+}
+
+// About `frames` evenly spaced frames of the video as JPEGs (ffmpeg's quality 2).
+int extract_frames(const ProcessOptions& o, const std::string& images, const std::string& log, std::ostream& progress) {
+  require(o.ffmpeg, "ffmpeg");
+  require(o.ffprobe, "ffmpeg");
+  int status = 0;
+  const std::string counted = run_captured({o.ffprobe, "-v", "error", "-select_streams", "v:0", "-count_packets",
+                                           "-show_entries", "stream=nb_read_packets", "-of", "csv=p=0", o.video},
+                                          log, &status);
+  long total = 0;
+  try {
+    total = std::stol(counted);
+  } catch (const std::exception&) {
+    total = 0;
+  }
+  if (status != 0 || total <= 0) throw InputError(o.video, "--video", "ffprobe finds no video frames in it");
+  const long every = std::max(1L, total / o.frames);
+  fs::create_directories(images);
+  stage({o.ffmpeg, "-hide_banner", "-loglevel", "error", "-i", o.video, "-vf",
+         "select=not(mod(n\\," + std::to_string(every) + "))", "-vsync", "vfr", "-q:v", "2",
+         (fs::path(images) / "frame_%05d.jpg").string()},
+        log, "extracting every " + std::to_string(every) + " of " + std::to_string(total) + " frames", progress, {});
+  const int n = static_cast<int>(photo_files(images).size());
+  if (n == 0) throw InputError(o.video, "--video", "ffmpeg wrote no frames (see " + log + ")");
+  return n;
+}
+
+}  // namespace
+
+std::vector<std::string> photo_files(const std::string& dir) {
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    const std::string ext = lower(e.path().extension().string());
+    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png") out.push_back(e.path().string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& o, const std::string& out, int n_images) {
+  const std::string db = (fs::path(out) / "database.db").string(), images = (fs::path(out) / "images").string();
+  const std::string threads = threads_arg(o);
+  const bool exhaustive = o.matcher == "exhaustive" || (o.matcher == "auto" && n_images <= kExhaustiveMaxImages);
+  return {
+      {o.colmap, "feature_extractor", "--database_path", db, "--image_path", images, "--ImageReader.single_camera",
+       o.single_camera ? "1" : "0", "--ImageReader.camera_model", o.camera_model, "--SiftExtraction.use_gpu", "0",
+       "--SiftExtraction.num_threads", threads},
+      {o.colmap, exhaustive ? "exhaustive_matcher" : "sequential_matcher", "--database_path", db,
+       "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads},
+      {o.colmap, "mapper", "--database_path", db, "--image_path", images, "--output_path",
+       (fs::path(out) / "sparse").string(), "--Mapper.num_threads", threads},
+  };
+}
+
+ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
+  check_options(o);
+  require(o.colmap, "colmap");
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<std::string> photos;
+  if (!o.images.empty()) {
+    photos = photo_files(o.images);
+    if (photos.empty()) throw InputError(o.images, "--images", "no JPEG or PNG photos in this folder");
+  }
+  fs::create_directories(o.out);
+  const std::string log = (fs::path(o.out) / "colmap.log").string();
+  const std::string images = (fs::path(o.out) / "images").string();
+  ProcessResult r;
+  r.images = o.video.empty() ? copy_photos(photos, images) : extract_frames(o, images, log, progress);
+  fs::create_directories(fs::path(o.out) / "sparse");
+  const auto cmds = colmap_commands(o, o.out, r.images);
+  r.matcher = cmds[1][1];
+  stage(cmds[0], log, "COLMAP features of " + std::to_string(r.images) + " images", progress);
+  stage(cmds[1], log, "COLMAP " + r.matcher, progress);
+  stage(cmds[2], log, "COLMAP mapper", progress);
+
+  // The mapper writes one model per connected group of photos (sparse/0, sparse/1, ...): keep the
+  // one with the most registered images as sparse/0.
+  std::string best;
+  size_t best_images = 0;
+  for (const auto& e : fs::directory_iterator(fs::path(o.out) / "sparse")) {
+    if (!e.is_directory()) continue;
+    try {
+      const ColmapModel m = read_colmap_model(e.path().string());
+      if (m.images.size() > best_images) best_images = m.images.size(), best = e.path().string();
+    } catch (const InputError&) {
+      // not a model
+    }
+  }
+  r.registered = static_cast<int>(best_images);
+  if (r.registered < kMinRegisteredImages)
+    throw InputError(log, "registered images",
+                     "COLMAP placed " + std::to_string(r.registered) + " of " + std::to_string(r.images) +
+                         " images: too few; take more photos with more overlap (each part of the scene in several "
+                         "photos, moving between shots rather than turning on the spot)");
+  const fs::path zero = fs::path(o.out) / "sparse" / "0";
+  if (fs::path(best) != zero) {
+    const fs::path aside = fs::path(o.out) / "sparse" / "0_smaller";
+    if (fs::exists(zero)) fs::rename(zero, aside);
+    fs::rename(best, zero);
+  }
+  const ColmapModel m = read_colmap_model(zero.string());
+  r.points = m.points.size();
+  const ColmapCamera& cam = m.cameras.front();
+  r.camera = cam.model + " " + std::to_string(cam.width) + "x" + std::to_string(cam.height);
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+}  // namespace ablenerf
