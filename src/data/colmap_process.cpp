@@ -4,12 +4,14 @@
 #include <cctype>
 #include <chrono>
 #include <filesystem>
+#include <map>
 #include <ostream>
 #include <thread>
 
 #include "data/colmap_model.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/image_codec.h"
 #include "util/subprocess.h"
 
 namespace fs = std::filesystem;
@@ -67,6 +69,26 @@ void stage(const std::vector<std::string>& argv, const std::string& log, const s
   if (rc != 0)
     throw InputError(log, argv.size() > 1 ? argv[0] + " " + argv[1] : argv[0],
                      "failed with exit status " + std::to_string(rc) + " (its output is in this log)");
+}
+
+// Every photo readable (its header), and all of one size: one camera, and the loaders take one
+// image size per capture. The odd one out is named, against the size most photos have.
+void check_photos(const std::vector<std::string>& files) {
+  std::map<std::pair<int, int>, int> count;
+  std::vector<std::pair<int, int>> sizes;
+  for (const auto& f : files) {
+    sizes.push_back(image_size(f));  // InputError naming the photo when it is not a PNG or JPEG
+    ++count[sizes.back()];
+  }
+  const auto common = std::max_element(count.begin(), count.end(), [](const auto& a, const auto& b) {
+                        return a.second < b.second;
+                      })->first;
+  const auto text = [](const std::pair<int, int>& hw) { return std::to_string(hw.second) + "x" + std::to_string(hw.first); };
+  for (size_t i = 0; i < files.size(); ++i)
+    if (sizes[i] != common)
+      throw InputError(files[i], "size",
+                       text(sizes[i]) + " but " + std::to_string(count[common]) + " of the " + std::to_string(files.size()) +
+                           " photos are " + text(common) + ": a capture has one image size (rotate or resize it to match, or leave it out)");
 }
 
 int copy_photos(const std::vector<std::string>& files, const std::string& images) {
@@ -137,6 +159,7 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
   if (!o.images.empty()) {
     photos = photo_files(o.images);
     if (photos.empty()) throw InputError(o.images, "--images", "no JPEG or PNG photos in this folder");
+    check_photos(photos);
   }
   fs::create_directories(o.out);
   const std::string log = (fs::path(o.out) / "colmap.log").string();

@@ -107,10 +107,21 @@ std::string fake_colmap(const std::string& dir, const std::string& fail_at) {
 
 int lines(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
 
+// A small grey PNG.
+void photo(const std::string& path, int w, int h) {
+  fs::create_directories(fs::path(path).parent_path());
+  write_png(path, torch::full({h, w, 3}, 0.5f));
+}
+
 TEST(Process, RefusesBadInputWithOneLine) {
   test::TempDir t;
   fs::create_directories(t / "empty");
-  test::write_file(t / "photos/a.jpg", "not really a photo");
+  photo(t / "photos/a.png", 8, 6);
+  photo(t / "mixed/a.png", 8, 6);
+  photo(t / "mixed/b.png", 6, 8);
+  photo(t / "mixed/c.png", 8, 6);
+  photo(t / "broken/a.png", 8, 6);
+  test::write_file(t / "broken/b.jpg", "not really a photo");
   test::write_file(t / "taken/keep.txt", "a user's file");
   const std::string fake = fake_colmap(t.path(), "none");
   struct Case {
@@ -125,6 +136,8 @@ TEST(Process, RefusesBadInputWithOneLine) {
       {"--images " + t / "photos" + " --out " + t / "o1" + " --camera-model FOV", "--camera-model", 2},
       {"--images " + t / "photos" + " --out " + t / "o1" + " --matcher vocab", "--matcher", 2},
       {"--images " + t / "photos" + " --out " + t / "taken", "exists and is not an empty folder", 2},
+      {"--images " + t / "mixed" + " --out " + t / "o1" + " --colmap " + fake, "b.png: size: 6x8 but 2 of the 3 photos are 8x6", 2},
+      {"--images " + t / "broken" + " --out " + t / "o1" + " --colmap " + fake, "b.jpg", 2},
       {"--images " + t / "photos" + " --out " + t / "o1" + " --colmap " + t / "no_colmap", "apt-get install colmap", 1},
   };
   for (const auto& c : cases) {
@@ -139,8 +152,8 @@ TEST(Process, RefusesBadInputWithOneLine) {
 
 TEST(Process, ColmapFailuresNameTheLog) {
   test::TempDir t;
-  test::write_file(t / "photos/a.jpg", "x");
-  test::write_file(t / "photos/b.png", "x");
+  photo(t / "photos/a.png", 8, 6);
+  photo(t / "photos/b.png", 8, 6);
   test::write_file(t / "photos/notes.txt", "x");
   // The mapper fails: the line names the log and the stage; the log holds COLMAP's own output.
   auto r = test::run_cli("process --images " + t / "photos" + " --out " + t / "a --colmap " +
@@ -149,7 +162,7 @@ TEST(Process, ColmapFailuresNameTheLog) {
   EXPECT_NE(r.output.find(t / "a/colmap.log"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("mapper: failed with exit status 3"), std::string::npos) << r.output;
   EXPECT_NE(read_file(t / "a/colmap.log").find("fake colmap feature_extractor"), std::string::npos);
-  EXPECT_TRUE(fs::exists(t / "a/images/a.jpg") && fs::exists(t / "a/images/b.png"));
+  EXPECT_TRUE(fs::exists(t / "a/images/a.png") && fs::exists(t / "a/images/b.png"));
   EXPECT_FALSE(fs::exists(t / "a/images/notes.txt"));
   // Every stage succeeds but no model comes out: too few images placed.
   r = test::run_cli("process --images " + t / "photos" + " --out " + t / "b --colmap " + fake_colmap(t.path(), "none"));
