@@ -4,9 +4,11 @@
 // button or shift: pans), the wheel dollies towards the target, and W/A/S/D/Q/E move it; the
 // dataset's cameras are drawn as small frusta (a click jumps to one), and
 // "record path" keeps every pose the view takes, saved as path.json for `render --path`. Each change
-// asks for a quarter-size image at once and the full size once the camera rests (older answers are
-// dropped), so the page stays responsive on a CPU. For tests: the current pose is kept in
-// <pre id="pose">, body's data-images counts the images drawn (data-first-image-ms and
+// asks for a quarter-size image at once; once the camera rests, full size (with half size first
+// when the full one would take over a second, as 400x400 does on 2 CPU cores). One
+// render is in flight at a time: views asked meanwhile collapse into the newest, sent when it
+// returns, so a drag on a slow CPU never queues stale renders on the server. For tests: the current pose is kept in
+// <pre id="pose">, body's data-images counts the images drawn and data-drawn lists their sizes (data-first-image-ms and
 // data-first-full-ms time the first ones), #drag=DX,DY in the address plays a drag through the
 // mouse handlers once the cameras are in, and #size=WxH fixes the image size.
 #include "view/view_server.h"
@@ -43,7 +45,9 @@ select, button { font: inherit; }
 <script>
 "use strict";
 let info = null, pose = null, target = [0, 0, 0], up = [0, 0, 1];
-let seq = 0, restTimer = null, recording = false, recorded = [], markers = [];
+let seq = 0, restTimer = null, resting = false, recording = false, recorded = [], markers = [];
+let inflight = false, queued = null;  // one render at a time; the newest view asked meanwhile waits
+let drawnScale = 1, drawnMs = 0;  // the scale of the image on screen and how long it took
 const canvas = document.getElementById("view"), ctx = canvas.getContext("2d");
 const statusEl = document.getElementById("status");
 const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
@@ -74,28 +78,58 @@ function size() {
   if (big > 800) { w = Math.round(w * 800 / big); h = Math.round(h * 800 / big); }
   return [Math.max(8, w), Math.max(8, h)];
 }
+// A PNG blob as an <img> (loaded through the page's resource loader, like any image).
+function loadImage(blob) {
+  return new Promise((resolve, reject) => {
+    const img = new Image();
+    img.onload = () => { URL.revokeObjectURL(img.src); resolve(img); };
+    img.onerror = () => { URL.revokeObjectURL(img.src); reject("not an image"); };
+    img.src = URL.createObjectURL(blob);
+  });
+}
 function request(scale) {
   const my = ++seq;
+  if (inflight) { queued = [scale, my]; return; }
+  send(scale, my);
+}
+// The next rung of the ladder while the camera rests: quarter -> full size, with half size between
+// when the full image would take over a second (predicted from the render just drawn: the time goes
+// with the pixels). #half=always or #half=never in the address overrides the prediction (the
+// browser test: headless Chromium's virtual clock does not time renders).
+const halfRule = (/half=(always|never)/.exec(location.hash) || [])[1];
+function finer(scale, ms) {
+  const half = halfRule ? halfRule === "always" : ms / (scale * scale) > 1000;
+  return scale < 0.5 && half ? 0.5 : 1;
+}
+function send(scale, my) {
+  inflight = true;
   const [w, h] = size();
   const rw = Math.max(8, Math.round(w * scale)), rh = Math.max(8, Math.round(h * scale));
   const mode = document.getElementById("mode").value;
   const url = "/api/render?w=" + rw + "&h=" + rh + "&mode=" + mode + "&pose=" + pose.map(x => x.toFixed(6)).join(",");
   const t0 = performance.now();
-  let nearest = null;
+  let nearest = null, took = 0;
   fetch(url).then(r => { nearest = r.headers.get("X-Nearest-Camera"); return r.ok ? r.blob() : r.text().then(t => Promise.reject(t)); })
-      .then(b => createImageBitmap(b)).then(img => {
-    if (my !== seq && scale < 1) return;  // a newer view is on its way
+      .then(b => loadImage(b)).then(img => {
+    if (my !== seq) return;  // a newer view is on its way
     canvas.width = w; canvas.height = h;
     ctx.imageSmoothingEnabled = scale < 1;
     ctx.drawImage(img, 0, 0, w, h);
     drawMarkers(w, h);
-    statusEl.textContent = rw + "x" + rh + " in " + Math.round(performance.now() - t0) + " ms" +
+    took = performance.now() - t0;
+    drawnScale = scale; drawnMs = took;
+    statusEl.textContent = rw + "x" + rh + " in " + Math.round(took) + " ms" +
       (nearest !== null ? " (error against camera " + nearest + ", from its pose)" : "");
     document.body.dataset.images = (parseInt(document.body.dataset.images || "0") + 1).toString();
+    document.body.dataset.drawn = ((document.body.dataset.drawn || "") + " " + rw + "x" + rh).trim();
     // Milliseconds from navigation to the first image and to the first full-size one.
     if (!document.body.dataset.firstImageMs) document.body.dataset.firstImageMs = Math.round(performance.now());
     if (scale === 1 && !document.body.dataset.firstFullMs) document.body.dataset.firstFullMs = Math.round(performance.now());
-  }).catch(e => { statusEl.textContent = "render failed: " + e; });
+  }).catch(e => { statusEl.textContent = "render failed: " + e; }).finally(() => {
+    inflight = false;
+    if (queued) { const [s, m] = queued; queued = null; send(s, m); }
+    else if (my === seq && resting && scale < 1) request(finer(scale, took));
+  });
 }
 // The dataset's cameras drawn where they are in the current view (a dot and its frustum); a click
 // on one jumps to it.
@@ -132,9 +166,14 @@ function changed() {
     recorded.push(pose.slice());
     document.getElementById("save").textContent = "save path (" + recorded.length + ")";
   }
+  resting = false;
   request(0.25);
   clearTimeout(restTimer);
-  restTimer = setTimeout(() => { restTimer = null; request(1); }, 250);
+  // At rest: refine now when nothing is in flight, else when the render in flight returns.
+  restTimer = setTimeout(() => {
+    restTimer = null; resting = true;
+    if (!inflight && drawnScale < 1) request(finer(drawnScale, drawnMs));
+  }, 250);
 }
 function jump(i) {
   pose = info.cameras[i].slice();

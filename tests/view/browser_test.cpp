@@ -37,6 +37,7 @@ int chromium(const std::string& args, const std::string& url, const std::string&
 struct PageState {
   std::string pose;
   int images = 0;
+  std::string drawn;  // the sizes drawn, in order
 };
 
 PageState page_state(const std::string& dom) {
@@ -44,6 +45,7 @@ PageState page_state(const std::string& dom) {
   std::smatch m;
   if (std::regex_search(dom, m, std::regex("<pre id=\"pose\"[^>]*>([^<]*)</pre>"))) s.pose = m[1];
   if (std::regex_search(dom, m, std::regex("data-images=\"([0-9]+)\""))) s.images = std::stoi(m[1]);
+  if (std::regex_search(dom, m, std::regex("data-drawn=\"([0-9x ]*)\""))) s.drawn = m[1];
   return s;
 }
 
@@ -60,10 +62,14 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   auto serving = std::make_unique<ServingThread>(server);
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
 
-  ASSERT_EQ(chromium("--dump-dom", url, t / "plain.html"), 0) << read_file(t / "plain.html.log");
+  // #half=never|always: whether the page refines through half size (it predicts the full image's
+  // render time otherwise, which headless Chromium's virtual clock does not give).
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=never", t / "plain.html"), 0) << read_file(t / "plain.html.log");
   const PageState plain = page_state(read_file(t / "plain.html"));
   ASSERT_EQ(chromium("--dump-dom", url + "#drag=60,20", t / "drag.html"), 0) << read_file(t / "drag.html.log");
   const PageState dragged = page_state(read_file(t / "drag.html"));
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=always", t / "half.html"), 0) << read_file(t / "half.html.log");
+  const PageState half = page_state(read_file(t / "half.html"));
   fs::create_directories("artifacts");
   const std::string shot = fs::absolute("artifacts/viewer.png").string();
   fs::remove(shot);
@@ -80,6 +86,10 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   }
   EXPECT_EQ(plain.pose, cam0);
   EXPECT_GE(plain.images, 1);
+  // The view refines while it rests: quarter, then full size of the 32x32 run, or quarter, half,
+  // then full.
+  EXPECT_EQ(plain.drawn, "8x8 32x32");
+  EXPECT_EQ(half.drawn, "8x8 16x16 32x32");
   // A finished run: the training bar stays hidden (it was once shown by a CSS display that
   // overrode the hidden attribute).
   EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"), std::string::npos);
