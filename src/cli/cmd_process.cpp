@@ -21,8 +21,8 @@ void setup(CLI::App& app) {
   app.add_flag("!--per-image-camera", o->single_camera,
                "Intrinsics per photo (several cameras or zoom) instead of one shared camera");
   app.add_option("--matcher", o->matcher,
-                 "exhaustive (every pair), sequential (neighbours by file name: video) or auto (exhaustive up to " +
-                     std::to_string(kExhaustiveMaxImages) + " images)")
+                 "exhaustive (every pair), sequential (neighbours by file name) or auto (sequential for a video, "
+                 "exhaustive up to " + std::to_string(kExhaustiveMaxImages) + " photos)")
       ->capture_default_str();
   app.add_option("--threads", o->threads, "COLMAP's threads (0 = all cores)")->capture_default_str();
   app.add_option("--colmap", o->colmap, "The COLMAP program")->capture_default_str();

@@ -139,7 +139,9 @@ std::vector<std::string> photo_files(const std::string& dir) {
 std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& o, const std::string& out, int n_images) {
   const std::string db = (fs::path(out) / "database.db").string(), images = (fs::path(out) / "images").string();
   const std::string threads = threads_arg(o);
-  const bool exhaustive = o.matcher == "exhaustive" || (o.matcher == "auto" && n_images <= kExhaustiveMaxImages);
+  // A video's frames are in order: each needs matching with its neighbours only.
+  const bool exhaustive =
+      o.matcher == "exhaustive" || (o.matcher == "auto" && o.video.empty() && n_images <= kExhaustiveMaxImages);
   return {
       {o.colmap, "feature_extractor", "--database_path", db, "--image_path", images, "--ImageReader.single_camera",
        o.single_camera ? "1" : "0", "--ImageReader.camera_model", o.camera_model, "--SiftExtraction.use_gpu", "0",

@@ -22,8 +22,8 @@ struct ProcessOptions {
   // COLMAP's camera model: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE.
   std::string camera_model = "OPENCV";
   bool single_camera = true;  // one camera (intrinsics shared by every photo), as one phone or lens
-  // exhaustive (every pair), sequential (neighbours in file-name order: video), or auto: exhaustive
-  // up to kExhaustiveMaxImages images, sequential above.
+  // exhaustive (every pair), sequential (neighbours in file-name order: video), or auto: sequential
+  // for a video, exhaustive for up to kExhaustiveMaxImages photos, sequential above.
   std::string matcher = "auto";
   int threads = 0;  // COLMAP's threads; 0 = all cores
   std::string colmap = "colmap";    // the COLMAP program

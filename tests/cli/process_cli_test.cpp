@@ -183,6 +183,11 @@ TEST(Process, CommandLines) {
   EXPECT_NE(std::find(c[2].begin(), c[2].end(), "/cap/sparse"), c[2].end());
   EXPECT_EQ(c[2].back(), "3");
   EXPECT_EQ(colmap_commands(o, "/cap", kExhaustiveMaxImages + 1)[1][1], "sequential_matcher");
+  o.video = "walk.mp4";  // a video's frames: neighbours only, however few
+  EXPECT_EQ(colmap_commands(o, "/cap", 10)[1][1], "sequential_matcher");
+  o.matcher = "exhaustive";
+  EXPECT_EQ(colmap_commands(o, "/cap", 10)[1][1], "exhaustive_matcher");
+  o.video.clear();
   o.matcher = "sequential";
   EXPECT_EQ(colmap_commands(o, "/cap", 10)[1][1], "sequential_matcher");
 }
