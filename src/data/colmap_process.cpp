@@ -125,6 +125,19 @@ int extract_frames(const ProcessOptions& o, const std::string& images, const std
 
 }  // namespace
 
+std::vector<std::string> other_image_files(const std::string& dir) {
+  static const std::vector<std::string> kOther{".heic", ".heif", ".tif", ".tiff", ".webp", ".bmp", ".dng",
+                                               ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2"};
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string ext = lower(e.path().extension().string());
+    if (e.is_regular_file() && std::find(kOther.begin(), kOther.end(), ext) != kOther.end())
+      out.push_back(e.path().filename().string());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
 std::vector<std::string> photo_files(const std::string& dir) {
   std::vector<std::string> out;
   for (const auto& e : fs::directory_iterator(dir)) {
@@ -160,7 +173,16 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
   std::vector<std::string> photos;
   if (!o.images.empty()) {
     photos = photo_files(o.images);
-    if (photos.empty()) throw InputError(o.images, "--images", "no JPEG or PNG photos in this folder");
+    const auto others = other_image_files(o.images);
+    const std::string convert =
+        others.empty() ? ""
+                       : std::to_string(others.size()) + (others.size() > 1 ? " other images (" : " other image (") +
+                             printable(others.front(), 60) + (others.size() > 1 ? ", ...) are" : ") is") +
+                             " not read: convert to JPEG (HEIC: heif-convert from Debian's libheif-examples; "
+                             "TIFF, WebP, RAW: ffmpeg or your photo tool)";
+    if (photos.empty())
+      throw InputError(o.images, "--images", "no JPEG or PNG photos in this folder" + (convert.empty() ? "" : "; " + convert));
+    if (!convert.empty()) progress << "process: note: " << convert << std::endl;
     check_photos(photos);
   }
   fs::create_directories(o.out);

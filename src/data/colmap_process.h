@@ -52,6 +52,9 @@ ProcessResult process_capture(const ProcessOptions& options, std::ostream& progr
 
 // The JPEG / PNG files of a folder, sorted by name (what COLMAP and the loaders will see).
 std::vector<std::string> photo_files(const std::string& dir);
+// The names of the other image files in it (HEIC, TIFF, WebP, BMP, camera RAW), sorted: not read,
+// and said so.
+std::vector<std::string> other_image_files(const std::string& dir);
 
 // The COLMAP command lines of the pipeline for `n_images` photos, in order: feature extraction,
 // matching, mapping (exposed for the tests).

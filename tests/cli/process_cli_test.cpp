@@ -120,6 +120,8 @@ TEST(Process, RefusesBadInputWithOneLine) {
   photo(t / "mixed/a.png", 8, 6);
   photo(t / "mixed/b.png", 6, 8);
   photo(t / "mixed/c.png", 8, 6);
+  test::write_file(t / "iphone/IMG_0001.HEIC", "heic bytes");
+  test::write_file(t / "iphone/IMG_0002.HEIC", "heic bytes");
   photo(t / "broken/a.png", 8, 6);
   test::write_file(t / "broken/b.jpg", "not really a photo");
   test::write_file(t / "taken/keep.txt", "a user's file");
@@ -138,6 +140,8 @@ TEST(Process, RefusesBadInputWithOneLine) {
       {"--images " + t / "photos" + " --out " + t / "taken", "exists and is not an empty folder", 2},
       {"--images " + t / "mixed" + " --out " + t / "o1" + " --colmap " + fake, "b.png: size: 6x8 but 2 of the 3 photos are 8x6", 2},
       {"--images " + t / "broken" + " --out " + t / "o1" + " --colmap " + fake, "b.jpg", 2},
+      {"--images " + t / "iphone" + " --out " + t / "o1" + " --colmap " + fake,
+       "no JPEG or PNG photos in this folder; 2 other images (IMG_0001.HEIC, ...) are not read: convert to JPEG", 2},
       {"--images " + t / "photos" + " --out " + t / "o1" + " --colmap " + t / "no_colmap", "apt-get install colmap", 1},
   };
   for (const auto& c : cases) {
@@ -155,6 +159,7 @@ TEST(Process, ColmapFailuresNameTheLog) {
   photo(t / "photos/a.png", 8, 6);
   photo(t / "photos/b.png", 8, 6);
   test::write_file(t / "photos/notes.txt", "x");
+  test::write_file(t / "photos/c.heic", "x");
   // The mapper fails: the line names the log and the stage; the log holds COLMAP's own output.
   auto r = test::run_cli("process --images " + t / "photos" + " --out " + t / "a --colmap " +
                          fake_colmap(t.path(), "mapper"));
@@ -164,6 +169,8 @@ TEST(Process, ColmapFailuresNameTheLog) {
   EXPECT_NE(read_file(t / "a/colmap.log").find("fake colmap feature_extractor"), std::string::npos);
   EXPECT_TRUE(fs::exists(t / "a/images/a.png") && fs::exists(t / "a/images/b.png"));
   EXPECT_FALSE(fs::exists(t / "a/images/notes.txt"));
+  EXPECT_FALSE(fs::exists(t / "a/images/c.heic"));
+  EXPECT_NE(r.output.find("note: 1 other image (c.heic) is not read"), std::string::npos) << r.output;
   // Every stage succeeds but no model comes out: too few images placed.
   r = test::run_cli("process --images " + t / "photos" + " --out " + t / "b --colmap " + fake_colmap(t.path(), "none"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
