@@ -1,7 +1,6 @@
 #include "data/colmap_process.h"
 
 #include <algorithm>
-#include <cctype>
 #include <chrono>
 #include <filesystem>
 #include <map>
@@ -22,11 +21,6 @@ namespace {
 
 const std::vector<std::string> kSfmCameraModels{"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV",
                                               "OPENCV_FISHEYE"};
-
-std::string lower(std::string s) {
-  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return s;
-}
 
 void check_options(const ProcessOptions& o) {
   if (o.images.empty() == o.video.empty()) throw InputError("process", "--images/--video", "give exactly one of them");
@@ -118,36 +112,12 @@ int extract_frames(const ProcessOptions& o, const std::string& images, const std
          "select=not(mod(n\\," + std::to_string(every) + "))", "-vsync", "vfr", "-q:v", "2",
          (fs::path(images) / "frame_%05d.jpg").string()},
         log, "extracting every " + std::to_string(every) + " of " + std::to_string(total) + " frames", progress, {});
-  const int n = static_cast<int>(photo_files(images).size());
+  const int n = static_cast<int>(image_files(images).size());
   if (n == 0) throw InputError(o.video, "--video", "ffmpeg wrote no frames (see " + log + ")");
   return n;
 }
 
 }  // namespace
-
-std::vector<std::string> other_image_files(const std::string& dir) {
-  static const std::vector<std::string> kOther{".heic", ".heif", ".tif", ".tiff", ".webp", ".bmp", ".dng",
-                                               ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2"};
-  std::vector<std::string> out;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    const std::string ext = lower(e.path().extension().string());
-    if (e.is_regular_file() && std::find(kOther.begin(), kOther.end(), ext) != kOther.end())
-      out.push_back(e.path().filename().string());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
-
-std::vector<std::string> photo_files(const std::string& dir) {
-  std::vector<std::string> out;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    if (!e.is_regular_file()) continue;
-    const std::string ext = lower(e.path().extension().string());
-    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png") out.push_back(e.path().string());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
 
 std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& o, const std::string& out, int n_images) {
   const std::string db = (fs::path(out) / "database.db").string(), images = (fs::path(out) / "images").string();
@@ -172,8 +142,8 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<std::string> photos;
   if (!o.images.empty()) {
-    photos = photo_files(o.images);
-    const auto others = other_image_files(o.images);
+    std::vector<std::string> others;
+    photos = image_files(o.images, &others);
     const std::string convert =
         others.empty() ? ""
                        : std::to_string(others.size()) + (others.size() > 1 ? " other images (" : " other image (") +
@@ -201,32 +171,30 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
 
   // The mapper writes one model per connected group of photos (sparse/0, sparse/1, ...): keep the
   // one with the most registered images as sparse/0.
-  std::string best;
-  size_t best_images = 0;
+  ColmapModel best;  // best.dir: the model's folder
   for (const auto& e : fs::directory_iterator(fs::path(o.out) / "sparse")) {
     if (!e.is_directory()) continue;
     try {
-      const ColmapModel m = read_colmap_model(e.path().string());
-      if (m.images.size() > best_images) best_images = m.images.size(), best = e.path().string();
+      ColmapModel m = read_colmap_model(e.path().string());
+      if (m.images.size() > best.images.size()) best = std::move(m);
     } catch (const InputError&) {
       // not a model
     }
   }
-  r.registered = static_cast<int>(best_images);
+  r.registered = static_cast<int>(best.images.size());
   if (r.registered < kMinRegisteredImages)
     throw InputError(log, "registered images",
                      "COLMAP placed " + std::to_string(r.registered) + " of " + std::to_string(r.images) +
                          " images: too few; take more photos with more overlap (each part of the scene in several "
                          "photos, moving between shots rather than turning on the spot)");
   const fs::path zero = fs::path(o.out) / "sparse" / "0";
-  if (fs::path(best) != zero) {
+  if (fs::path(best.dir) != zero) {
     const fs::path aside = fs::path(o.out) / "sparse" / "0_smaller";
     if (fs::exists(zero)) fs::rename(zero, aside);
-    fs::rename(best, zero);
+    fs::rename(best.dir, zero);
   }
-  const ColmapModel m = read_colmap_model(zero.string());
-  r.points = m.points.size();
-  const ColmapCamera& cam = m.cameras.front();
+  r.points = best.points.size();
+  const ColmapCamera& cam = best.cameras.front();
   r.camera = cam.model + " " + std::to_string(cam.width) + "x" + std::to_string(cam.height);
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return r;

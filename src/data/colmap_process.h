@@ -50,12 +50,6 @@ struct ProcessResult {
 // EnvironmentError saying what to install.
 ProcessResult process_capture(const ProcessOptions& options, std::ostream& progress);
 
-// The JPEG / PNG files of a folder, sorted by name (what COLMAP and the loaders will see).
-std::vector<std::string> photo_files(const std::string& dir);
-// The names of the other image files in it (HEIC, TIFF, WebP, BMP, camera RAW), sorted: not read,
-// and said so.
-std::vector<std::string> other_image_files(const std::string& dir);
-
 // The COLMAP command lines of the pipeline for `n_images` photos, in order: feature extraction,
 // matching, mapping (exposed for the tests).
 std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& options, const std::string& out, int n_images);

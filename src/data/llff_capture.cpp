@@ -15,11 +15,6 @@ namespace fs = std::filesystem;
 namespace ablenerf {
 
 namespace {
-bool is_image_name(const fs::path& p) {
-  std::string e = p.extension().string();
-  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  return e == ".jpg" || e == ".jpeg" || e == ".png";
-}
 constexpr int64_t kLlffColumns = 17;
 }  // namespace
 
@@ -32,9 +27,7 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   const fs::path dir = fs::path(root) / "images";
   if (!fs::is_directory(dir)) throw InputError(root, "images", "folder not found (LLFF keeps its images in images/)");
   std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir))
-    if (e.is_regular_file() && is_image_name(e.path())) names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
+  for (const auto& f : image_files(dir.string())) names.push_back(fs::path(f).filename().string());
   if (static_cast<int64_t>(names.size()) != n)
     throw InputError(file, "shape", std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
   out.format = "llff";

@@ -3,16 +3,16 @@
 #include <sys/wait.h>
 
 #include <csignal>
-#include <cstdlib>
 #include <sstream>
 #include <stdexcept>
 
 #include "util/errors.h"
 #include "util/image_io.h"
+#include "util/subprocess.h"
 
 namespace ablenerf {
 
-bool ffmpeg_available() { return std::system("command -v ffmpeg >/dev/null 2>&1") == 0; }
+bool ffmpeg_available() { return program_available("ffmpeg"); }
 
 std::string shell_quote(const std::string& s) {
   std::string q = "'";

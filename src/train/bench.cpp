@@ -341,6 +341,19 @@ nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, d
 
 }  // namespace
 
+namespace {
+
+// Names with their summed microseconds, largest first (ties by name).
+std::vector<std::pair<std::string, double>> largest_first(const std::map<std::string, double>& us) {
+  std::vector<std::pair<std::string, double>> v(us.begin(), us.end());
+  std::sort(v.begin(), v.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second > b.second : a.first < b.first;
+  });
+  return v;
+}
+
+}  // namespace
+
 nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top) {
   if (steps < 1) throw std::invalid_argument("trace_summary: steps must be >= 1");
   const auto parsed = nlohmann::json::parse(trace_json, nullptr, /*allow_exceptions=*/false);
@@ -397,10 +410,7 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
       ++ops;
     }
   }
-  std::vector<std::pair<std::string, double>> ranked(self_us.begin(), self_us.end());
-  std::sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) {
-    return a.second != b.second ? a.second > b.second : a.first < b.first;
-  });
+  const auto ranked = largest_first(self_us);
   const double per_step = static_cast<double>(steps);
   nlohmann::json out{{"steps", steps},
                      {"ops_per_step", static_cast<double>(ops) / per_step},
@@ -411,10 +421,7 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
                           {"self_ms_per_step", ranked[i].second / 1000.0 / per_step},
                           {"calls_per_step", static_cast<double>(calls[ranked[i].first]) / per_step}});
   if (device_events > 0) {
-    std::vector<std::pair<std::string, double>> by_time(device_us.begin(), device_us.end());
-    std::sort(by_time.begin(), by_time.end(), [](const auto& a, const auto& b) {
-      return a.second != b.second ? a.second > b.second : a.first < b.first;
-    });
+    const auto by_time = largest_first(device_us);
     nlohmann::json gpu{{"events_per_step", static_cast<double>(device_events) / per_step},
                        {"busy_ms_per_step", device_total_us / 1000.0 / per_step},
                        {"top", nlohmann::json::array()}};

@@ -1,6 +1,9 @@
 #include "util/image_codec.h"
 
+#include <algorithm>
+#include <cctype>
 #include <cstring>
+#include <filesystem>
 
 #include "util/errors.h"
 #include "util/fs.h"
@@ -39,6 +42,24 @@ DecodedImage decode_image_file(const std::string& path) {
 
 std::pair<int, int> image_size(const std::string& path) {
   return sniff_image_format(path) == ImageFormat::kPng ? png_size(path) : jpeg_size(path);
+}
+
+std::vector<std::string> image_files(const std::string& dir, std::vector<std::string>* others) {
+  static const std::vector<std::string> kOther{".heic", ".heif", ".tif", ".tiff", ".webp", ".bmp", ".dng",
+                                               ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2"};
+  std::vector<std::string> out;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    std::string ext = e.path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png")
+      out.push_back(e.path().string());
+    else if (others && std::find(kOther.begin(), kOther.end(), ext) != kOther.end())
+      others->push_back(e.path().filename().string());
+  }
+  std::sort(out.begin(), out.end());
+  if (others) std::sort(others->begin(), others->end());
+  return out;
 }
 
 }  // namespace ablenerf

@@ -5,6 +5,7 @@
 // refused with an InputError naming the file. Safe to call from several threads at once.
 #include <string>
 #include <utility>
+#include <vector>
 
 // Both codecs, so that users of this header also get encode_png_file, png_size, jpeg_size and
 // apply_exif_orientation.
@@ -27,5 +28,10 @@ DecodedImage decode_image_file(const std::string& path);
 
 // {height, width} of the stored (raw, unrotated) pixels, from the header only. Same errors.
 std::pair<int, int> image_size(const std::string& path);
+
+// The images of a folder that these decoders read, by extension (.jpg, .jpeg, .png, any case):
+// regular files, full paths, sorted by name. `others`, when given, receives the names of the image
+// files they do not read (HEIC, TIFF, WebP, BMP, camera RAW), sorted, so that a caller can say so.
+std::vector<std::string> image_files(const std::string& dir, std::vector<std::string>* others = nullptr);
 
 }  // namespace ablenerf

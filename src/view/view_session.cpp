@@ -9,7 +9,6 @@
 #include "eval/evaluate.h"
 #include "eval/renderer.h"
 #include "train/trainer.h"
-#include "util/image_codec.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
 

@@ -14,6 +14,7 @@
 #include "test_util.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "util/subprocess.h"
 #include "view/view_server.h"
 
 using namespace ablenerf;
@@ -21,7 +22,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-bool have_chromium() { return std::system("command -v chromium > /dev/null 2>&1") == 0; }
+bool have_chromium() { return program_available("chromium"); }
 
 // Chromium, headless, on `url`; its stdout into `out`. Virtual time lets the page's timers run
 // without waiting; network fetches (the renders) still complete.
