@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Prepares .carry/ here (Debian bookworm, with the package registry) for a GPU machine that has none
 # (docs/GPU.md): the small build dependencies as Debian packages unpacked into .carry/root, and lego's
-# train split plus its first 20 test views in .carry/lego when ../shared/data has lego.
+# train split plus its first LEGO_TEST_VIEWS (default 6) test views in .carry/lego when ../shared/data has
+# lego, and the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when ../captures/fox50 is there.
 # The device tool carries them with `carry: [".carry"]` (64 MiB in all).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -32,16 +33,43 @@ lego=../shared/data/nerf_synthetic/lego
 if [ -d "$lego" ]; then
   rm -rf .carry/lego && mkdir -p .carry/lego/test
   cp "$lego/transforms_train.json" .carry/lego/ && cp -r "$lego/train" .carry/lego/
-  python3 - "$lego" <<'PY'
+  python3 - "$lego" "${LEGO_TEST_VIEWS:-6}" <<'PY'
 import json, shutil, sys
 src = sys.argv[1]
 meta = json.load(open(f"{src}/transforms_test.json"))
-meta["frames"] = meta["frames"][:20]
+meta["frames"] = meta["frames"][:int(sys.argv[2])]
 for f in meta["frames"]:
     shutil.copy(f"{src}/{f['file_path']}.png", f".carry/lego/{f['file_path']}.png")
 json.dump(meta, open(".carry/lego/transforms_test.json", "w"), indent=1)
 PY
   echo "carry: $(du -sh .carry/lego | cut -f1) in .carry/lego"
+fi
+# A real capture (unbounded, OpenCV lens) small enough to travel: fox50's 50 photos at 270x480, the
+# intrinsics scaled with them (Pillow, on this machine only: `pip install pillow`).
+fox=../captures/fox50
+if [ -d "$fox" ] && python3 -c "import PIL" 2>/dev/null; then
+  rm -rf .carry/fox4 && mkdir -p .carry/fox4/images
+  python3 - "$fox" <<'PY'
+import json, sys
+from PIL import Image
+src, s = sys.argv[1], 4
+meta = json.load(open(f"{src}/transforms.json"))
+for k in ("fl_x", "fl_y", "cx", "cy", "w", "h"):
+    meta[k] = meta[k] / s
+for f in meta["frames"]:
+    im = Image.open(f"{src}/{f['file_path']}")
+    im.resize((im.width // s, im.height // s), Image.BOX).save(f".carry/fox4/{f['file_path']}", quality=92)
+json.dump(meta, open(".carry/fox4/transforms.json", "w"), indent=1)
+PY
+  echo "carry: $(du -sh .carry/fox4 | cut -f1) in .carry/fox4"
+  # The same photos posed by `ablenerf process` (COLMAP), for training a process output there. Its
+  # images/ copy stays here (2 MB of the 64 MiB): gpu.sh's capture stage copies .carry/fox4/images back.
+  if [ -x build/ablenerf ] && command -v colmap >/dev/null; then
+    rm -rf .carry/fox4_sfm
+    build/ablenerf process --images .carry/fox4/images --out .carry/fox4_sfm > /dev/null
+    rm -rf .carry/fox4_sfm/images .carry/fox4_sfm/database.db .carry/fox4_sfm/colmap.log
+    echo "carry: $(du -sh .carry/fox4_sfm | cut -f1) in .carry/fox4_sfm"
+  fi
 fi
 echo "carry: $(du -sh .carry | cut -f1) in all (the device tool takes 64 MiB; the peer's release and scripts,
   .carry/release and .carry/peer, go in what is left)"

@@ -14,6 +14,7 @@
 #   peertrain  the release's own recipe on lego for $BUDGET seconds (default 300), PSNR on test views 0-5
 #   lego5      ablenerf on lego for $BUDGET seconds with configs/budget.toml, PSNR on test views 0-5
 #              (LEGO5_SET="k=v k=v": extra settings, e.g. LEGO5_SET=train.ray_sampling=error)
+#   capture    real captures (CAPTURES, default .carry/fox4 .carry/fox4_sfm) for $CAPTURE_BUDGET s each + eval
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
@@ -204,6 +205,31 @@ stage_lego5() {
   return $rc
 }
 
+
+# Real captures on the GPU (docs/GPU.md): each folder of CAPTURES (default the fox at 270x480 that
+# scripts/carry.sh makes, and the COLMAP capture `process` made of the same photos) trained for
+# CAPTURE_BUDGET seconds (default 120) with configs/budget.toml, then evaluated on its held-out views
+# (every 8th image); CAPTURE_SET="k=v ..." adds settings, DEVICE=cpu makes a dry run here. The run of the first stays in /tmp/cap_<name> for the view stage.
+stage_capture() {
+  local rc=0 dir name run t0 extra=() kv
+  for kv in ${CAPTURE_SET:-}; do extra+=(--set "$kv"); done
+  for dir in ${CAPTURES:-.carry/fox4 .carry/fox4_sfm}; do
+    [ -d "$dir" ] || { echo "capture: $dir not carried"; rc=1; continue; }
+    # fox4_sfm travels without its photos, which are fox4's (scripts/carry.sh).
+    [ "$(basename "$dir")" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
+    name=$(basename "$dir") run=/tmp/cap_$(basename "$dir") t0=$SECONDS
+    rm -rf "$run"
+    $bin train --data "$dir" --config configs/budget.toml --out "$run" --device "${DEVICE:-cuda}" \
+      --set train.time_budget_s="${CAPTURE_BUDGET:-120}" "${extra[@]}" > "$OUT/cap_${name}_train.log" 2>&1 || {
+      rc=1; echo "capture $name: train FAILED"; grep -m3 -E "error|what\(\)" "$OUT/cap_${name}_train.log" | cut -c1-400; continue; }
+    echo "capture $name: trained in $((SECONDS - t0)) s wall; $(grep -m1 -iE "unbounded|contract|ndc" "$OUT/cap_${name}_train.log" | cut -c1-200)"
+    tail -c 300 "$OUT/cap_${name}_train.log"; echo
+    $bin eval --run "$run" > "$OUT/cap_${name}_eval.log" 2>&1 || { rc=1; tail -5 "$OUT/cap_${name}_eval.log"; continue; }
+    grep '^eval' "$OUT/cap_${name}_eval.log"
+    cp "$run/log.jsonl" "$OUT/cap_${name}_log.jsonl"
+  done
+  return $rc
+}
 
 stage_nccl() {
   $bin synth --out /tmp/syn --res 32 --train-views 8 --test-views 2 > /dev/null || return 1
