@@ -49,7 +49,10 @@ torch::Tensor undistort_points(const CameraTable& cams, const torch::Tensor& xy)
 
 torch::Tensor undistorted_step_y(const CameraTable& cams, const torch::Tensor& xy) {
   if (cams.all_pinhole()) return torch::stack({torch::zeros_like(xy.select(1, 0)), torch::ones_like(xy.select(1, 0))}, 1);
-  const auto ex = torch::tensor({kLensStep, 0.0}, xy.options()), ey = torch::tensor({0.0, kLensStep}, xy.options());
+  // The two offsets made on xy's device (torch::tensor would copy from the host, a synchronising
+  // copy that a CUDA graph capturing the training step refuses).
+  const auto steps = torch::eye(2, xy.options()) * kLensStep;
+  const auto ex = steps[0], ey = steps[1];
   const auto dx = (distort_points(cams, xy + ex) - distort_points(cams, xy - ex)) / (2 * kLensStep);  // column d/dx
   const auto dy = (distort_points(cams, xy + ey) - distort_points(cams, xy - ey)) / (2 * kLensStep);  // column d/dy
   const auto a = dx.select(1, 0), b = dy.select(1, 0), c = dx.select(1, 1), d = dy.select(1, 1);
