@@ -1,0 +1,39 @@
+#pragma once
+// The multiresolution hash-grid encoding (hash_grid_shape.h): each point of the unit cube gets, at
+// every level, the trilinear interpolation of a trainable table's rows at its cell's vertices. One
+// operation in three forms that address the table alike: CPU loops (hash_grid_cpu.h), CUDA kernels
+// (hash_grid_launch.h) and the plain LibTorch reference below, which the tests compare both with.
+// The model's grid front end (model/grid_embedding.h) is its user.
+#include <torch/torch.h>
+
+#include "kernels/hash_grid_shape.h"
+
+namespace ablenerf {
+
+// `levels` levels of 2^log2_table rows of `features` floats, from base_resolution to max_resolution
+// cells per side in a geometric progression (instant-ngp eq. 2-3: b = exp((ln max - ln base) /
+// (levels - 1)), resolution_l = floor(base * b^l)). Throws std::invalid_argument on a shape the
+// kernels do not take (levels 1..32, features 1..8, log2_table 1..24, 1 <= base <= max).
+HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base_resolution, int max_resolution);
+
+constexpr int kHashGridMaxFeatures = 8;
+
+// positions: (N, 3) float32, contiguous, coordinates in [0, 1] (clamped; NaN counts as 0);
+// table: (levels, table_size, features) float32, contiguous, on the positions' device.
+// Returns (N, levels, features) float32. Differentiable in the table only (the positions get no
+// gradient). CPU tensors run the project's loops (the table's gradient is added level by level, one
+// thread per level: no two threads write one row, no lock); CUDA tensors the kernels (atomic adds),
+// or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
+// argument on bad input.
+torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape);
+
+// The same in plain LibTorch ops (index_select and products; autograd gives the table's gradient),
+// on any device, float32 or float64 tables.
+torch::Tensor hash_grid_encode_reference(const torch::Tensor& positions, const torch::Tensor& table,
+                                         const HashGridShape& shape);
+
+// hash_grid_row in LibTorch ops: the rows of `level` for the int64 vertex coordinates x, y, z.
+torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,
+                                       const HashGridShape& shape, int level);
+
+}  // namespace ablenerf

@@ -1,0 +1,20 @@
+#pragma once
+// The hash-grid encoding's CPU loops (hash_grid.h) on raw float32 pointers. No checks: the wrapper
+// in hash_grid.cpp has made them.
+#include <cstdint>
+
+#include "kernels/hash_grid_shape.h"
+
+namespace ablenerf {
+
+// out (n, levels, features) = the interpolated rows of table (levels, table_size, features) at
+// positions (n, 3). Points are split across LibTorch's intra-op threads.
+void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out);
+
+// grad_table (levels, table_size, features) += the scatter of grad_out (n, levels, features) into
+// the rows each point read, with its trilinear weights. One thread per level, points in order: no
+// two threads touch one row, and the sums come out the same on every run.
+void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
+                            float* grad_table);
+
+}  // namespace ablenerf

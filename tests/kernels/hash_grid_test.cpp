@@ -1,0 +1,159 @@
+// The hash-grid encoding (kernels/hash_grid.h) on the CPU: the level resolutions and the spatial hash
+// against their closed forms, exactness on a field that is linear inside a cell, the CPU loops
+// against the plain LibTorch reference (values and the table's gradient), the reference's gradient
+// against finite differences, the loops' gradient the same with one thread and with several, and
+// the input checks.
+#include <gtest/gtest.h>
+
+#include <ATen/Parallel.h>
+
+#include <cmath>
+#include <cstdint>
+
+#include "kernels/hash_grid.h"
+#include "kernels/kernel_test_util.h"
+
+namespace ablenerf {
+namespace {
+
+// Uniform points of the unit cube, plus a few on its faces and corners and outside it.
+torch::Tensor points(int64_t n, uint64_t seed) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  auto p = torch::rand({n, 3}, gen, torch::kFloat);
+  auto edge = torch::tensor({0.f, 0.f, 0.f, 1.f, 1.f, 1.f, 0.f, 1.f, 0.5f, -0.25f, 1.5f, 0.5f}).view({4, 3});
+  return torch::cat({p, edge}).contiguous();
+}
+
+torch::Tensor table_for(const HashGridShape& s, uint64_t seed) {
+  return test::seeded_randn({s.levels, s.table_size, s.features}, seed).to(torch::kFloat);
+}
+
+// One dense level (5^3 vertices in 128 rows) and hashed ones (17^3 ... in 128 rows).
+HashGridShape mixed_shape() { return hash_grid_shape(4, 2, 7, 4, 32); }
+
+TEST(HashGrid, ResolutionsGrowGeometrically) {
+  const HashGridShape s = hash_grid_shape(16, 2, 19, 16, 2048);
+  EXPECT_EQ(s.table_size, 1 << 19);
+  const double b = std::exp((std::log(2048.0) - std::log(16.0)) / 15);  // instant-ngp eq. 3: 2^(7/15)
+  for (int l = 0; l < 16; ++l) EXPECT_EQ(s.resolution[l], static_cast<int>(std::floor(16 * std::pow(b, l) + 1e-9))) << l;
+  EXPECT_EQ(s.resolution[0], 16);
+  EXPECT_EQ(s.resolution[15], 2048);
+  EXPECT_EQ(hash_grid_shape(1, 1, 4, 8, 8).resolution[0], 8);
+  EXPECT_THROW(hash_grid_shape(0, 2, 19, 16, 2048), std::invalid_argument);
+  EXPECT_THROW(hash_grid_shape(4, 9, 19, 16, 2048), std::invalid_argument);
+  EXPECT_THROW(hash_grid_shape(4, 2, 25, 16, 2048), std::invalid_argument);
+  EXPECT_THROW(hash_grid_shape(4, 2, 19, 32, 16), std::invalid_argument);
+}
+
+TEST(HashGrid, RowsAreDenseWhereTheyFitAndThePapersHashElsewhere) {
+  const HashGridShape s = mixed_shape();  // level 0: 4 cells, 125 vertices <= 128 rows
+  ASSERT_EQ(s.resolution[0], 4);
+  EXPECT_EQ(hash_grid_row(s, 0, 1, 2, 3), 1u + 5u * (2u + 5u * 3u));
+  ASSERT_GT(std::pow(s.resolution[3] + 1, 3), 128);
+  const uint32_t x = 7, y = 11, z = 30;
+  const uint32_t want = (x ^ (y * 2654435761u) ^ (z * 805459861u)) % 128u;  // uint32 wrap-around, then mod T
+  EXPECT_EQ(hash_grid_row(s, 3, x, y, z), want);
+  const auto t = [](int64_t v) { return torch::full({1}, v, torch::kLong); };
+  EXPECT_EQ(hash_grid_rows_reference(t(x), t(y), t(z), s, 3).item<int64_t>(), int64_t{want});
+  EXPECT_EQ(hash_grid_rows_reference(t(1), t(2), t(3), s, 0).item<int64_t>(), 86);
+}
+
+// Rows set to a linear function of their vertex's position: the interpolation is that function
+// exactly, anywhere in the cube (trilinear interpolation reproduces linear fields).
+TEST(HashGrid, ReproducesALinearFieldExactly) {
+  const HashGridShape s = hash_grid_shape(1, 1, 7, 4, 4);  // 125 vertices, dense
+  auto table = torch::zeros({1, s.table_size, 1});
+  const double a[3] = {0.7, -1.3, 2.1}, c = 0.25;
+  const int side = s.resolution[0] + 1;
+  for (int z = 0; z < side; ++z)
+    for (int y = 0; y < side; ++y)
+      for (int x = 0; x < side; ++x)
+        table[0][hash_grid_row(s, 0, x, y, z)][0] = (a[0] * x + a[1] * y + a[2] * z) / s.resolution[0] + c;
+  const auto p = points(200, 3).clamp(0, 1).contiguous();
+  const auto want = (p.to(torch::kDouble) * torch::tensor({a[0], a[1], a[2]}, torch::kDouble)).sum(1) + c;
+  const auto got = hash_grid_encode(p, table, s).view({-1}).to(torch::kDouble);
+  EXPECT_LT(test::max_abs(got - want), 2e-6);
+  EXPECT_LT(test::max_abs(hash_grid_encode_reference(p, table, s).view({-1}).to(torch::kDouble) - want), 2e-6);
+}
+
+// At a vertex the encoding is that vertex's row: a table holding each row's index reads it back.
+TEST(HashGrid, AVertexReadsItsOwnRow) {
+  const HashGridShape s = hash_grid_shape(4, 1, 7, 4, 32);
+  auto table = torch::arange(s.table_size, torch::kFloat).view({1, -1, 1}).expand({s.levels, -1, 1}).contiguous();
+  for (int l = 0; l < s.levels; ++l) {
+    const int res = s.resolution[l];
+    const uint32_t v[3] = {1, static_cast<uint32_t>(res / 2), static_cast<uint32_t>(res - 1)};
+    auto p = torch::tensor({float(v[0]) / res, float(v[1]) / res, float(v[2]) / res}).view({1, 3});
+    const auto out = hash_grid_encode(p, table, s);
+    EXPECT_FLOAT_EQ(out[0][l][0].item<float>(), static_cast<float>(hash_grid_row(s, l, v[0], v[1], v[2]))) << l;
+  }
+}
+
+TEST(HashGrid, CpuLoopsMatchTheReference) {
+  const HashGridShape s = mixed_shape();
+  const auto p = points(500, 5);
+  const auto table = table_for(s, 6);
+  const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 7).to(torch::kFloat);
+  auto t1 = table.clone().requires_grad_(), t2 = table.clone().requires_grad_();
+  const auto got = hash_grid_encode(p, t1, s), want = hash_grid_encode_reference(p, t2, s);
+  EXPECT_LT(test::max_abs(got - want), 1e-5);
+  got.backward(g);
+  want.backward(g);
+  EXPECT_LT(test::max_abs(t1.grad() - t2.grad()), 1e-4);  // rows summed over ~500 points
+  EXPECT_GT(test::max_abs(t1.grad()), 0.1);
+}
+
+// The encoding is linear in the table, so central differences on it are exact up to rounding.
+TEST(HashGrid, ReferenceGradientMatchesFiniteDifferences) {
+  const HashGridShape s = hash_grid_shape(2, 2, 4, 2, 5);  // 27 vertices in 16 rows: level 0 hashed too
+  const auto p = points(20, 9).to(torch::kDouble);
+  const auto table = test::seeded_randn({s.levels, s.table_size, s.features}, 10);
+  const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 11);
+  const test::ScalarFunction f = [&](const std::vector<torch::Tensor>& in) {
+    return (hash_grid_encode_reference(p, in[0], s) * g).sum();
+  };
+  const auto numeric = test::numeric_gradient(f, {table}, 0);
+  auto t = table.clone().requires_grad_();
+  f({t}).backward();
+  EXPECT_LT(test::max_abs(t.grad() - numeric), 1e-7);
+  EXPECT_GT(test::max_abs(numeric), 0.1);
+}
+
+// The loops' scatter gives the same bits with one thread and with several (levels to threads).
+TEST(HashGrid, GradientIsTheSameOnAnyThreadCount) {
+  const HashGridShape s = mixed_shape();
+  const auto p = points(3000, 12);
+  const auto table = table_for(s, 13);
+  const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 14).to(torch::kFloat);
+  const int before = at::get_num_threads();
+  std::vector<torch::Tensor> grads;
+  for (int threads : {1, 4}) {
+    at::set_num_threads(threads);
+    auto t = table.clone().requires_grad_();
+    hash_grid_encode(p, t, s).backward(g);
+    grads.push_back(t.grad());
+  }
+  at::set_num_threads(before);
+  EXPECT_TRUE(torch::equal(grads[0], grads[1]));
+}
+
+TEST(HashGrid, BadInputsAreRefusedNamingTheArgument) {
+  const HashGridShape s = mixed_shape();
+  const auto p = points(8, 1);
+  const auto table = table_for(s, 2);
+  const auto expect_error = [](const std::function<void()>& fn, const std::string& needle) {
+    try {
+      fn();
+      ADD_FAILURE() << "no error; expected one naming " << needle;
+    } catch (const c10::Error& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  };
+  expect_error([&] { hash_grid_encode(p.to(torch::kDouble), table, s); }, "positions");
+  expect_error([&] { hash_grid_encode(p.view({-1}), table, s); }, "positions");
+  expect_error([&] { hash_grid_encode(p, table.slice(1, 0, 64), s); }, "table");
+  expect_error([&] { hash_grid_encode(p, table.transpose(0, 1).contiguous().transpose(0, 1), s); }, "table");
+}
+
+}  // namespace
+}  // namespace ablenerf
