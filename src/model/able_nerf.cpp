@@ -38,7 +38,12 @@ AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjectio
   const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
   // Plain randn (spec 8.1: the release's xavier call on these is a no-op).
   ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
-  volume_embedding_ = register_module("volume_embedding", VolumeEmbedding(ipe_width(cfg.ipe_degrees), e));
+  int64_t features = ipe_width(cfg.ipe_degrees);
+  if (cfg.embedding == Embedding::Grid) {
+    grid_ = register_module("grid", GridEmbedding(cfg, grid_cube(cfg, scene)));
+    features = grid_->width() + ipe_width(cfg.grid_ipe_degrees);
+  }
+  volume_embedding_ = register_module("volume_embedding", VolumeEmbedding(features, e));
   coarse_ = register_module("coarse", ABTransformer(e, cfg.heads, ff, cfg.coarse_layers));
   fine_ = register_module("fine", ABTransformer(e, cfg.heads, ff, cfg.fine_layers));
   ray_head_coarse_ = register_module("ray_head_coarse", RayColourHead(e));
@@ -101,7 +106,14 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
   } else {
     g = cast_intervals(t, rays);
   }
-  const auto volumes = volume_embedding_(integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees));
+  torch::Tensor features;
+  if (!grid_)
+    features = integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees);
+  else if (cfg_.grid_ipe_degrees == 0)
+    features = grid_(g.mean, g.cov);
+  else  // the grid's features beside a coarse IPE that says where the sample is
+    features = torch::cat({grid_(g.mean, g.cov), integrated_pos_enc(g.mean, g.cov, cfg_.grid_ipe_degrees)}, -1);
+  const auto volumes = volume_embedding_(features);
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
   // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).

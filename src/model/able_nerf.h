@@ -1,7 +1,7 @@
 #pragma once
 // The whole ABLE-NeRF forward pass (spec section 7), assembled from one module per stage:
-// frustum.h -> ipe.h -> volume_embedding.h -> ab_transformer.h -> resampler.h ->
-// le_transformer.h (+ view_encoding.h, colour_heads.h) -> tonemap.h.
+// frustum.h -> ipe.h (or grid_embedding.h, model.embedding = "grid") -> volume_embedding.h ->
+// ab_transformer.h -> resampler.h -> le_transformer.h (+ view_encoding.h, colour_heads.h) -> tonemap.h.
 // Parameter names (for save_weights / import) are documented in docs/weights.md.
 #include <torch/torch.h>
 
@@ -11,6 +11,7 @@
 #include "model/compute.h"
 #include "model/ab_transformer.h"
 #include "model/colour_heads.h"
+#include "model/grid_embedding.h"
 #include "model/le_transformer.h"
 #include "model/ndc.h"
 #include "model/volume_embedding.h"
@@ -73,6 +74,8 @@ class AbleNerfImpl : public torch::nn::Module {
   const ModelConfig& config() const { return cfg_; }
   bool unbounded() const { return unbounded_; }
   bool has_le() const { return cfg_.le_count > 0; }
+  // The grid front end, or nullptr with the paper's IPE.
+  const GridEmbeddingImpl* grid() const { return grid_ ? grid_.get() : nullptr; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
@@ -103,6 +106,7 @@ class AbleNerfImpl : public torch::nn::Module {
   Compute compute_;
   torch::Tensor ray_token_;  // (1,1,E) initial ray token
   torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  GridEmbedding grid_{nullptr};  // model.embedding = "grid" only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};
   RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};

@@ -128,6 +128,8 @@ void load_weights(AbleNerf& model, const std::string& path) {
 
 void import_release_weights(AbleNerf& model, const c10::Dict<c10::IValue, c10::IValue>& dict,
                             const std::string& origin) {
+  if (model->config().embedding != Embedding::Ipe)
+    throw InputError(origin, "model.embedding", "the release has no grid front end: import with \"ipe\"");
   assign_parameters(model, dict, release_name_map(model->config()), origin, /*release=*/true);
 }
 

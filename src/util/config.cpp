@@ -18,7 +18,7 @@ namespace ablenerf {
 namespace {
 
 using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,
-                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*, SceneKind*>;
+                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*, SceneKind*, Embedding*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -39,7 +39,16 @@ void visit_fields(C& c, F&& f) {
   f("model.coarse_layers", &c.model.coarse_layers);
   f("model.fine_layers", &c.model.fine_layers);
   f("model.samples", &c.model.samples);
+  f("model.embedding", &c.model.embedding);
   f("model.ipe_degrees", &c.model.ipe_degrees);
+  f("model.grid_levels", &c.model.grid_levels);
+  f("model.grid_features", &c.model.grid_features);
+  f("model.grid_log2_table", &c.model.grid_log2_table);
+  f("model.grid_base_resolution", &c.model.grid_base_resolution);
+  f("model.grid_max_resolution", &c.model.grid_max_resolution);
+  f("model.grid_ipe_degrees", &c.model.grid_ipe_degrees);
+  f("model.grid_lr_scale", &c.model.grid_lr_scale);
+  f("model.grid_bound", &c.model.grid_bound);
   f("model.le_count", &c.model.le_count);
   f("model.le_layers", &c.model.le_layers);
   f("model.mask", &c.model.mask);
@@ -208,6 +217,16 @@ void Config::validate() const {
   need(m.fine_layers >= 1, "model.fine_layers", "must be at least 1");
   need(m.samples >= 2, "model.samples", "must be at least 2");
   need(m.ipe_degrees >= 1 && m.ipe_degrees <= 30, "model.ipe_degrees", "must be in 1..30");
+  // The hash grid's limits (kernels/hash_grid.h).
+  need(m.grid_levels >= 1 && m.grid_levels <= 32, "model.grid_levels", "must be in 1..32");
+  need(m.grid_features >= 1 && m.grid_features <= 8, "model.grid_features", "must be in 1..8");
+  need(m.grid_log2_table >= 1 && m.grid_log2_table <= 24, "model.grid_log2_table", "must be in 1..24");
+  need(m.grid_base_resolution >= 1, "model.grid_base_resolution", "must be at least 1");
+  need(m.grid_max_resolution >= m.grid_base_resolution && m.grid_max_resolution <= (1 << 20),
+       "model.grid_max_resolution", "must be in model.grid_base_resolution..1048576");
+  need(m.grid_ipe_degrees >= 0 && m.grid_ipe_degrees <= 30, "model.grid_ipe_degrees", "must be in 0..30");
+  need(m.grid_lr_scale > 0, "model.grid_lr_scale", "must be positive");
+  need(m.grid_bound > 0, "model.grid_bound", "must be positive");
   need(m.le_count >= 0, "model.le_count", "must be >= 0");
   need(m.le_layers >= 0, "model.le_layers", "must be >= 0");
   need(m.resample_padding >= 0, "model.resample_padding", "must be >= 0");

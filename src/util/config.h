@@ -19,6 +19,7 @@ enum class CpuSplit { Rays, Ops };
 enum class ViewEncoding { Release, Paper };  // model.view_encoding (model/view_encoding.h)
 enum class Background { White, Black };      // data.background: the colour RGBA images are composited on
 enum class RaySampling { Uniform, Error };    // train.ray_sampling (train/error_map.h)
+enum class Embedding { Ipe, Grid };           // model.embedding: the paper's IPE or the grid front end (model/grid_embedding.h)
 // data.scene (data/scene_frame.h): where samples lie along a ray and how they are encoded.
 //  * Bounded: depth-linear samples between near and far (Blender's object on a card);
 //  * Unbounded: mip-NeRF 360's scene contraction of the frustum Gaussians, half the samples linear
@@ -58,6 +59,8 @@ inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "w
 template <>
 inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"}, {RaySampling::Error, "error"}};
 template <>
+inline const EnumNames<Embedding> kEnumNames<Embedding>{{Embedding::Ipe, "ipe"}, {Embedding::Grid, "grid"}};
+template <>
 inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"}, {SceneKind::Bounded, "bounded"}, {SceneKind::Unbounded, "unbounded"}, {SceneKind::ForwardFacing, "forward"}};
 template <>
 inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
@@ -87,7 +90,23 @@ struct ModelConfig {
   int coarse_layers = 2;     // AB transformer blocks, coarse pass
   int fine_layers = 6;       // AB transformer blocks, fine pass
   int samples = 96;          // intervals per ray (coarse and fine)
+  // What turns a frustum Gaussian into the features of its token: "ipe", the paper's integrated
+  // positional encoding (stage 2), or "grid", a multiresolution hash grid (model/grid_embedding.h).
+  Embedding embedding = Embedding::Ipe;
   int ipe_degrees = 16;      // IPE frequencies 2^0 .. 2^(ipe_degrees-1)
+  // The grid front end (model.embedding = "grid"): levels of 2^grid_log2_table rows of
+  // grid_features floats, from grid_base_resolution to grid_max_resolution cells per side.
+  int grid_levels = 16;
+  int grid_features = 2;
+  int grid_log2_table = 19;
+  int grid_base_resolution = 16;
+  int grid_max_resolution = 2048;
+  // IPE frequencies 2^0 .. 2^(grid_ipe_degrees-1) put beside the grid's features in the token (0 =
+  // the grid alone): the grid carries no position of its own, and without it the transformer
+  // memorised the training rays of a real capture (docs/BENCHMARKS.md, "Grid front end").
+  int grid_ipe_degrees = 4;
+  double grid_lr_scale = 20;  // the table's learning rate over the run's (instant-ngp's 1e-2 at lr 5e-4)
+  double grid_bound = 1.5;    // bounded scenes: the grid spans [-grid_bound, grid_bound]^3 of the world
   int le_count = 32;         // learnable embeddings; 0 = the paper's "no LE" ablation
   int le_layers = 2;         // LE self-attention blocks
   bool mask = true;          // causal volume mask of spec 4.3 (false = bidirectional ablation)

@@ -1,0 +1,61 @@
+#include "model/grid_embedding.h"
+
+#include <cmath>
+
+#include "kernels/hash_grid.h"
+
+namespace ablenerf {
+
+namespace {
+// instant-ngp's initialisation of the table: uniform in [-1e-4, 1e-4].
+constexpr double kTableInit = 1e-4;
+// The contracted space's radius (model/contraction.h) and NDC's extent (model/ndc.h).
+constexpr double kContractedRadius = 2.0;
+constexpr double kNdcExtent = 1.0;
+}  // namespace
+
+GridCube grid_cube(const ModelConfig& cfg, SceneKind scene) {
+  switch (scene) {
+    case SceneKind::Unbounded: return {-kContractedRadius, kContractedRadius};
+    case SceneKind::ForwardFacing: return {-kNdcExtent, kNdcExtent};
+    case SceneKind::Auto:
+    case SceneKind::Bounded: break;
+  }
+  return {-cfg.grid_bound, cfg.grid_bound};
+}
+
+torch::Tensor grid_level_weights(const torch::Tensor& sigma2, const torch::Tensor& resolution) {
+  const auto n2 = (resolution * resolution).to(sigma2.dtype());
+  // 1 / sqrt(8 sigma2 n^2); sigma2 = 0 gives +inf and erf(inf) = 1 (a point reads every level).
+  return torch::erf(torch::rsqrt(8 * sigma2.unsqueeze(-1) * n2));
+}
+
+GridEmbeddingImpl::GridEmbeddingImpl(const ModelConfig& cfg, GridCube cube)
+    : shape_(hash_grid_shape(cfg.grid_levels, cfg.grid_features, cfg.grid_log2_table, cfg.grid_base_resolution,
+                             cfg.grid_max_resolution)),
+      cube_(cube),
+      lr_scale_(cfg.grid_lr_scale) {
+  table_ = register_parameter(
+      "table", (torch::rand({shape_.levels, shape_.table_size, shape_.features}) * 2 - 1) * (kTableInit / lr_scale_));
+  std::vector<float> res(shape_.resolution, shape_.resolution + shape_.levels);
+  resolution_ = register_buffer("resolution", torch::tensor(res));
+}
+
+torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov) {
+  const double side = cube_.hi - cube_.lo;
+  auto lead = mean.sizes().vec();
+  lead.pop_back();
+  const auto m = mean.to(torch::kFloat).reshape({-1, 3});
+  const auto unit = ((m - cube_.lo) / side).contiguous();
+  const auto inside = ((unit >= 0) & (unit <= 1)).all(-1, /*keepdim=*/true);  // (N,1)
+  // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
+  const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
+  // The lookup is linear in the table: scaling its output by lr_scale reads table(), without
+  // materialising the scaled table.
+  const auto weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;  // (N,L)
+  const auto features = hash_grid_encode(unit, table_, shape_) * weights.unsqueeze(-1);  // (N,L,F)
+  lead.push_back(width());
+  return features.reshape(lead);
+}
+
+}  // namespace ablenerf
