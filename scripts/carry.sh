@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Prepares .carry/ here (Debian bookworm, with the package registry) for a GPU machine that has none
 # (docs/GPU.md): the small build dependencies as Debian packages unpacked into .carry/root, and lego's
-# train split plus its first LEGO_TEST_VIEWS (default 6) test views in .carry/lego when ../shared/data has
+# train split plus its first LEGO_TEST_VIEWS (default 6) test views in .carry/lego when the optional ../shared/data has
 # lego, and the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when ../captures/fox50 is there.
 # The device tool carries them with `carry: [".carry"]` (64 MiB in all).
 set -euo pipefail

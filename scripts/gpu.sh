@@ -10,7 +10,7 @@
 #   gputest    the ctest label gpu (kernels against their references, graph vs eager steps)
 #   bench      ablenerf bench on the GPU at the blender preset: 1024- and 8192-ray steps, bf16 + fused
 #              + CUDA graph vs fp32 + plain + eager
-#   peerbench  the authors' release on the same GPU (../shared/tools/peer, carried in .carry/peer)
+#   peerbench  the authors' release on the same GPU (optional: ../shared/tools/peer when present, carried in .carry/peer)
 #   peertrain  the release's own recipe on lego for $BUDGET seconds (default 300), PSNR on test views 0-5
 #   lego5      ablenerf on lego for $BUDGET seconds with configs/budget.toml, PSNR on test views 0-5
 #              (LEGO5_SET="k=v k=v": extra settings, e.g. LEGO5_SET=train.ray_sampling=error)

@@ -28,10 +28,10 @@ class TempDir {
 // The repository root (compile-time, overridable by $ABLENERF_SOURCE_DIR).
 std::string source_dir();
 
-// ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent.
+// ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent (optional test data: tests that need it skip).
 std::string lego_dir();
 
-// ../shared/weights beside the repository, or "" when absent.
+// ../shared/weights beside the repository, or "" when absent (optional: tests that need it skip).
 std::string shared_weights_dir();
 
 struct CommandResult {

@@ -1,4 +1,4 @@
-// `ablenerf import`: converts a state dict of the authors' release (names of spec Appendix A,
+// `ablenerf import`: converts a state dict of the authors' release (names in docs/weights.md,
 // e.g. saved from a Lightning checkpoint with torch.save(ckpt["state_dict"], "w.pt")) into a
 // run folder: RUN/config.toml (the resolved config) and RUN/weights.pt (save_weights format).
 #include <torch/torch.h>

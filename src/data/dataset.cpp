@@ -74,7 +74,7 @@ torch::Tensor frame_rgba(const FrameJson& fr, const Image8& image, int64_t want_
   torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);
   if (im.size(2) == 1) im = im.expand({-1, -1, 3});
   if (im.size(2) == 3) im = torch::cat({im, torch::ones_like(im.slice(2, 0, 1))}, 2);
-  if (!fr.prescaled) im = box_downscale(im, f);  // straight RGBA, before compositing (spec 1.1)
+  if (!fr.prescaled) im = box_downscale(im, f);  // straight RGBA, before compositing (docs/MODEL.md, section 1)
   return im;
 }
 

@@ -1,5 +1,5 @@
 #pragma once
-// Cameras and rays (spec 1.2): pixel centres, unnormalised directions whose camera-frame z is
+// Cameras and rays (docs/MODEL.md, section 1): pixel centres, unnormalised directions whose camera-frame z is
 // exactly -1 (so t is depth along the optical axis), mip-NeRF base radius per ray. A distorted
 // lens (camera.h, lens.h) is undone per pixel: the pixel centre is undistorted before it becomes a
 // direction, and the radius follows the undistorted pixel's height.

@@ -17,7 +17,7 @@ std::string default_lpips_weights_path();
 
 // Where default_lpips_weights_path() looks, in order: <source tree>/assets/lpips_alex_v0.1.pt (the
 // shipped fp16 copy, assets/LPIPS_WEIGHTS.md), <binary's folder>/../assets/ (an installed or
-// copied tree), <source tree>/../shared/weights/ (the project's fp32 original).
+// copied tree), <source tree>/../shared/weights/ (the project's fp32 original; optional, used when present).
 std::vector<std::string> lpips_weights_candidates();
 
 class Lpips {

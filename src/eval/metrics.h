@@ -1,5 +1,5 @@
 #pragma once
-// Image quality metrics on (H,W,3) float images in [0,1] (spec §9): PSNR and two SSIM variants.
+// Image quality metrics on (H,W,3) float images in [0,1] (docs/MODEL.md, section 9): PSNR and two SSIM variants.
 // Inputs may live on any device and have any floating dtype; the arithmetic runs in float64 so
 // that scores do not depend on the input precision. LPIPS lives in eval/lpips.h.
 #include <torch/torch.h>

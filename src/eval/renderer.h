@@ -1,7 +1,7 @@
 #pragma once
 // Whole-image rendering with a trained model: rays are generated and pushed through the model
 // one chunk at a time (no gradient), so memory is bounded by the chunk, not the image.
-// Also the depth maps read off the fine ray-token attention (spec 9: no code in the release;
+// Also the depth maps read off the fine ray-token attention (docs/MODEL.md, section 9: no code in the release;
 // depth = attention-weighted mean of the fine interval mid-points, or the argmax volume).
 #include <torch/torch.h>
 

@@ -1,13 +1,13 @@
 #pragma once
-// Stage 4b (spec 4): the AB (attention-based rendering) transformer: a stack of post-norm
-// blocks over [ray token; volume tokens in increasing t], with the causal volume mask of 4.3.
+// Stage 4b (docs/MODEL.md, section 4): the AB (attention-based rendering) transformer: a stack of post-norm
+// blocks over [ray token; volume tokens in increasing t], with the causal volume mask below.
 #include <torch/torch.h>
 
 #include "model/attention.h"
 
 namespace ablenerf {
 
-// The additive (S+1,S+1) mask of spec 4.3: row 0 (ray token) sees every column; row i >= 1
+// The additive (S+1,S+1) mask of docs/MODEL.md, section 4: row 0 (ray token) sees every column; row i >= 1
 // (volume i) sees columns 0..i (the ray token and the volumes not farther than itself).
 // 0 where attention is allowed, -inf where it is blocked. Built once per model and broadcast
 // over rays and heads.

@@ -36,7 +36,7 @@ ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
 AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjection ndc)
     : cfg_(cfg), unbounded_(scene == SceneKind::Unbounded), ndc_(scene == SceneKind::ForwardFacing), ndc_projection_(ndc) {
   const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
-  // Plain randn (spec 8.1: the release's xavier call on these is a no-op).
+  // Plain randn (docs/MODEL.md, section 8: the release's xavier call on these is a no-op).
   ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
   int64_t features = ipe_width(cfg.ipe_degrees);
   if (cfg.embedding == Embedding::Grid) {
@@ -186,7 +186,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
   const auto s_f = resample_fence_posts(s_c, c.weights.to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
   const auto t_f = unbounded_ ? unbounded_depths(s_f, near, far) : s_f;
-  // The fine ray token is the coarse output token, not detached (spec 4.4).
+  // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
                           view_code, /*colour=*/true);
 

@@ -1,5 +1,5 @@
 #pragma once
-// The whole ABLE-NeRF forward pass (spec section 7), assembled from one module per stage:
+// The whole ABLE-NeRF forward pass (docs/MODEL.md, sections 1-7), assembled from one module per stage:
 // frustum.h -> ipe.h (or grid_embedding.h, model.embedding = "grid") -> volume_embedding.h ->
 // ab_transformer.h -> resampler.h -> le_transformer.h (+ view_encoding.h, colour_heads.h) -> tonemap.h.
 // Parameter names (for save_weights / import) are documented in docs/weights.md.
@@ -126,7 +126,7 @@ void save_weights(AbleNerf& model, const std::string& path);
 void load_weights(AbleNerf& model, const std::string& path);
 // Reads any torch.save / pickle_save file holding a name -> tensor dictionary.
 c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path);
-// Copies a state dict with the authors' release names (spec Appendix A; an optional "model."
+// Copies a state dict with the authors' release names (docs/weights.md; an optional "model."
 // prefix is stripped, dir_query.* is ignored) into the model. Throws InputError(origin, name,
 // "expected shape ... got ..." / "missing" / "unexpected parameter") on any mismatch, before
 // changing anything.

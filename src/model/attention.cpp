@@ -32,7 +32,7 @@ MultiHeadAttentionImpl::MultiHeadAttentionImpl(int64_t width, int64_t heads)
 }
 
 void MultiHeadAttentionImpl::reset_parameters() {
-  // PyTorch's nn.MultiheadAttention init (spec 8.1): xavier-uniform over the whole packed
+  // PyTorch's nn.MultiheadAttention init (docs/MODEL.md, section 8): xavier-uniform over the whole packed
   // matrix, zero in-proj bias, default Linear weight for out_proj with a zero bias.
   torch::NoGradGuard no_grad;
   torch::nn::init::xavier_uniform_(in_proj_weight);

@@ -1,5 +1,5 @@
 #pragma once
-// Stage 4a (spec 4.2, 5.3): multi-head attention with a packed Q/K/V projection, and the
+// Stage 4a (docs/MODEL.md, sections 4 and 6): multi-head attention with a packed Q/K/V projection, and the
 // post-norm transformer block built on it:
 //   x = LN1(x + MHA(x));  x = LN2(x + W2 GELU(W1 x + b1) + b2)
 // Attention is written by hand (batch-first (B,L,E) tensors, one mask shared by every ray and
@@ -12,7 +12,7 @@
 namespace ablenerf {
 
 // What the resampler needs from one self-attention layer: the ray token's (row 0) query and
-// every key, detached, so its attention row can be recomputed as one extra query (spec 2.4)
+// every key, detached, so its attention row can be recomputed as one extra query (docs/MODEL.md, section 5)
 // without ever materialising per-layer attention matrices for the caller.
 struct RayQueryProbe {
   torch::Tensor q0;  // (B,H,dh)

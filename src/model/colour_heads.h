@@ -1,5 +1,5 @@
 #pragma once
-// Stage 6c (spec 4.5, 5.4): the two colour heads of one pass, in linear space.
+// Stage 6c (docs/MODEL.md, section 7): the two colour heads of one pass, in linear space.
 //  * ray-token head: sigmoid(Linear(R) - ln 3) (Ref-NeRF style bias: initial output ~0.25);
 //  * LE head: 0.5 sigmoid(Linear(ReLU(Linear([decoded; e_d])))) in (0, 0.5).
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 #pragma once
-// Stage 1 (spec 2.2): a conical frustum [t0, t1] along a ray -> a Gaussian with diagonal
+// Stage 1 (docs/MODEL.md, section 1): a conical frustum [t0, t1] along a ray -> a Gaussian with diagonal
 // covariance, in mip-NeRF's numerically stable form (mid-point mu and half-width h instead of
 // differences of t^3 and t^5, which cancel catastrophically for short intervals in float32).
 #include <torch/torch.h>

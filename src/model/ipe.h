@@ -1,5 +1,5 @@
 #pragma once
-// Stage 2 (spec 2.3): integrated positional encoding of Gaussians. For degree l and axis c,
+// Stage 2 (docs/MODEL.md, section 2): integrated positional encoding of Gaussians. For degree l and axis c,
 // with y = 2^l mean_c and v = 4^l cov_c, the features are E[sin(y')] = exp(-v/2) sin(y) and
 // E[cos(y')] = exp(-v/2) cos(y), at index 3l + c; all sines first, then all cosines.
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 #pragma once
-// Stage 6b (spec 5.3): the LE transformer of one pass. The learnable embeddings cross-attend to
+// Stage 6b (docs/MODEL.md, section 6): the LE transformer of one pass. The learnable embeddings cross-attend to
 // the pass's volume tokens (ray token excluded), refine themselves with `le_layers` self-
 // attention blocks, and are decoded by the view token as the single query.
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 #pragma once
-// Stage 5 (spec 2.1, 2.4): where along each ray the tokens sit. Coarse fence-posts are linear
+// Stage 5 (docs/MODEL.md, sections 1 and 5): where along each ray the tokens sit. Coarse fence-posts are linear
 // in depth (optionally mip-NeRF jittered); fine fence-posts are drawn by inverse-CDF sampling
 // from the last coarse layer's ray-token attention, blurred and padded, without gradient.
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 #pragma once
-// Stage 7 (spec 6): the two branch colours are summed in linear space, mapped through the sRGB
+// Stage 7 (docs/MODEL.md, section 7): the two branch colours are summed in linear space, mapped through the sRGB
 // transfer curve and hard-clipped to [0,1] (zero gradient where saturated, like the release).
 #include <torch/torch.h>
 

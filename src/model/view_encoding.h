@@ -1,5 +1,5 @@
 #pragma once
-// Stage 6a (spec 5.2): the Fourier code e_d of the ray's unnormalised direction d that feeds
+// Stage 6a (docs/MODEL.md, section 6): the Fourier code e_d of the ray's unnormalised direction d that feeds
 // the view token and, again, the LE colour head.
 #include <torch/torch.h>
 

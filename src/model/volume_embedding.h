@@ -1,5 +1,5 @@
 #pragma once
-// Stage 3 (spec 3): the volume-embedding MLP, shared by the coarse and fine passes:
+// Stage 3 (docs/MODEL.md, section 3): the volume-embedding MLP, shared by the coarse and fine passes:
 // in -> width -> width -> width -> width, ReLU between layers, none after the last.
 #include <torch/torch.h>
 

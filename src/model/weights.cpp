@@ -1,5 +1,5 @@
 // Weight files: our own name -> tensor dictionary (save/load) and the import of the authors'
-// release state dict (spec Appendix A). Names are documented in docs/weights.md.
+// release state dict. Both sets of names are documented in docs/weights.md.
 #include <map>
 #include <sstream>
 

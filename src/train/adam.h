@@ -1,6 +1,6 @@
 #pragma once
 // The optimiser of a training step: Adam without weight decay, betas (0.9, 0.999) and eps 1e-8 by
-// default (spec 8; train.adam_beta1 / adam_beta2 / adam_eps), in one of two forms over one state:
+// default (docs/MODEL.md, section 8; train.adam_beta1 / adam_beta2 / adam_eps), in one of two forms over one state:
 //  - host form (any device, any LibTorch): the learning rate and step count live on the host, and
 //    a step whose loss or gradients are not finite is skipped by a check that synchronises with
 //    the device. With CPU float32 parameters the check and the update are two plain loops over

@@ -1,5 +1,5 @@
 #pragma once
-// Data-parallel training over PyTorch's c10d (issue 6): torchrun's environment conventions
+// Data-parallel training over PyTorch's c10d: torchrun's environment conventions
 // (RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, MASTER_PORT), a TCPStore rendezvous, Gloo on CPU
 // (NCCL on CUDA when the LibTorch has it). Gradients are summed with one all-reduce per bucket of
 // parameters (the loss is already normalised by the global batch, so the sum is the global mean).

@@ -1,5 +1,5 @@
 #pragma once
-// Learning-rate schedule of the release (spec section 8): a sine warm-up from lr_warmup_mult of the
+// Learning-rate schedule of the release (docs/MODEL.md, section 8): a sine warm-up from lr_warmup_mult of the
 // base rate over lr_warmup_steps, times a log-linear decay from lr_init to lr_final over
 // lr_decay_steps (constant lr_final afterwards). Step s counts optimiser steps from 0.
 // With a time budget the decay follows where the schedule stands (the share of the budget spent,

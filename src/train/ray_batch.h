@@ -1,6 +1,6 @@
 #pragma once
 // Training batches: rays drawn across every pixel of every training image (uniformly, or guided by
-// an error map: train/error_map.h), generated on the fly from the poses (spec 1.3: no table of all
+// an error map: train/error_map.h), generated on the fly from the poses (docs/MODEL.md, section 1: no table of all
 // rays). Every process of a data-parallel group draws the same global batch from one identically
 // seeded stream and keeps its own slice, so a run does not depend on how many processes share it.
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 #pragma once
-// `ablenerf train`: the training loop of spec section 8 on one process or a data-parallel group,
+// `ablenerf train`: the training loop of docs/MODEL.md, section 8 on one process or a data-parallel group,
 // as a class of small steps (setup, step, and the hooks of run()).
 //
 // One optimiser step (Trainer::step) is the one training-step implementation of the project:

@@ -109,7 +109,7 @@ struct ModelConfig {
   double grid_bound = 1.5;    // bounded scenes: the grid spans [-grid_bound, grid_bound]^3 of the world
   int le_count = 32;         // learnable embeddings; 0 = the paper's "no LE" ablation
   int le_layers = 2;         // LE self-attention blocks
-  bool mask = true;          // causal volume mask of spec 4.3 (false = bidirectional ablation)
+  bool mask = true;          // causal volume mask (docs/MODEL.md, section 4) (false = bidirectional ablation)
   bool randomized = false;   // stratified jitter of coarse samples and resampling (released: off)
   ViewEncoding view_encoding = ViewEncoding::Release;  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
   double resample_padding = 0.01;         // added to every blurred weight before inverse-CDF sampling

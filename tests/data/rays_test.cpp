@@ -1,4 +1,4 @@
-// Cameras and rays (spec 1.2) against hand-computed values.
+// Cameras and rays (docs/MODEL.md, section 1) against hand-computed values.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 

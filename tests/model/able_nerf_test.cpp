@@ -1,4 +1,4 @@
-// Stage 8: the assembled model: parameter counts of the presets (spec 10), output contract,
+// Stage 8: the assembled model: parameter counts of the presets (docs/MODEL.md, section 11), output contract,
 // gradient paths, the no-LE and no-mask ablations, the branch split and LE perturbation.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -37,7 +37,7 @@ ModelConfig tiny() {
 Rays some_rays(int64_t b) { return test::random_rays(b, 99); }
 
 TEST(AbleNerf, PresetParameterCounts) {
-  EXPECT_EQ(AbleNerf(preset("blender").model)->parameter_count(), 6163404);  // spec 10
+  EXPECT_EQ(AbleNerf(preset("blender").model)->parameter_count(), 6163404);  // docs/MODEL.md, section 11
   EXPECT_EQ(AbleNerf(preset("shiny").model)->parameter_count(), 6160332);    // 16 LE
   EXPECT_GT(AbleNerf(preset("demo").model)->parameter_count(), 0);
 }

@@ -1,5 +1,5 @@
-// Stage 4: the transformer block against a plain per-head reference, the mask of spec 4.3,
-// causality of the AB transformer, and the initialisation of spec 8.1.
+// Stage 4: the transformer block against a plain per-head reference, the mask of docs/MODEL.md, section 4,
+// causality of the AB transformer, and the initialisation of docs/MODEL.md, section 8.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -158,7 +158,7 @@ TEST(Attention, InitialisationFollowsPyTorchDefaults) {
   EXPECT_TRUE(torch::equal(blk->norm2->bias, torch::zeros({kWidth})));
   int64_t n = 0;
   for (const auto& p : blk->parameters()) n += p.numel();
-  EXPECT_EQ(n, 370944);  // spec 10
+  EXPECT_EQ(n, 370944);  // docs/MODEL.md, section 11
 }
 
 // compute.attention = "plain" is the reference that `bench --compare` divides by: on the CPU it

@@ -1,5 +1,5 @@
 // Weight files: save/load round trip, and import of a state dict with the authors' names
-// (spec Appendix A), built here from the appendix by hand with random tensors.
+// (docs/weights.md), built here from that table by hand with random tensors.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -14,7 +14,7 @@ namespace {
 
 using Shape = std::vector<int64_t>;
 
-// The release's parameter names and shapes for the blender preset, written from Appendix A.
+// The release's parameter names and shapes for the blender preset, written from docs/weights.md.
 std::vector<std::pair<std::string, Shape>> release_entries() {
   std::vector<std::pair<std::string, Shape>> v;
   auto block = [&](const std::string& p) {

@@ -1,6 +1,6 @@
-// The bench's arithmetic: the FLOP count against a hand count and the spec's published
-// estimate, the report's derived numbers from given measurements, and a tiny end-to-end run
-// that must produce every field (no timing assertions).
+// The bench's arithmetic: the FLOP count against a hand count and the published estimate
+// (docs/MODEL.md, section 11), the report's derived numbers from given measurements, and a tiny
+// end-to-end run that must produce every field (no timing assertions).
 #include <gtest/gtest.h>
 
 #include "train/bench.h"

@@ -1,9 +1,8 @@
-// Training through a distorted lens (issue: "training on the distorted images must match training
-// on the undistorted ones"): the demo scene rendered through the synth's wide-angle lens and through
-// a pinhole, same cameras, same seed, same short schedule. Both models are scored on the same
-// pinhole test views (the distorted images show other pixels, so their own scores would not
-// compare): the scene learnt through the lens must match the one learnt without it, and beat the
-// same distorted images trained as if they were pinhole ones.
+// Training through a distorted lens must match training on the undistorted images: the demo scene
+// rendered through the synth's wide-angle lens and through a pinhole, same cameras, same seed, same
+// short schedule. Both models are scored on the same pinhole test views (the distorted images show
+// other pixels, so their own scores would not compare): the scene learnt through the lens must match
+// the one learnt without it, and beat the same distorted images trained as if they were pinhole ones.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 

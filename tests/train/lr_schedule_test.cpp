@@ -1,4 +1,4 @@
-// The learning-rate schedule at the values spec section 8 lists.
+// The learning-rate schedule at the values docs/MODEL.md, section 8 gives.
 #include <gtest/gtest.h>
 
 #include <cmath>
