@@ -1,8 +1,11 @@
 #pragma once
 // Shared by the CUDA kernels' tests (test_gpu): the skip when no device is present, inputs drawn
-// on the CPU with a seeded generator (the same numbers on every machine), and the error measure.
+// on the CPU with a seeded generator (the same numbers on every machine), and the error measure
+// (expect_error_naming comes from kernel_test_util.h, shared with the CPU tests).
 #include <gtest/gtest.h>
 #include <torch/torch.h>
+
+#include "kernels/kernel_test_util.h"
 
 #include <string>
 #include <vector>
@@ -29,17 +32,6 @@ inline double scaled_error(const torch::Tensor& got, const torch::Tensor& want) 
   EXPECT_EQ(g.sizes(), w.sizes());
   const double scale = std::max(1.0, w.abs().max().item<double>());
   return (g - w).abs().max().item<double>() / scale;
-}
-
-// Runs fn, expects a c10::Error whose message contains `needle` (the argument it names).
-template <class Fn>
-void expect_error_naming(const Fn& fn, const std::string& needle) {
-  try {
-    fn();
-    ADD_FAILURE() << "no error; expected one naming \"" << needle << "\"";
-  } catch (const c10::Error& e) {
-    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
-  }
 }
 
 }  // namespace ablenerf::test

@@ -141,18 +141,10 @@ TEST(HashGrid, BadInputsAreRefusedNamingTheArgument) {
   const HashGridShape s = mixed_shape();
   const auto p = points(8, 1);
   const auto table = table_for(s, 2);
-  const auto expect_error = [](const std::function<void()>& fn, const std::string& needle) {
-    try {
-      fn();
-      ADD_FAILURE() << "no error; expected one naming " << needle;
-    } catch (const c10::Error& e) {
-      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
-    }
-  };
-  expect_error([&] { hash_grid_encode(p.to(torch::kDouble), table, s); }, "positions");
-  expect_error([&] { hash_grid_encode(p.view({-1}), table, s); }, "positions");
-  expect_error([&] { hash_grid_encode(p, table.slice(1, 0, 64), s); }, "table");
-  expect_error([&] { hash_grid_encode(p, table.transpose(0, 1).contiguous().transpose(0, 1), s); }, "table");
+  test::expect_error_naming([&] { hash_grid_encode(p.to(torch::kDouble), table, s); }, "positions");
+  test::expect_error_naming([&] { hash_grid_encode(p.view({-1}), table, s); }, "positions");
+  test::expect_error_naming([&] { hash_grid_encode(p, table.slice(1, 0, 64), s); }, "table");
+  test::expect_error_naming([&] { hash_grid_encode(p, table.transpose(0, 1).contiguous().transpose(0, 1), s); }, "table");
 }
 
 }  // namespace

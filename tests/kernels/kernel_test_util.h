@@ -2,9 +2,11 @@
 // Shared by the kernels' CPU tests: seeded float64 inputs (the same numbers on every machine), the
 // largest magnitude of a tensor, and central finite differences (the gradient of a scalar function
 // of several float64 tensors with respect to one of them, element by element, without autograd).
+#include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include <functional>
+#include <string>
 #include <vector>
 
 namespace ablenerf::test {
@@ -45,6 +47,17 @@ inline std::vector<torch::Tensor> autograd_gradients(const ScalarFunction& f,
   std::vector<torch::Tensor> leaves;
   for (const auto& t : inputs) leaves.push_back(t.detach().clone().requires_grad_());
   return torch::autograd::grad({f(leaves)}, leaves);
+}
+
+// Runs fn, expects a c10::Error whose message contains `needle` (the argument it names).
+template <class Fn>
+void expect_error_naming(const Fn& fn, const std::string& needle) {
+  try {
+    fn();
+    ADD_FAILURE() << "no error; expected one naming \"" << needle << "\"";
+  } catch (const c10::Error& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace ablenerf::test

@@ -64,15 +64,12 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   const SceneFrame scene = run.scene();
   ASSERT_EQ(scene.kind, SceneKind::ForwardFacing);  // auto, from the layout and the LLFF bounds
   EXPECT_EQ(run.config.data.scene, SceneKind::ForwardFacing);
-  EvalOptions e;
-  e.progress = false;
-  e.note = [](const std::string&) {};
-  const double psnr = evaluate_run(run, e).at("mean").at("psnr").get<double>();
+  const double psnr = test::held_out_psnr(t / "run");
   // The same capture trained as an unbounded scene (contraction, the other choice for it).
   c.set("data.scene=unbounded");
   o.out_dir = t / "run_unbounded";
   ASSERT_EQ(train(c, o), TrainResult::Finished);
-  const double unbounded = evaluate_run(RunFolder::open(t / "run_unbounded"), e).at("mean").at("psnr").get<double>();
+  const double unbounded = test::held_out_psnr(t / "run_unbounded");
   std::cout << "forward-facing capture, held-out PSNR: NDC " << psnr << " dB, unbounded " << unbounded << " dB"
             << std::endl;
   // Measured (2026-11-25, 2-vCPU VM): NDC 22.53 dB, unbounded 22.62 dB.

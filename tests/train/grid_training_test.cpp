@@ -101,10 +101,7 @@ TEST(GridTraining, LearnsTheDemoSceneInFewerStepsThanIpe) {
     TrainOptions o = grid_run_options(t / name);
     o.data_dir = t / "data";
     EXPECT_EQ(train(c, o), TrainResult::Finished);
-    EvalOptions e;
-    e.progress = false;
-    e.note = [](const std::string&) {};
-    return evaluate_run(RunFolder::open(t / name), e).at("mean").at("psnr").get<double>();
+    return test::held_out_psnr(t / name);
   };
   const double ipe = held_out_psnr("ipe", {});
   const double grid = held_out_psnr("grid", {"model.embedding=grid", "model.grid_log2_table=12", "model.grid_levels=6",

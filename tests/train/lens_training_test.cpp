@@ -31,11 +31,7 @@ double trained_psnr(const std::string& data, const std::string& run, const std::
   o.out_dir = run;
   o.quiet = true;
   EXPECT_EQ(train(c, o), TrainResult::Finished);
-  EvalOptions e;
-  e.progress = false;
-  e.data_dir = eval_data;
-  e.note = [](const std::string&) {};
-  return evaluate_run(RunFolder::open(run), e).at("mean").at("psnr").get<double>();
+  return test::held_out_psnr(run, eval_data);
 }
 
 }  // namespace

@@ -5,6 +5,8 @@
 #include <functional>
 #include <string>
 
+#include "eval/evaluate.h"
+#include "run/run_folder.h"
 #include "synth/scene.h"
 #include "test_util.h"
 #include "train/trainer.h"
@@ -55,6 +57,15 @@ inline void train_straight_and_in_pieces(const Config& c, const std::function<Tr
   o.resume = true;
   o.data_dir.clear();  // taken from run.json
   ASSERT_EQ(train(c, o), TrainResult::Finished);
+}
+
+// The mean PSNR of `run`'s test views (of eval_data's test views when given), without progress or notes.
+inline double held_out_psnr(const std::string& run, const std::string& eval_data = "") {
+  EvalOptions e;
+  e.progress = false;
+  e.data_dir = eval_data;
+  e.note = [](const std::string&) {};
+  return evaluate_run(RunFolder::open(run), e).at("mean").at("psnr").get<double>();
 }
 
 }  // namespace ablenerf::test
