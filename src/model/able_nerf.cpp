@@ -95,7 +95,7 @@ torch::Tensor AbleNerfImpl::effective_le(const ForwardOptions& opts) const {
 AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in,
                                           ABTransformer& ab, RayColourHead& ray_head, LETransformer* le_tf,
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
-                                          const torch::Tensor& view_code, bool colour) {
+                                          const torch::Tensor& view_code, bool colour, bool weights_grad) {
   const int64_t b = t.size(0);
   Gaussians g;
   if (unbounded_) {
@@ -116,6 +116,7 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
   const auto volumes = volume_embedding_(features);
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
+  probe.keep_graph = weights_grad;
   // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).
   const auto y = ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour);
   Pass p;
@@ -182,13 +183,14 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
                               : coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
   const auto t_c = unbounded_ ? unbounded_depths(s_c, near, far) : s_c;
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
-                          opts.coarse_colour);
+                          opts.coarse_colour, opts.weights_grad);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
-  const auto s_f = resample_fence_posts(s_c, c.weights.to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
+  const auto s_f =
+      resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
   const auto t_f = unbounded_ ? unbounded_depths(s_f, near, far) : s_f;
   // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
-                          view_code, /*colour=*/true);
+                          view_code, /*colour=*/true, opts.weights_grad);
 
   // Outputs in fp32 whatever the precision of the products (no-ops in fp32).
   const auto fp32 = [](const torch::Tensor& x) { return x.defined() ? x.to(torch::kFloat) : x; };
@@ -198,6 +200,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   out.coarse_weights = fp32(c.weights);
   out.fine_weights = fp32(f.weights);
   out.fine_t = t_f;
+  out.fine_s = unbounded_ ? s_f : (s_f - near) / (far - near);
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);

@@ -28,6 +28,9 @@ struct ForwardOptions {
   // the fine colour: without it the coarse pass skips its LE branch and its last layer computes
   // the ray token's row alone; every fine output is unchanged.
   bool coarse_colour = true;
+  // Keep the attention weights (coarse_weights, fine_weights) attached to the graph, for a loss on
+  // them (train.distortion_weight); otherwise they are computed without gradient.
+  bool weights_grad = false;
   // Source of the LE noise and of the stratified jitter (optional). The LE noise is drawn once
   // per forward call; without a generator it comes from a fixed seed, so every chunk of an
   // image sees the same perturbed LE.
@@ -47,6 +50,7 @@ struct ModelOutput {
   torch::Tensor coarse_weights;        // (B,S) last coarse layer's ray-token attention over volumes
   torch::Tensor fine_weights;          // (B,S) last fine layer's ray-token attention over volumes
   torch::Tensor fine_t;                // (B,S+1) fine fence-posts (interval i = [t_i, t_i+1])
+  torch::Tensor fine_s;                // (B,S+1) the same in the normalised ray coordinate in [0, 1]
   // With ForwardOptions::branches: linear colours before tone mapping (LE colours are zeros
   // when the model has no LE).
   torch::Tensor ray_colour_coarse, le_colour_coarse, ray_colour_fine, le_colour_fine;
@@ -55,7 +59,8 @@ struct ModelOutput {
   // added above without being listed here fails the static_assert in able_nerf.cpp.
   static constexpr torch::Tensor ModelOutput::*kFields[] = {
       &ModelOutput::rgb_coarse,        &ModelOutput::rgb_fine,         &ModelOutput::coarse_weights,
-      &ModelOutput::fine_weights,      &ModelOutput::fine_t,           &ModelOutput::ray_colour_coarse,
+      &ModelOutput::fine_weights,      &ModelOutput::fine_t,           &ModelOutput::fine_s,
+      &ModelOutput::ray_colour_coarse,
       &ModelOutput::le_colour_coarse,  &ModelOutput::ray_colour_fine,  &ModelOutput::le_colour_fine};
 };
 
@@ -95,7 +100,7 @@ class AbleNerfImpl : public torch::nn::Module {
   // colour = false: only the ray token and the attention weights (no colour, no LE branch).
   Pass run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in, ABTransformer& ab,
                 RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
-                const torch::Tensor& view, const torch::Tensor& view_code, bool colour);
+                const torch::Tensor& view, const torch::Tensor& view_code, bool colour, bool weights_grad);
   ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 

@@ -62,20 +62,25 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
   if (kernel_ == AttentionKernel::Fused && x.is_cuda() && ray_attention_supports(l, dh) &&
       (!mask.defined() || is_ray_mask(mask))) {
     const RayAttentionResult r = ray_attention(packed, heads_, mask.defined());
-    if (probe) probe->row0 = r.row0;
+    if (probe && !probe->keep_graph) probe->row0 = r.row0;
+    if (probe && probe->keep_graph) fill_probe(packed, b, l, probe);
     return linear_tokens(out_proj, r.out);
   }
 #endif
-  if (probe) {
-    // (B,L,3,H,dh) views, no copy.
-    const auto heads = packed.view({b, l, 3, heads_, dh});
-    probe->q0 = heads.select(1, 0).select(1, 0).detach();            // (B,H,dh)
-    probe->k = heads.select(2, 1).permute({0, 2, 1, 3}).detach();    // (B,H,L,dh)
-  }
+  if (probe) fill_probe(packed, b, l, probe);
   if (kernel_ == AttentionKernel::Fused && packed_attention_available(x)) return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
   // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
   const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
   return attend(qkv[0], qkv[1], qkv[2], mask);
+}
+
+void MultiHeadAttentionImpl::fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const {
+  // (B,L,3,H,dh) views, no copy.
+  const auto heads = packed.view({b, l, 3, heads_, width_ / heads_});
+  const auto q0 = heads.select(1, 0).select(1, 0);           // (B,H,dh)
+  const auto k = heads.select(2, 1).permute({0, 2, 1, 3});  // (B,H,L,dh)
+  probe->q0 = probe->keep_graph ? q0 : q0.detach();
+  probe->k = probe->keep_graph ? k : k.detach();
 }
 
 torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in,
@@ -88,8 +93,8 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});
   const auto q_heads = q.view({q_in.size(0), q_in.size(1), heads_, dh}).transpose(1, 2);
   if (probe) {
-    probe->q0 = q_heads.select(2, 0).detach();
-    probe->k = kv_heads[0].detach();
+    probe->q0 = probe->keep_graph ? q_heads.select(2, 0) : q_heads.select(2, 0).detach();
+    probe->k = probe->keep_graph ? kv_heads[0] : kv_heads[0].detach();
   }
   if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in)) return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
   return attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor());

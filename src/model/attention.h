@@ -20,6 +20,10 @@ struct RayQueryProbe {
   // Or, from a kernel that computes it anyway (kernels/ray_attention.h), the row itself:
   // (B,H,L) fp32 softmax probabilities of the ray token over every token, detached.
   torch::Tensor row0;
+  // Set by the caller: keep q0 and k attached to the graph (and fill them even where a kernel
+  // returns row0), so that a loss on the attention row reaches the weights
+  // (train.distortion_weight).
+  bool keep_graph = false;
 };
 
 class MultiHeadAttentionImpl : public torch::nn::Module {
@@ -43,6 +47,8 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
 
  private:
   double scale() const;  // 1/sqrt(head width)
+  // The probe's q0 and k from the packed projections (B,L,3E) of a self-attention.
+  void fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const;
   // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E) after the output projection.
   torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
                        const torch::Tensor& mask);

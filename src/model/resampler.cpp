@@ -32,7 +32,9 @@ torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t 
 }
 
 torch::Tensor ray_token_attention(const RayQueryProbe& probe) {
-  torch::NoGradGuard no_grad;
+  // Without keep_graph the row is a by-product for the resampler and depth: no graph is built.
+  c10::optional<torch::NoGradGuard> no_grad;
+  if (!probe.keep_graph) no_grad.emplace();
   if (probe.row0.defined()) return probe.row0.mean(1).slice(1, 1);
   const double scale = 1.0 / std::sqrt(static_cast<double>(probe.k.size(-1)));
   // (B,H,L,dh) . (B,H,1,dh) -> (B,H,L): the ray token is unmasked, so no mask is needed. A

@@ -18,7 +18,8 @@ torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t 
                                  const torch::TensorOptions& options, const torch::Tensor& jitter = {});
 
 // softmax(q0 K^T / sqrt(dh)) per head from the probe, mean over heads, column 0 (the ray token
-// itself) dropped: (B,S). Not renormalised (the PDF step normalises). No gradient.
+// itself) dropped: (B,S). Not renormalised (the PDF step normalises). No gradient unless the probe
+// keeps its graph (RayQueryProbe::keep_graph).
 torch::Tensor ray_token_attention(const RayQueryProbe& probe);
 
 // mip-NeRF blur-pool: pad with the end values, max of adjacent pairs, mean of adjacent pairs,

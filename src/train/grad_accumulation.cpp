@@ -3,6 +3,7 @@
 #include <vector>
 
 #include "kernels/cpu_parallel.h"
+#include "train/regularisers.h"
 
 namespace ablenerf {
 
@@ -11,7 +12,11 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
   const auto se_c = (out.rgb_coarse - target).pow(2).sum();
   const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
   const auto se_f = ray_se.sum();
-  return {(tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv, se_f.detach() * inv, ray_se.detach()};
+  auto loss = (tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv;
+  if (tc.distortion_weight > 0)
+    loss = loss + distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
+                      (tc.distortion_weight / static_cast<double>(global_rays));
+  return {loss, se_f.detach() * inv, ray_se.detach()};
 }
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
@@ -31,7 +36,8 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
     // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
     // before the split, so that a step does not depend on how many threads share it.
-    const ForwardOptions opts = model->with_jitter(mb.size(), {});
+    ForwardOptions opts = model->with_jitter(mb.size(), {});
+    opts.weights_grad = tc.distortion_weight > 0;
     const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
       const LossTerms t = ray_loss(model->forward(mb.rays, near, far, opts), mb.target, tc, global_rays);
@@ -75,6 +81,13 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
         }
       }
     }
+  }
+  // The table's decay once per step, this process's share of it (ranks add their gradients).
+  if (tc.grid_decay > 0 && model->grid()) {
+    const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
+    const auto decay = grid_weight_decay(model->grid()->table()) * (tc.grid_decay * share);
+    decay.backward();
+    sums.loss.add_(decay.detach().to(sums.loss.dtype()));
   }
   sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;

@@ -24,7 +24,8 @@ struct LossTerms {
 
 // The loss of some rays of a step of `global_rays` rays: (coarse_weight * SE_coarse + fine_weight *
 // SE_fine) / (3 * global_rays), SE = summed squared error over rays and channels, so that
-// micro-batches, threads and ranks add up to the weighted MSE of the whole global batch.
+// micro-batches, threads and ranks add up to the weighted MSE of the whole global batch; plus
+// distortion_weight times the rays' distortion loss (train/regularisers.h) over global_rays.
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays);
 
 struct StepSums {
@@ -34,7 +35,8 @@ struct StepSums {
 };
 
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add
-// into the parameters' .grad (zero them first). Returns the summed loss terms.
+// into the parameters' .grad (zero them first), and the grid table's decay (train.grid_decay, its
+// share batch / global_rays) once. Returns the summed loss terms.
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
                               int64_t global_rays, double near, double far);
 

@@ -74,6 +74,8 @@ void visit_fields(C& c, F&& f) {
   f("train.adam_eps", &c.train.adam_eps);
   f("train.coarse_weight", &c.train.coarse_weight);
   f("train.fine_weight", &c.train.fine_weight);
+  f("train.distortion_weight", &c.train.distortion_weight);
+  f("train.grid_decay", &c.train.grid_decay);
   f("train.seed", &c.train.seed);
   f("train.log_every", &c.train.log_every);
   f("train.eval_every", &c.train.eval_every);
@@ -244,6 +246,8 @@ void Config::validate() const {
   need(t.adam_beta2 >= 0 && t.adam_beta2 < 1, "train.adam_beta2", "must be in [0, 1)");
   need(t.adam_eps > 0 && std::isfinite(t.adam_eps), "train.adam_eps", "must be > 0");
   need(t.coarse_weight >= 0 && t.fine_weight >= 0, "train.fine_weight", "loss weights must be >= 0");
+  need(t.distortion_weight >= 0 && std::isfinite(t.distortion_weight), "train.distortion_weight", "must be >= 0");
+  need(t.grid_decay >= 0 && std::isfinite(t.grid_decay), "train.grid_decay", "must be >= 0");
   need(t.log_every >= 1, "train.log_every", "must be >= 1");
   need(t.eval_every >= 0, "train.eval_every", "must be >= 0");
   need(t.eval_views >= 0, "train.eval_views", "must be >= 0");

@@ -142,6 +142,13 @@ struct TrainConfig {
   double adam_eps = 1e-8;
   double coarse_weight = 1.0;
   double fine_weight = 1.0;
+  // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
+  // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):
+  // pulls each ray's attention onto one compact stretch. 0 = off (the paper).
+  double distortion_weight = 0.0;
+  // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over
+  // levels of each level's mean squared feature), weighted by this. 0 = off.
+  double grid_decay = 0.0;
   int64_t seed = 4;
   int64_t log_every = 100;       // steps between log.jsonl lines
   int64_t eval_every = 5000;     // steps between held-out PSNR checks (0 = never)

@@ -1,0 +1,31 @@
+#include "train/regularisers.h"
+
+namespace ablenerf {
+
+torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor& s) {
+  TORCH_CHECK(weights.dim() == 2 && s.dim() == 2 && s.size(0) == weights.size(0) && s.size(1) == weights.size(1) + 1,
+              "distortion_loss: weights (B,S) and fence-posts (B,S+1) expected");
+  const int64_t n = weights.size(1);
+  const auto& w = weights;
+  const auto lo = s.slice(1, 0, n), hi = s.slice(1, 1, n + 1);
+  const auto mid = 0.5 * (lo + hi);
+  // Exclusive prefix sums W_<i and (wm)_<i.
+  const auto wm = w * mid;
+  const auto w_before = torch::cumsum(w, 1) - w;
+  const auto wm_before = torch::cumsum(wm, 1) - wm;
+  const auto inter = 2 * (w * (mid * w_before - wm_before)).sum(1);
+  const auto intra = (w * w * (hi - lo)).sum(1) / 3;
+  return inter + intra;
+}
+
+torch::Tensor attention_distribution(const torch::Tensor& weights) {
+  // The floor only guards a ray whose attention is all on the ray token.
+  return weights / weights.sum(-1, /*keepdim=*/true).clamp_min(1e-6);
+}
+
+torch::Tensor grid_weight_decay(const torch::Tensor& table) {
+  TORCH_CHECK(table.dim() == 3, "grid_weight_decay: table (levels, rows, features) expected");
+  return table.pow(2).mean({1, 2}).sum();
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,24 @@
+#pragma once
+// Loss terms beside the colour loss, for the grid front end (docs/MODEL.md, "Grid front end"); both
+// are off in the paper's presets.
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+// mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) per ray, in its discrete form:
+//   sum_ij w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (s_i+1 - s_i),   m_i = (s_i + s_i+1) / 2,
+// for weights w (B,S) over intervals with sorted fence-posts s (B,S+1) -> (B,). The double sum is
+// evaluated in O(S) with prefix sums: sum_ij = 2 sum_i w_i (m_i W_<i - (wm)_<i).
+torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor& s);
+
+// The ray token's attention over the samples as a distribution: weights (B,S) / their sum. The
+// attention the ray token pays itself (column 0, dropped from the weights) is no place along the
+// ray; a distortion loss on the raw weights is lowered by moving attention there, which says
+// nothing of where the surface is, so the loss is put on this distribution instead.
+torch::Tensor attention_distribution(const torch::Tensor& weights);
+
+// Zip-NeRF's normalised weight decay (Barron et al. 2023): the sum over levels of the mean of the
+// squared table entries of that level. table: (levels, rows, features) -> 0-d.
+torch::Tensor grid_weight_decay(const torch::Tensor& table);
+
+}  // namespace ablenerf

@@ -1,0 +1,193 @@
+// The loss terms beside the colour loss (train/regularisers.h): mip-NeRF 360's distortion loss
+// against its double sum written out and its closed forms, with gradients checked by finite
+// differences; Zip-NeRF's normalised weight decay against its closed form; and both wired into a
+// training step: the attention weights carry a gradient only when the distortion loss asks for it,
+// and the step's gradients are the colour loss's plus exactly these terms'.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include "test_util.h"
+#include "train/grad_accumulation.h"
+#include "train/regularisers.h"
+
+namespace ablenerf {
+namespace {
+
+// The definition, O(S^2): sum_ij w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (s_i+1 - s_i).
+double distortion_double_sum(const torch::Tensor& w, const torch::Tensor& s) {
+  const auto wa = w.accessor<double, 1>();
+  const auto sa = s.accessor<double, 1>();
+  double total = 0;
+  for (int64_t i = 0; i < w.size(0); ++i) {
+    const double mi = 0.5 * (sa[i] + sa[i + 1]);
+    for (int64_t j = 0; j < w.size(0); ++j) total += wa[i] * wa[j] * std::abs(mi - 0.5 * (sa[j] + sa[j + 1]));
+    total += wa[i] * wa[i] * (sa[i + 1] - sa[i]) / 3;
+  }
+  return total;
+}
+
+// Sorted fence-posts in [0, 1] with uneven gaps, and weights summing to at most 1.
+std::pair<torch::Tensor, torch::Tensor> random_rays_weights(int64_t b, int64_t s, uint64_t seed) {
+  auto gen = at::detail::createCPUGenerator(seed);
+  auto posts = std::get<0>(torch::rand({b, s + 1}, gen, torch::kDouble).sort(1));
+  posts = (posts - posts.select(1, 0).unsqueeze(1)) / (posts.select(1, s) - posts.select(1, 0)).unsqueeze(1);
+  auto w = torch::rand({b, s}, gen, torch::kDouble);
+  w = w / w.sum(1, true) * 0.9;
+  return {w, posts};
+}
+
+ModelConfig regulariser_model(bool grid) {
+  ModelConfig m;
+  m.width = 16;
+  m.heads = 2;
+  m.ff_ratio = 2;
+  m.coarse_layers = 1;
+  m.fine_layers = 2;
+  m.samples = 8;
+  m.ipe_degrees = 4;
+  m.le_count = 3;
+  m.le_layers = 1;
+  if (grid) {
+    m.embedding = Embedding::Grid;
+    m.grid_levels = 3;
+    m.grid_log2_table = 6;
+    m.grid_base_resolution = 2;
+    m.grid_max_resolution = 8;
+    m.grid_lr_scale = 3;
+  }
+  return m;
+}
+
+TEST(Regularisers, DistortionEqualsItsDoubleSum) {
+  const auto [w, s] = random_rays_weights(6, 11, 3);
+  const auto fast = distortion_loss(w, s);
+  ASSERT_EQ(fast.sizes(), (std::vector<int64_t>{6}));
+  for (int64_t r = 0; r < 6; ++r)
+    EXPECT_NEAR(fast[r].item<double>(), distortion_double_sum(w[r], s[r]), 1e-13) << "ray " << r;
+}
+
+TEST(Regularisers, DistortionClosedForms) {
+  const auto s = torch::tensor({0.0, 0.1, 0.4, 0.5, 0.9, 1.0}, torch::kDouble).unsqueeze(0);
+  // All the weight in one interval: only its own term, w^2 (width) / 3.
+  const auto one = torch::tensor({0.0, 0.0, 0.8, 0.0, 0.0}, torch::kDouble).unsqueeze(0);
+  EXPECT_NEAR(distortion_loss(one, s).item<double>(), 0.64 * 0.1 / 3, 1e-15);
+  // Two intervals: 2 w1 w2 |m1 - m2| plus their own terms.
+  const auto two = torch::tensor({0.5, 0.0, 0.0, 0.0, 0.25}, torch::kDouble).unsqueeze(0);
+  const double expected = 2 * 0.5 * 0.25 * (0.95 - 0.05) + (0.25 * 0.1 + 0.0625 * 0.1) / 3;
+  EXPECT_NEAR(distortion_loss(two, s).item<double>(), expected, 1e-15);
+  // Spreading the same weight over the ray costs more than one compact interval.
+  const auto spread = torch::full({1, 5}, 0.8 / 5, torch::kDouble);
+  EXPECT_GT(distortion_loss(spread, s).item<double>(), distortion_loss(one, s).item<double>());
+}
+
+TEST(Regularisers, DistortionGradientMatchesFiniteDifferences) {
+  auto [w, s] = random_rays_weights(2, 7, 5);
+  w.requires_grad_(true);
+  distortion_loss(w, s).sum().backward();
+  const double h = 1e-6;
+  for (int64_t r = 0; r < 2; ++r) {
+    for (int64_t i = 0; i < 7; ++i) {
+      auto up = w.detach().clone(), down = w.detach().clone();
+      up[r][i] += h;
+      down[r][i] -= h;
+      const double fd = (distortion_double_sum(up[r], s[r]) - distortion_double_sum(down[r], s[r])) / (2 * h);
+      EXPECT_NEAR(w.grad()[r][i].item<double>(), fd, 1e-7) << "ray " << r << " interval " << i;
+    }
+  }
+}
+
+TEST(Regularisers, AttentionDistributionSumsToOneAndKeepsTheShape) {
+  const auto [w, s] = random_rays_weights(4, 9, 11);
+  const auto p = attention_distribution(w * 0.3);  // 70% more on the ray token: same distribution
+  EXPECT_TRUE(torch::allclose(p.sum(1), torch::ones({4}, torch::kDouble), 0, 1e-14));
+  EXPECT_TRUE(torch::allclose(p, attention_distribution(w), 0, 1e-14));
+  // So the distortion of the distribution cannot be lowered by attending to the ray token.
+  EXPECT_NEAR(distortion_loss(attention_distribution(w * 0.1), s).sum().item<double>(),
+              distortion_loss(attention_distribution(w), s).sum().item<double>(), 1e-12);
+}
+
+TEST(Regularisers, GridDecayIsTheSumOfLevelMeans) {
+  // Level l holds +-c_l: its mean square is c_l^2 whatever the signs.
+  auto table = torch::ones({3, 16, 2}, torch::kDouble);
+  table[0] *= 0.5;
+  table[1] *= -2.0;
+  table[2].slice(0, 0, 8) *= -3.0;
+  table[2].slice(0, 8) *= 3.0;
+  EXPECT_NEAR(grid_weight_decay(table).item<double>(), 0.25 + 4.0 + 9.0, 1e-14);
+}
+
+TEST(Regularisers, AttentionWeightsCarryAGradientOnlyWhenAsked) {
+  torch::manual_seed(3);
+  AbleNerf model(regulariser_model(false));
+  model->to(torch::kDouble);
+  model->eval();
+  const Rays rays = test::random_rays(10, 4, torch::kDouble);
+  const auto plain = model->forward(rays, 2.0, 6.0);
+  EXPECT_FALSE(plain.fine_weights.requires_grad());
+  ForwardOptions o;
+  o.weights_grad = true;
+  const auto kept = model->forward(rays, 2.0, 6.0, o);
+  ASSERT_TRUE(kept.fine_weights.requires_grad());
+  // Same values either way, and the normalised fence-posts span [0, 1] as the depths span [near, far].
+  EXPECT_TRUE(torch::allclose(kept.fine_weights, plain.fine_weights, 0, 1e-14));
+  EXPECT_TRUE(torch::allclose(kept.fine_s, (kept.fine_t - 2.0) / 4.0, 0, 1e-14));
+  // The loss on the fine attention reaches the coarse pass too (the fine ray token is the coarse one).
+  distortion_loss(kept.fine_weights, kept.fine_s).sum().backward();
+  const auto& tokens = model->named_parameters()["coarse.blocks.0.attn.in_proj_weight"];
+  ASSERT_TRUE(tokens.grad().defined());
+  EXPECT_GT(tokens.grad().abs().max().item<double>(), 0);
+}
+
+TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
+  torch::manual_seed(6);
+  AbleNerf model(regulariser_model(true));
+  model->eval();  // float32 (the table's kernels are); no jitter: both steps see the same samples
+  {
+    // A trained table's size, not the initial 1e-4: the decay's gradient must show above rounding.
+    torch::NoGradGuard no_grad;
+    model->named_parameters()["grid.table"].uniform_(-0.2, 0.2);
+  }
+  auto gen = at::detail::createCPUGenerator(7);
+  const int64_t n = 12, global = 36;  // this process's share of a 36-ray step
+  const RayBatch batch{test::random_rays(n, 8, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
+  const auto grads_of = [&](const TrainConfig& tc, double* loss) {
+    model->zero_grad();
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    const StepSums sums = accumulate_gradients(model, batch, 5, tc, global, 2.0, 6.0);
+    *loss = sums.loss.item<double>();
+    std::map<std::string, torch::Tensor> g;
+    for (const auto& kv : model->named_parameters())
+      g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
+    return g;
+  };
+  TrainConfig colour;
+  TrainConfig both = colour;
+  both.distortion_weight = 0.3;
+  both.grid_decay = 0.7;
+  double colour_loss = 0, both_loss = 0;
+  const auto g0 = grads_of(colour, &colour_loss);
+  const auto g1 = grads_of(both, &both_loss);
+
+  // The terms written out with plain autograd: distortion over the whole batch, the decay scaled by
+  // this process's share of the step.
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  ForwardOptions o;
+  o.weights_grad = true;
+  const auto out = model->forward(batch.rays, 2.0, 6.0, o);
+  const auto terms = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() * (0.3 / global) +
+                     grid_weight_decay(model->grid()->table()) * (0.7 * n / global);
+  terms.backward();
+  EXPECT_NEAR(both_loss, colour_loss + terms.item<double>(), 1e-6 * both_loss);
+  // The step's gradient less the colour loss's is the terms' gradient, to float rounding.
+  for (const auto& kv : model->named_parameters()) {
+    const auto term = kv.value().grad().defined() ? kv.value().grad() : torch::zeros_like(kv.value());
+    const double tol = 1e-3 * term.abs().max().item<double>() + 1e-6 * (1 + g0.at(kv.key()).abs().max().item<double>());
+    EXPECT_LT((g1.at(kv.key()) - g0.at(kv.key()) - term).abs().max().item<double>(), tol) << kv.key();
+  }
+  // Both terms matter: the decay on the table, the distortion on the transformer's weights.
+  EXPECT_GT(model->named_parameters()["grid.table"].grad().abs().max().item<double>(), 1e-3);
+  EXPECT_GT(model->named_parameters()["fine.blocks.1.attn.in_proj_weight"].grad().abs().max().item<double>(), 1e-5);
+}
+
+}  // namespace
+}  // namespace ablenerf
