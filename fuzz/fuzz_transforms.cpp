@@ -15,6 +15,7 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include "data/capture.h"
 #include "data/transforms_json.h"
 #include "fuzz_common.h"
 #include "util/errors.h"
@@ -58,7 +59,7 @@ bool finite_pose(const ablenerf::Pose34& pose) {
   return true;
 }
 
-void check_dataset(const ablenerf::DatasetJson& ds, const std::string& dir) {
+void check_dataset(const ablenerf::Capture& ds, const std::string& dir) {
   if (ds.width < 1 || ds.height < 1) finding("image size below 1");
   size_t decoded = 0;
   for (const auto& split : ds.splits) {
@@ -94,7 +95,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::filesystem::remove(drop, ec);
   ablenerf::fuzz::write_bytes(keep, data + 1, size - 1);
   try {
-    check_dataset(ablenerf::read_dataset_json(dir, {}, 1), dir);
+    check_dataset(ablenerf::read_capture(dir, {}, 1), dir);
   } catch (const ablenerf::InputError&) {
     // Refused with a message naming the file and field: expected for bad input.
   }

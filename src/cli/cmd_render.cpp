@@ -122,7 +122,7 @@ void run_render(const RenderArgs& a) {
   // A real capture's own cameras (any format) when no --cameras is given; a camera file's poses are
   // in the capture's coordinates and move into the run's scene frame (RUN/scene.json).
   const SceneFrame scene = run.scene();
-  const bool capture = a.cameras.empty() && !run.data_dir.empty() && detect_format(run.data_dir) != "blender";
+  const bool capture = a.cameras.empty() && !run.data_dir.empty() && capture_format(run.data_dir) != "blender";
   CameraList cams;
   int w = 0, h = 0;
   if (capture) {

@@ -6,8 +6,8 @@
 #include <filesystem>
 #include <map>
 
+#include "data/capture_formats.h"
 #include "data/colmap_model.h"
-#include "data/transforms_json.h"
 #include "util/errors.h"
 
 namespace fs = std::filesystem;
@@ -56,10 +56,21 @@ Intrinsics colmap_camera(const ColmapCamera& c, const std::string& file) {
   return k;
 }
 
+// The COLMAP model folder of `root`, "" when none.
+std::string colmap_dir(const std::string& root) {
+  for (const char* sub : {"sparse/0", "sparse", "colmap/sparse/0", ""}) {
+    const fs::path d = fs::path(root) / sub;
+    if (fs::exists(d / "cameras.bin") || fs::exists(d / "cameras.txt")) return d.string();
+  }
+  return "";
+}
+
 }  // namespace
 
-void read_colmap_capture(const std::string& root, const std::string& model_dir, const std::vector<std::string>& splits,
-                         int downscale, DatasetJson& out) {
+bool is_colmap_capture(const std::string& root) { return !colmap_dir(root).empty(); }
+
+void read_colmap_capture(const std::string& root, const std::vector<std::string>& splits, int downscale, Capture& out) {
+  const std::string model_dir = colmap_dir(root);
   const ColmapModel m = read_colmap_model(model_dir);
   out.format = "colmap";
   const std::string cam_file = (fs::path(model_dir) / ("cameras." + m.encoding)).string();
@@ -67,10 +78,10 @@ void read_colmap_capture(const std::string& root, const std::string& model_dir, 
   std::map<uint32_t, Intrinsics> cams;
   for (const auto& c : m.cameras) cams[c.id] = colmap_camera(c, cam_file);
   if (m.images.empty()) throw InputError(img_file, "images", "no registered images");
-  std::vector<FrameJson> frames;
+  std::vector<CaptureFrame> frames;
   for (const auto& im : m.images) {
     const std::string where = "image " + std::to_string(im.id) + " (" + im.name + ")";
-    FrameJson f;
+    CaptureFrame f;
     f.field = where;
     f.image = resolve_in_root(root, "images/" + im.name, img_file, where);
     const auto it = cams.find(im.camera_id);

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "data/capture.h"
 #include "data/transforms_json.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -45,7 +46,7 @@ torch::Tensor pose_tensor(const Pose34& pose) {
 // size mismatch: pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels, so the
 // rotation is applied only when the capture's size says the poses were made on the upright image.
 // Torch-free, so several frames decode at once without touching LibTorch's thread settings.
-DecodedImage decode_frame(const FrameJson& fr, int64_t want_h, int64_t want_w) {
+DecodedImage decode_frame(const CaptureFrame& fr, int64_t want_h, int64_t want_w) {
   DecodedImage decoded = decode_image_file(fr.image);
   const Image8& im8 = decoded.image;
   if (!(im8.height == want_h && im8.width == want_w) && decoded.exif_orientation >= 5 && im8.height == want_w &&
@@ -56,7 +57,7 @@ DecodedImage decode_frame(const FrameJson& fr, int64_t want_h, int64_t want_w) {
 
 // One frame's decoded image as (h, w, 4) float straight RGBA at the loaded size (h, w):
 // box-downscaled, or cropped from the pre-downscaled copy.
-torch::Tensor frame_rgba(const FrameJson& fr, const Image8& image, int64_t want_h, int64_t want_w, int f, int64_t h,
+torch::Tensor frame_rgba(const CaptureFrame& fr, const Image8& image, int64_t want_h, int64_t want_w, int f, int64_t h,
                          int64_t w) {
   torch::Tensor raw = image_tensor(image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
@@ -81,7 +82,7 @@ torch::Tensor frame_rgba(const FrameJson& fr, const Image8& image, int64_t want_
 // Decodes the frames of a split into tensors. The images are decoded a group at a time, one frame
 // per core (the codecs are torch-free); each group then goes through LibTorch on this thread, in
 // frame order, so the first bad frame in capture order is the one reported.
-Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h, int expect_w, const SceneFrame& scene,
+Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect_h, int expect_w, const SceneFrame& scene,
                    Progress* progress, int64_t& done, int64_t total) {
   Split s;
   s.name = spec.name;
@@ -154,7 +155,7 @@ Split decode_split(const SplitJson& spec, const LoadOptions& opts, int expect_h,
   return s;
 }
 
-void check_memory(const std::vector<SplitJson>& specs, int h, int w, const LoadOptions& opts,
+void check_memory(const std::vector<CaptureSplit>& specs, int h, int w, const LoadOptions& opts,
                   const std::string& root) {
   int64_t frames = 0;
   for (const auto& s : specs) frames += static_cast<int64_t>(s.frames.size());
@@ -179,35 +180,24 @@ const Split& Dataset::split(const std::string& name) const {
   return it->second;
 }
 
-std::vector<std::string> available_splits(const std::string& root) {
-  std::vector<std::string> out;
-  for (const char* s : {"train", "val", "test"})
-    if (fs::exists(fs::path(root) / ("transforms_" + std::string(s) + ".json"))) out.push_back(s);
-  if (out.empty() && !detect_format(root).empty()) {
-    // A capture: its own split when it has one (nerfstudio), else train + every 8th for test.
-    try {
-      for (const auto& s : read_dataset_json(root, {}, 1).splits) out.push_back(s.name);
-    } catch (const InputError&) {
-      out = {"train", "test"};  // the load itself reports what is wrong
-    }
-  }
-  return out;
+Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
+  // A capture's scene frame is fitted on all of its frames, whichever splits are decoded, so that
+  // training and evaluation share it; a Blender scene's frame is fixed, so only its wanted splits
+  // are read.
+  const bool blender = capture_format(root) == "blender";
+  return load(read_capture(root, blender ? opts.splits : std::vector<std::string>{}, opts.downscale), root, opts);
 }
 
-Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
+Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& opts) {
   const auto start = std::chrono::steady_clock::now();
-  // A capture's scene frame is fitted on all of its frames, whichever splits are decoded, so that
-  // training and evaluation share it.
-  const bool blender = detect_format(root) == "blender";
-  DatasetJson js = read_dataset_json(root, blender ? opts.splits : std::vector<std::string>{}, opts.downscale);
   Dataset ds;
   ds.root = root;
   ds.format = js.format;
   ds.scene = fit_scene_frame(js, root, opts.scene, opts.near, opts.far, opts.bounds_from_config);
   ds.near = ds.scene.near;
   ds.far = ds.scene.far;
-  if (!blender && !opts.splits.empty()) {
-    std::vector<SplitJson> keep;
+  if (!opts.splits.empty()) {
+    std::vector<CaptureSplit> keep;
     for (auto& sp : js.splits)
       if (std::find(opts.splits.begin(), opts.splits.end(), sp.name) != opts.splits.end()) keep.push_back(std::move(sp));
     js.splits = std::move(keep);
@@ -229,17 +219,17 @@ Dataset Dataset::load(const std::string& root, const LoadOptions& opts) {
   return ds;
 }
 
-torch::Tensor frame_photo_rgba(const FrameJson& frame, int full_h, int full_w, int downscale) {
+torch::Tensor frame_photo_rgba(const CaptureFrame& frame, int full_h, int full_w, int downscale) {
   const int64_t h = full_h / downscale, w = full_w / downscale;
   const int64_t want_h = frame.prescaled ? h : full_h, want_w = frame.prescaled ? w : full_w;
   return frame_rgba(frame, decode_frame(frame, want_h, want_w).image, want_h, want_w, downscale, h, w);
 }
 
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale) {
-  return capture_cameras(read_dataset_json(root, {}, downscale), scene, downscale);
+  return capture_cameras(read_capture(root, {}, downscale), scene, downscale);
 }
 
-CameraList capture_cameras(const DatasetJson& js, const SceneFrame& scene, int downscale) {
+CameraList capture_cameras(const Capture& js, const SceneFrame& scene, int downscale) {
   CameraList cl;
   std::vector<torch::Tensor> poses;
   for (const auto& s : js.splits)

@@ -1,7 +1,7 @@
 #pragma once
 // Datasets: Blender scenes (transforms_{train,val,test}.json + PNGs) and real captures
 // (instant-ngp / nerfstudio transforms.json, COLMAP models, LLFF poses_bounds.npy; PNG or JPEG;
-// see transforms_json.h). Images are decoded in parallel, box-downscaled in straight
+// see capture.h). Images are decoded in parallel, box-downscaled in straight
 // (non-premultiplied) RGBA (or read from a pre-downscaled images_N/ folder), composited on the
 // background, and kept as one float tensor per split. A capture's poses are moved into its scene
 // frame (scene_frame.h). Rays are generated on the fly from poses and per-image cameras (rays.h),
@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "data/capture.h"
 #include "data/rays.h"
 #include "data/scene_frame.h"
 
@@ -60,10 +61,11 @@ struct Dataset {
 
   // Loads a dataset folder. Throws InputError naming the file and field on any bad input.
   static Dataset load(const std::string& root, const LoadOptions& opts = {});
+  // Loads the splits opts.splits wants (empty = all) of a capture already read from `root`
+  // (read_capture(root, {}, opts.downscale): its metadata is parsed once however many callers
+  // look at it).
+  static Dataset load(Capture capture, const std::string& root, const LoadOptions& opts);
 };
-
-// Lists the splits a folder has (without decoding images).
-std::vector<std::string> available_splits(const std::string& root);
 
 // Reads a camera list (Blender/transforms json) for rendering: poses (N,3,4) and intrinsics,
 // without loading images. `width`/`height` > 0 rescale the intrinsics to that size.
@@ -76,14 +78,14 @@ CameraList load_cameras(const std::string& json_path, int width = 0, int height 
 // Every camera of a capture folder (any format; every split, in split order), poses moved into
 // `scene`, intrinsics those of the first image at `downscale` (lens included). No image is decoded.
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale);
-// The same from metadata already read (read_dataset_json(root, {}, downscale)).
-CameraList capture_cameras(const DatasetJson& capture, const SceneFrame& scene, int downscale);
+// The same from metadata already read (read_capture(root, {}, downscale)).
+CameraList capture_cameras(const Capture& capture, const SceneFrame& scene, int downscale);
 
 // One frame's photo as the loader reads it: (h, w, 4) float straight RGBA (alpha 1 for RGB images),
 // turned upright by its EXIF orientation when the capture's size says so, at the capture's size
-// (full_h x full_w, DatasetJson's) divided by `downscale`: box-downscaled, or the pre-downscaled
+// (full_h x full_w, Capture's) divided by `downscale`: box-downscaled, or the pre-downscaled
 // images_N copy cropped. Bad image: InputError naming the file and its json field.
-torch::Tensor frame_photo_rgba(const FrameJson& frame, int full_h, int full_w, int downscale);
+torch::Tensor frame_photo_rgba(const CaptureFrame& frame, int full_h, int full_w, int downscale);
 
 // Poses (N,3,4) given in a capture's own coordinates, moved into its scene frame.
 torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene);

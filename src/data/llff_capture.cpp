@@ -5,8 +5,8 @@
 #include <cmath>
 #include <filesystem>
 
+#include "data/capture_formats.h"
 #include "data/npy.h"
-#include "data/transforms_json.h"
 #include "util/errors.h"
 #include "util/image_codec.h"
 
@@ -18,7 +18,9 @@ namespace {
 constexpr int64_t kLlffColumns = 17;
 }  // namespace
 
-void read_llff_capture(const std::string& root, const std::vector<std::string>& splits, int downscale, DatasetJson& out) {
+bool is_llff_capture(const std::string& root) { return fs::exists(fs::path(root) / "poses_bounds.npy"); }
+
+void read_llff_capture(const std::string& root, const std::vector<std::string>& splits, int downscale, Capture& out) {
   const std::string file = (fs::path(root) / "poses_bounds.npy").string();
   const NpyArray a = read_npy(file);
   if (a.shape.size() != 2 || a.shape[1] != kLlffColumns || a.shape[0] < 1)
@@ -31,7 +33,7 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   if (static_cast<int64_t>(names.size()) != n)
     throw InputError(file, "shape", std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
   out.format = "llff";
-  std::vector<FrameJson> frames;
+  std::vector<CaptureFrame> frames;
   for (int64_t i = 0; i < n; ++i) {
     const double* r = a.data.data() + i * kLlffColumns;
     const std::string where = "row " + std::to_string(i) + " (" + names[static_cast<size_t>(i)] + ")";
@@ -49,7 +51,7 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
       c2w[row][2] = at(row, 2);   // backwards
       c2w[row][3] = at(row, 3);
     }
-    FrameJson fr;
+    CaptureFrame fr;
     fr.field = where;
     fr.pose = checked_pose(c2w, file, where);
     fr.image = resolve_in_root(root, "images/" + names[static_cast<size_t>(i)], file, where);

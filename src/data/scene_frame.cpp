@@ -83,7 +83,7 @@ constexpr size_t kMaxBoundPoints = 20000;
 
 // Depths (capture units, along each optical axis) of the sparse points in front of each camera;
 // InputError(root, "points") when none is.
-std::vector<double> point_depths(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
+std::vector<double> point_depths(const Capture& cap, const std::vector<Pose34>& poses, const std::string& root) {
   std::vector<double> depths;
   const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
   for (const auto& p : poses) {
@@ -98,7 +98,7 @@ std::vector<double> point_depths(const DatasetJson& cap, const std::vector<Pose3
 }
 
 // The smallest near and largest far of the LLFF bounds (capture units); the capture has some.
-std::array<double, 2> bounds_range(const DatasetJson& cap) {
+std::array<double, 2> bounds_range(const Capture& cap) {
   std::array<double, 2> r = cap.bounds.front();
   for (const auto& b : cap.bounds) r[0] = std::min(r[0], b[0]), r[1] = std::max(r[1], b[1]);
   return r;
@@ -106,12 +106,12 @@ std::array<double, 2> bounds_range(const DatasetJson& cap) {
 
 // The closest content in front of the cameras, capture units: the 1st percentile of the sparse
 // points' depths, else the smallest LLFF near bound.
-double nearest_content(const DatasetJson& cap, const std::vector<Pose34>& poses, const std::string& root) {
+double nearest_content(const Capture& cap, const std::vector<Pose34>& poses, const std::string& root) {
   if (cap.points.empty()) return bounds_range(cap)[0];
   return percentile(point_depths(cap, poses, root), 0.01);
 }
 
-SceneFrame fit_forward_facing(const DatasetJson& cap, const std::vector<Pose34>& poses, const V3& mean, const V3& back,
+SceneFrame fit_forward_facing(const Capture& cap, const std::vector<Pose34>& poses, const V3& mean, const V3& back,
                               const V3& up_sum, const std::string& root) {
   SceneFrame f;
   f.kind = SceneKind::ForwardFacing;
@@ -223,7 +223,7 @@ std::string SceneFrame::describe() const {
   return o.str();
 }
 
-SceneFrame fit_scene_frame(const DatasetJson& cap, const std::string& root, SceneKind requested, double near,
+SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKind requested, double near,
                            double far, bool bounds_from_config) {
   SceneFrame f;
   if (cap.synthetic) {

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "data/transforms_json.h"
+#include "data/capture.h"
 #include "util/config.h"
 
 namespace ablenerf {
@@ -58,7 +58,7 @@ constexpr double kUnboundedFar = 1e6;
 // is data.scene; `near`/`far` are data.near/data.far, used for Blender scenes and, with
 // `bounds_from_config`, for every capture. InputError(root, "poses", ...)
 // for degenerate layouts (all cameras at one point).
-SceneFrame fit_scene_frame(const DatasetJson& capture, const std::string& root, SceneKind requested, double near,
+SceneFrame fit_scene_frame(const Capture& capture, const std::string& root, SceneKind requested, double near,
                            double far, bool bounds_from_config);
 
 }  // namespace ablenerf

@@ -1,5 +1,7 @@
 #include "data/transforms_json.h"
 
+#include "data/capture_formats.h"
+
 #include "data/ply.h"
 
 #include <algorithm>
@@ -108,11 +110,6 @@ double angle_field(const json& j, const std::string& file) {
   return a;
 }
 
-// A focal length in pixels: positive and finite, since every ray direction divides by it.
-void check_focal(double f, const std::string& file, const std::string& field) {
-  if (!(f > 0 && std::isfinite(f))) throw InputError(file, field, "must be positive");
-}
-
 // Largest image side accepted from json (w, h): far above any camera, small enough that
 // w * h * channels cannot overflow and that the double -> int conversion is defined.
 constexpr double kMaxImageSide = 1 << 20;
@@ -128,7 +125,6 @@ int size_field(const json& j, const std::string& key, const std::string& file) {
 
 // Tolerances of the pose checks: json poses are written with ~6-7 significant digits.
 constexpr double kLastRowTolerance = 1e-4;  // |last row - [0, 0, 0, 1]|_1
-constexpr double kRigidTolerance = 1e-3;    // max |R^T R - I|
 
 // Pose (3,4 or 4,4 rows) -> the top 3x4, checked finite and rigid.
 Pose34 parse_pose(const json& m, const std::string& file, const std::string& field) {
@@ -154,30 +150,13 @@ Pose34 parse_pose(const json& m, const std::string& file, const std::string& fie
   return checked_pose(top, file, field);
 }
 
-// Resolves a frame's file path inside the dataset root; refuses paths that leave it.
-std::string resolve_image(const std::string& root, const std::string& rel, const std::string& file,
-                          const std::string& field, bool add_png) {
-  if (rel.empty()) throw InputError(file, field, "empty path");
-  fs::path p = fs::path(root) / rel;
-  if (add_png && !p.has_extension()) p += ".png";
-  if (add_png && p.extension() != ".png" && !fs::exists(p)) p += ".png";
-  std::error_code ec;
-  const fs::path canon_root = fs::weakly_canonical(fs::path(root), ec);
-  const fs::path canon = fs::weakly_canonical(p, ec);
-  const std::string r = canon_root.string(), c = canon.string();
-  if (c.compare(0, r.size(), r) != 0 || (c.size() > r.size() && c[r.size()] != '/'))
-    throw InputError(file, field, "path '" + rel + "' points outside the dataset folder");
-  if (!fs::is_regular_file(canon)) throw InputError(file, field, "image not found: " + p.string());
-  return canon.string();
-}
-
-std::vector<FrameJson> parse_frames(const json& j, const std::string& root, const std::string& file,
+std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, const std::string& file,
                                     bool add_png) {
   if (!j.contains("frames")) throw InputError(file, "frames", "missing");
   const json& frames = j.at("frames");
   if (!frames.is_array()) throw InputError(file, "frames", "expected an array");
   if (frames.empty()) throw InputError(file, "frames", "no frames");
-  std::vector<FrameJson> out;
+  std::vector<CaptureFrame> out;
   for (size_t i = 0; i < frames.size(); ++i) {
     const std::string where = "frames[" + std::to_string(i) + "]";
     const json& fr = frames[i];
@@ -185,57 +164,19 @@ std::vector<FrameJson> parse_frames(const json& j, const std::string& root, cons
     if (!fr.contains("file_path") || !fr.at("file_path").is_string())
       throw InputError(file, where + ".file_path", "missing or not a string");
     if (!fr.contains("transform_matrix")) throw InputError(file, where + ".transform_matrix", "missing");
-    FrameJson f;
+    CaptureFrame f;
     f.field = where + ".file_path";
-    f.image = resolve_image(root, fr.at("file_path").get<std::string>(), file, f.field, add_png);
+    f.image = resolve_in_root(root, fr.at("file_path").get<std::string>(), file, f.field, add_png);
     f.pose = parse_pose(fr.at("transform_matrix"), file, where + ".transform_matrix");
     if (fr.contains("depth_file_path")) {
       if (!fr.at("depth_file_path").is_string())
         throw InputError(file, where + ".depth_file_path", "expected a string");
-      f.depth = resolve_image(root, fr.at("depth_file_path").get<std::string>(), file,
+      f.depth = resolve_in_root(root, fr.at("depth_file_path").get<std::string>(), file,
                               where + ".depth_file_path", false);
     }
     out.push_back(std::move(f));
   }
   return out;
-}
-
-bool wanted(const std::vector<std::string>& splits, const std::string& s) {
-  return splits.empty() || std::find(splits.begin(), splits.end(), s) != splits.end();
-}
-
-// Blender: one json per split sharing camera_angle_x; the image size comes from the first PNG.
-void read_blender(const std::string& root, const std::vector<std::string>& splits, DatasetJson& out) {
-  out.format = "blender";
-  out.synthetic = true;
-  double angle = -1;
-  std::string first_file;
-  for (const char* name : {"train", "val", "test"}) {
-    const std::string file = (fs::path(root) / ("transforms_" + std::string(name) + ".json")).string();
-    if (!fs::exists(file) || !wanted(splits, name)) continue;
-    const json j = parse_json_file(file);
-    if (!j.is_object()) throw InputError(file, "", "expected a JSON object");
-    const double a = angle_field(j, file);
-    if (angle < 0) {
-      angle = a;
-      first_file = file;
-    } else if (std::abs(a - angle) > 1e-9) {
-      throw InputError(file, "camera_angle_x", "differs from " + first_file + " (splits must share one camera)");
-    }
-    out.splits.push_back({name, file, parse_frames(j, root, file, true)});
-  }
-  if (out.splits.empty()) throw InputError(root, "transforms_*.json", "no split selected or present");
-  const auto hw = image_size(out.splits.front().frames.front().image);
-  out.height = hw.first;
-  out.width = hw.second;
-  Intrinsics k;
-  k.width = out.width;
-  k.height = out.height;
-  k.fx = k.fy = 0.5 * static_cast<double>(out.width) / std::tan(0.5 * angle);
-  k.cx = 0.5 * out.width;
-  k.cy = 0.5 * out.height;
-  for (auto& s : out.splits)
-    for (auto& f : s.frames) f.camera = k;
 }
 
 // A number from a frame, else from the file's top level, else `fallback`; `where` names the frame.
@@ -316,8 +257,52 @@ Intrinsics frame_camera(const json& fr, const json& top, const std::string& imag
 // "test_filenames") relative to the folder.
 bool has_own_split(const json& j) { return j.contains("train_filenames") || j.contains("test_filenames"); }
 
+}  // namespace
+
+// Blender: one json per split sharing camera_angle_x; the image size comes from the first PNG.
+bool is_blender_capture(const std::string& root) {
+  return fs::exists(fs::path(root) / "transforms_train.json") || fs::exists(fs::path(root) / "transforms_test.json");
+}
+
+void read_blender_capture(const std::string& root, const std::vector<std::string>& splits, int /*downscale*/,
+                          Capture& out) {
+  out.format = "blender";
+  out.synthetic = true;
+  double angle = -1;
+  std::string first_file;
+  for (const char* name : {"train", "val", "test"}) {
+    const std::string file = (fs::path(root) / ("transforms_" + std::string(name) + ".json")).string();
+    if (!fs::exists(file) || !split_wanted(splits, name)) continue;
+    const json j = parse_json_file(file);
+    if (!j.is_object()) throw InputError(file, "", "expected a JSON object");
+    const double a = angle_field(j, file);
+    if (angle < 0) {
+      angle = a;
+      first_file = file;
+    } else if (std::abs(a - angle) > 1e-9) {
+      throw InputError(file, "camera_angle_x", "differs from " + first_file + " (splits must share one camera)");
+    }
+    out.splits.push_back({name, file, parse_frames(j, root, file, true)});
+  }
+  if (out.splits.empty()) throw InputError(root, "transforms_*.json", "no split selected or present");
+  const auto hw = image_size(out.splits.front().frames.front().image);
+  out.height = hw.first;
+  out.width = hw.second;
+  Intrinsics k;
+  k.width = out.width;
+  k.height = out.height;
+  k.fx = k.fy = 0.5 * static_cast<double>(out.width) / std::tan(0.5 * angle);
+  k.cx = 0.5 * out.width;
+  k.cy = 0.5 * out.height;
+  for (auto& s : out.splits)
+    for (auto& f : s.frames) f.camera = k;
+}
+
 // instant-ngp / nerfstudio: one transforms.json, cameras per file or per frame.
-void read_transforms(const std::string& root, const std::vector<std::string>& splits, int downscale, DatasetJson& out) {
+bool is_transforms_capture(const std::string& root) { return fs::exists(fs::path(root) / "transforms.json"); }
+
+void read_transforms_capture(const std::string& root, const std::vector<std::string>& splits, int downscale,
+                             Capture& out) {
   const std::string file = (fs::path(root) / "transforms.json").string();
   const json j = parse_json_file(file);
   if (!j.is_object()) throw InputError(file, "", "expected a JSON object");
@@ -366,10 +351,10 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
     // The capture's own split, by image path.
     std::vector<std::pair<std::string, std::string>> lists{{"train", "train_filenames"}, {"val", "val_filenames"}, {"test", "test_filenames"}};
     for (const auto& [name, key] : lists) {
-      if (!j.contains(key) || !wanted(splits, name)) continue;
+      if (!j.contains(key) || !split_wanted(splits, name)) continue;
       const json& names = j.at(key);
       if (!names.is_array()) throw InputError(file, key, "expected an array of image paths");
-      SplitJson sp{name, file, {}};
+      CaptureSplit sp{name, file, {}};
       for (size_t i = 0; i < names.size(); ++i) {
         if (!names[i].is_string()) throw InputError(file, key + "[" + std::to_string(i) + "]", "expected a string");
         const std::string want = resolve_in_root(root, names[i].get<std::string>(), file, key + "[" + std::to_string(i) + "]");
@@ -386,110 +371,6 @@ void read_transforms(const std::string& root, const std::vector<std::string>& sp
   split_every_eighth(std::move(frames), splits, file, FrameOrder::AsGiven, out);
 }
 
-// The COLMAP model folder of `root`, "" when none.
-std::string colmap_dir(const std::string& root) {
-  for (const char* sub : {"sparse/0", "sparse", "colmap/sparse/0", ""}) {
-    const fs::path d = fs::path(root) / sub;
-    if (fs::exists(d / "cameras.bin") || fs::exists(d / "cameras.txt")) return d.string();
-  }
-  return "";
-}
-
-}  // namespace
-
-std::string detect_format(const std::string& root) {
-  if (fs::exists(fs::path(root) / "transforms_train.json") || fs::exists(fs::path(root) / "transforms_test.json"))
-    return "blender";
-  if (fs::exists(fs::path(root) / "transforms.json")) return "transforms";
-  if (!colmap_dir(root).empty()) return "colmap";
-  if (fs::exists(fs::path(root) / "poses_bounds.npy")) return "llff";
-  return "";
-}
-
-DatasetJson read_dataset_json(const std::string& root, const std::vector<std::string>& splits, int downscale) {
-  if (!fs::is_directory(root)) throw InputError(root, "", "dataset folder not found");
-  if (downscale < 1) throw InputError(root, "downscale", "must be >= 1");
-  DatasetJson out;
-  const std::string format = detect_format(root);
-  if (format == "blender") read_blender(root, splits, out);
-  else if (format == "transforms") read_transforms(root, splits, downscale, out);
-  else if (format == "colmap") read_colmap_capture(root, colmap_dir(root), splits, downscale, out);
-  else if (format == "llff") read_llff_capture(root, splits, downscale, out);
-  else
-    throw InputError(root, "transforms_train.json",
-                     "no capture found: expected transforms_{train,val,test}.json (Blender), transforms.json "
-                     "(instant-ngp / nerfstudio), sparse/0/cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)");
-  for (const auto& s : out.splits)
-    for (const auto& f : s.frames) {
-      check_focal(f.camera.fx, s.file, f.field + " (focal)");
-      check_focal(f.camera.fy, s.file, f.field + " (focal)");
-    }
-  return out;
-}
-
-std::string resolve_in_root(const std::string& root, const std::string& rel, const std::string& file,
-                            const std::string& field) {
-  return resolve_image(root, rel, file, field, false);
-}
-
-std::string resolve_downscaled(const std::string& root, const std::string& image, int downscale) {
-  if (downscale <= 1) return "";
-  std::error_code ec;
-  const fs::path canon_root = fs::weakly_canonical(fs::path(root), ec);
-  const fs::path rel = fs::path(image).lexically_relative(canon_root);
-  if (rel.empty() || *rel.begin() == "..") return "";
-  auto it = rel.begin();
-  const std::string top = it->string();
-  if (top != "images") return "";
-  fs::path rest;
-  for (++it; it != rel.end(); ++it) rest /= *it;
-  const fs::path dir = canon_root / ("images_" + std::to_string(downscale)) / rest.parent_path();
-  if (!fs::is_directory(dir)) return "";
-  for (const std::string& ext : {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"),
-                                std::string(".JPG"), std::string(".PNG"), std::string(".JPEG")}) {
-    const fs::path cand = dir / (rest.stem().string() + ext);
-    if (fs::is_regular_file(cand)) return resolve_image(root, cand.lexically_relative(canon_root).string(), image, "images_" + std::to_string(downscale), false);
-  }
-  return "";
-}
-
-void split_every_eighth(std::vector<FrameJson> all, const std::vector<std::string>& splits, const std::string& file,
-                        FrameOrder order, DatasetJson& out) {
-  if (order == FrameOrder::ByImageName)
-    std::stable_sort(all.begin(), all.end(), [](const FrameJson& a, const FrameJson& b) { return a.image < b.image; });
-  SplitJson train{"train", file, {}}, test{"test", file, {}};
-  for (size_t i = 0; i < all.size(); ++i)
-    (i % kTestEvery == 0 && all.size() > 1 ? test : train).frames.push_back(all[i]);
-  if (wanted(splits, "train") && !train.frames.empty()) out.splits.push_back(std::move(train));
-  if (wanted(splits, "test") && !test.frames.empty()) out.splits.push_back(std::move(test));
-  out.notes.push_back(order == FrameOrder::ByImageName ? "split: every 8th image (sorted by name) held out for test"
-                                                       : "split: every 8th frame held out for test");
-}
-
-Pose34 checked_pose(const double (&a)[3][4], const std::string& file, const std::string& field) {
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c)
-      if (!std::isfinite(a[r][c])) throw InputError(file, field, "non-finite value");
-  // Rigid: columns of R orthonormal, det +1.
-  double worst = 0;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) {
-      double dot = 0;
-      for (int k = 0; k < 3; ++k) dot += a[k][i] * a[k][j];
-      worst = std::max(worst, std::abs(dot - (i == j ? 1.0 : 0.0)));
-    }
-  const double det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) -
-                     a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0]) +
-                     a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
-  if (worst > kRigidTolerance || det < 0)
-    throw InputError(file, field,
-                     "not a rigid transform (rotation part not orthonormal with det +1: max |R^T R - I| = " +
-                         std::to_string(worst) + ", det = " + std::to_string(det) + ")");
-  Pose34 pose;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) pose[static_cast<size_t>(r * 4 + c)] = static_cast<float>(a[r][c]);
-  return pose;
-}
 
 CameraJson read_camera_json(const std::string& path, int width, int height) {
   const json j = parse_json_file(path);

@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "data/transforms_json.h"
+#include "data/capture.h"
 #include "util/errors.h"
 #include "util/fs.h"
 

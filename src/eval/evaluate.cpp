@@ -66,13 +66,14 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const SsimVariant variant = opts.ssim.empty() ? run.config.eval.ssim : parse_ssim_variant(opts.ssim, "--ssim");
   const int64_t chunk = opts.chunk.value_or(run.config.eval.chunk);
 
-  const auto splits = available_splits(data_dir);
+  LoadOptions lo = load_options_for(run.config, {opts.split});
+  if (opts.downscale) lo.downscale = *opts.downscale;
+  Capture capture = read_capture(data_dir, {}, lo.downscale);  // parsed once: its splits, then the load
+  const auto splits = capture.split_names();
   if (std::find(splits.begin(), splits.end(), opts.split) == splits.end())
     throw InputError(data_dir, "--split",
                      "no split '" + opts.split + "'" + (splits.empty() ? "" : " (available: " + join(splits) + ")"));
-  LoadOptions lo = load_options_for(run.config, {opts.split});
-  if (opts.downscale) lo.downscale = *opts.downscale;
-  const Dataset ds = Dataset::load(data_dir, lo);
+  const Dataset ds = Dataset::load(std::move(capture), data_dir, lo);
   const Split& split = ds.split(opts.split);
   const Intrinsics& k = ds.intrinsics;
 

@@ -129,13 +129,15 @@ void Trainer::setup() {
 
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};
-  const auto present = available_splits(s.run.data_dir);
+  // The capture's metadata, read once (its splits decide the held-out one, then it is loaded).
+  Capture capture = read_capture(s.run.data_dir, {}, config_.data.downscale);
+  const auto present = capture.split_names();
   for (const char* name : {"val", "test"})
     if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
   if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
   LoadOptions lo = load_options_for(config_, want);
   lo.progress = s.leader && !opts_.quiet;
-  s.ds = Dataset::load(s.run.data_dir, lo);
+  s.ds = Dataset::load(std::move(capture), s.run.data_dir, lo);
   if (!s.ds->has("train")) throw InputError(s.run.data_dir, "transforms_train.json", "the dataset has no train split");
   if (!s.ds->has(s.held_out)) s.held_out.clear();
   // data.scene resolved from the capture, recorded in the run's config with the scene frame (so

@@ -61,7 +61,7 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
     : run_(RunFolder::open(run_dir)), device_(device), live_(live) {
   scene_ = run_.scene();
   if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
-  DatasetJson capture = read_dataset_json(run_.data_dir, {}, run_.config.data.downscale);
+  Capture capture = read_capture(run_.data_dir, {}, run_.config.data.downscale);
   cams_ = capture_cameras(capture, scene_, run_.config.data.downscale);
   capture_h_ = capture.height;
   capture_w_ = capture.width;
@@ -144,7 +144,7 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
     if (camera) *camera = i;
     const auto p = cams_.c2w[i].to(torch::kFloat).contiguous();
     std::memcpy(c2w.data(), p.data_ptr<float>(), sizeof(float) * 12);
-    const FrameJson& f = frames_.at(static_cast<size_t>(i));
+    const CaptureFrame& f = frames_.at(static_cast<size_t>(i));
     k = f.camera.scaled(static_cast<double>(width) / f.camera.width, width, height);
     // The photo as the loader reads it (upright, at the run's downscale), straight RGBA averaged
     // over areas to the asked size (as the loader's box downscale), then composited.

@@ -14,7 +14,7 @@
 #include <string>
 
 #include "data/dataset.h"
-#include "data/transforms_json.h"
+#include "data/capture.h"
 #include "model/able_nerf.h"
 #include "run/run_folder.h"
 
@@ -91,7 +91,7 @@ class ViewSession {
   RunFolder run_;
   SceneFrame scene_;
   CameraList cams_;
-  std::vector<FrameJson> frames_;  // every split's frames, in cameras_json()'s order
+  std::vector<CaptureFrame> frames_;  // every split's frames, in cameras_json()'s order
   int capture_h_ = 0, capture_w_ = 0;  // the capture's full image size
   torch::Device device_;
   AbleNerf model_{nullptr};

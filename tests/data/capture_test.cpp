@@ -235,7 +235,7 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
     // downscale 2 reads images_2 (value 200), not a box-downscale of images/ (value 100).
     EXPECT_NEAR(ds.split("train").images.mean().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
     {  // and so does one frame read on its own (the viewer's error mode)
-      const DatasetJson js = read_dataset_json(t.path(), {}, down);
+      const Capture js = read_capture(t.path(), {}, down);
       const auto rgba = frame_photo_rgba(js.splits.front().frames.front(), js.height, js.width, down);
       ASSERT_EQ(rgba.sizes(), (std::vector<int64_t>{H / down, W / down, 4}));
       EXPECT_NEAR(rgba.slice(2, 0, 3).min().item<double>(), (down == 1 ? 100 : 200) / 255.0, 1e-6);
@@ -374,7 +374,7 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
   EXPECT_LT(worst, 6);  // JPEG at quality 100 with 4:4:4 sampling: a few levels of rounding
   // One frame read on its own (the viewer's error mode): the loader's upright pixels, alpha 1.
   {
-    const DatasetJson js = read_dataset_json(t.path(), {}, 1);
+    const Capture js = read_capture(t.path(), {}, 1);
     const auto rgba = frame_photo_rgba(js.splits.front().frames.front(), js.height, js.width, 1);  // train's first
     ASSERT_EQ(rgba.sizes(), (std::vector<int64_t>{16, 8, 4}));
     EXPECT_TRUE(torch::equal(rgba.slice(2, 0, 3), im));

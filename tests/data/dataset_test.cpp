@@ -284,3 +284,47 @@ TEST(BadInput, PathOutsideDataset) {
 }
 
 TEST(BadInput, MissingFolder) { expect_bad("/nonexistent/ablenerf/data", "/nonexistent/ablenerf/data", "not found"); }
+
+// The registry of capture formats (data/capture.h): detection by file names in the table's order,
+// the first match reading the folder; a folder no row claims is refused naming it.
+TEST(CaptureRegistry, DetectsEachFormatByItsFilesInTableOrder) {
+  std::vector<std::string> names;
+  for (const auto& f : capture_formats()) names.push_back(f.name);
+  EXPECT_EQ(names, (std::vector<std::string>{"blender", "transforms", "colmap", "llff"}));
+  test::TempDir t;
+  const std::string d = t / "capture";
+  fs::create_directories(d + "/sparse/0");
+  EXPECT_EQ(capture_format(d), "");
+  try {
+    read_capture(d, {}, 1);
+    ADD_FAILURE() << "an empty folder was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(d), std::string::npos) << e.what();
+  }
+  // Each format's file added in turn; an earlier row of the table wins over a later one.
+  const std::vector<std::pair<std::string, std::string>> files{{"poses_bounds.npy", "llff"},
+                                                              {"sparse/0/cameras.txt", "colmap"},
+                                                              {"transforms.json", "transforms"},
+                                                              {"transforms_test.json", "blender"}};
+  for (const auto& [file, format] : files) {
+    test::write_file(d + "/" + file, "");
+    EXPECT_EQ(capture_format(d), format) << file;
+  }
+}
+
+// Dataset::load of a Capture already read loads what Dataset::load of the folder does, keeping only
+// the splits asked for; the split names come from the one read.
+TEST(CaptureRegistry, LoadingACaptureReadOnceEqualsLoadingTheFolder) {
+  test::TempDir t;
+  make_blender(t / "scene", 3, 6, 4);
+  const Capture capture = read_capture(t / "scene", {}, 1);
+  EXPECT_EQ(capture.format, "blender");
+  EXPECT_EQ(capture.split_names(), std::vector<std::string>{"train"});
+  LoadOptions o;
+  o.splits = {"train"};
+  const Dataset once = Dataset::load(capture, t / "scene", o), folder = Dataset::load(t / "scene", o);
+  EXPECT_TRUE(torch::equal(once.split("train").images, folder.split("train").images));
+  EXPECT_TRUE(torch::equal(once.split("train").c2w, folder.split("train").c2w));
+  o.splits = {"test"};
+  EXPECT_THROW(Dataset::load(capture, t / "scene", o), InputError);
+}

@@ -34,12 +34,12 @@ Pose34 look_at_pose(const V3& eye, const V3& target, const V3& up) {
   return p;
 }
 
-DatasetJson capture_of(const std::vector<Pose34>& poses) {
-  DatasetJson cap;
+Capture capture_of(const std::vector<Pose34>& poses) {
+  Capture cap;
   cap.format = "instant-ngp";
-  SplitJson s{"train", "transforms.json", {}};
+  CaptureSplit s{"train", "transforms.json", {}};
   for (const auto& p : poses) {
-    FrameJson f;
+    CaptureFrame f;
     f.pose = p;
     s.frames.push_back(f);
   }
@@ -99,7 +99,7 @@ TEST(SceneFrame, RingAroundATiltedTargetIsCentredUprightAndUnitSized) {
 TEST(SceneFrame, BoundsFromPointsLlffBoundsOrConfig) {
   const V3 target{0, 0, 0}, up{0, 0, 1};
   const auto poses = ring_poses(8, target, up, 4.0, 3.0);  // every camera 5 units away
-  DatasetJson cap = capture_of(poses);
+  Capture cap = capture_of(poses);
   // One sparse point at the target: every camera sees it 5 units ahead (1 in scene units), so
   // near = 0.5 and far = 1.5 (the loader's margins on the 1% / 99% depths).
   cap.points = {{0, 0, 0}};
@@ -108,12 +108,12 @@ TEST(SceneFrame, BoundsFromPointsLlffBoundsOrConfig) {
   EXPECT_NEAR(f.near, 0.5, 1e-6);
   EXPECT_NEAR(f.far, 1.5, 1e-6);
   // Points behind every camera only: refused, naming the points.
-  DatasetJson behind = capture_of(poses);
+  Capture behind = capture_of(poses);
   behind.points = {{0, 0, 1000}};
   test::expect_input_error([&] { fit_scene_frame(behind, "cap", SceneKind::Bounded, 2, 6, false); }, "cap", "points", "",
                            true);
   // LLFF bounds (capture units) scaled with margins 0.9 / 1.1.
-  DatasetJson llff = capture_of(poses);
+  Capture llff = capture_of(poses);
   llff.bounds = {{2.5, 7.0}, {3.0, 9.0}};
   f = fit_scene_frame(llff, "cap", SceneKind::Bounded, 2, 6, false);
   EXPECT_EQ(f.bounds_source, "llff bounds");
@@ -143,7 +143,7 @@ TEST(SceneFrame, DegenerateLayoutsAndSyntheticScenes) {
   test::expect_input_error([&] { fit_scene_frame(capture_of(same), "cap", SceneKind::Auto, 2, 6, false); }, "cap",
                            "poses", "same point", true);
   // Blender scenes keep the identity and the configured near/far.
-  DatasetJson blender = capture_of(ring_poses(4, {0, 0, 0}, {0, 0, 1}, 4, 0));
+  Capture blender = capture_of(ring_poses(4, {0, 0, 0}, {0, 0, 1}, 4, 0));
   blender.synthetic = true;
   const SceneFrame f = fit_scene_frame(blender, "cap", SceneKind::Auto, 2, 6, false);
   EXPECT_TRUE(f.identity());
@@ -176,7 +176,7 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   std::vector<Pose34> poses;
   for (int i = -1; i <= 1; ++i)
     for (int j = -1; j <= 1; ++j) poses.push_back(look_at_pose({0.3 * i, -2, 1 + 0.2 * j}, {0.3 * i * 0.5, 5, 1}, {0, 0, 1}));
-  DatasetJson cap = capture_of(poses);
+  Capture cap = capture_of(poses);
   for (auto& f : cap.splits[0].frames) f.camera.width = 40, f.camera.height = 30, f.camera.fx = 35, f.camera.fy = 33;
   cap.points = {{0, 3, 1}, {0.5, 5, 1.2}, {-0.4, 7, 0.8}};  // depths 5..9 from the grid
   const SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false);
@@ -200,12 +200,12 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   EXPECT_EQ(g.kind, SceneKind::ForwardFacing);
   EXPECT_EQ(g.ndc_a, f.ndc_a);
   // Without points or bounds auto stays unbounded, and an explicit forward is refused.
-  const DatasetJson bare = capture_of(poses);
+  const Capture bare = capture_of(poses);
   EXPECT_EQ(fit_scene_frame(bare, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);
   test::expect_input_error([&] { fit_scene_frame(bare, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
                            "data.scene", "near bound", true);
   // Cameras all round the scene are not forward-facing, even with points; forcing it is refused.
-  DatasetJson round = capture_of(ring_poses(8, {0, 0, 0}, {0, 0, 1}, 3, 1));
+  Capture round = capture_of(ring_poses(8, {0, 0, 0}, {0, 0, 1}, 3, 1));
   round.points = {{0, 0, 0}};
   EXPECT_EQ(fit_scene_frame(round, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);
   test::expect_input_error([&] { fit_scene_frame(round, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
