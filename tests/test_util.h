@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "data/rays.h"
+#include "util/config.h"
 
 namespace ablenerf::test {
 
@@ -27,6 +28,20 @@ class TempDir {
 
 // The repository root (compile-time, overridable by $ABLENERF_SOURCE_DIR).
 std::string source_dir();
+
+// The smallest model the tests use (width 16, one head, one layer per transformer, 8 samples, 2 LE,
+// IPE of 4 degrees), rendering in chunks of 64 rays: what eval and view tests render, and what the
+// training tests' tiny_config (tests/train/train_fixture.h) adds a short schedule to.
+// Inline: the kernel tests link no Config and never call it.
+inline Config tiny_model_config() {
+  Config c;
+  for (const char* kv : {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1",
+                         "model.fine_layers=1", "model.samples=8", "model.ipe_degrees=4", "model.le_count=2",
+                         "model.le_layers=1", "eval.chunk=64"})
+    c.set(kv);
+  c.validate();
+  return c;
+}
 
 // ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent (optional test data: tests that need it skip).
 std::string lego_dir();

@@ -22,6 +22,7 @@
 #include "eval/video.h"
 #include "model/tonemap.h"
 #include "run/run_folder.h"
+#include "util/log.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
@@ -150,8 +151,8 @@ void run_render(const RenderArgs& a) {
   // H.264 (yuv420p) needs even sides: an odd native size (a capture at 135x240, say) loses its
   // last column or row, principal point unchanged. An odd size asked for is refused below.
   if (video && a.width <= 0 && a.height <= 0 && (w % 2 || h % 2)) {
-    std::cerr << "render: " << w << "x" << h << " cropped to " << w - w % 2 << "x" << h - h % 2
-              << " (H.264 needs even sides; --width/--height choose another size)" << std::endl;
+    log_warn("render: " + std::to_string(w) + "x" + std::to_string(h) + " cropped to " + std::to_string(w - w % 2) +
+             "x" + std::to_string(h - h % 2) + " (H.264 needs even sides; --width/--height choose another size)");
     w -= w % 2, h -= h % 2;
     cams.intrinsics.width = w, cams.intrinsics.height = h;
   }
@@ -167,7 +168,7 @@ void run_render(const RenderArgs& a) {
       throw InputError("--out", "", "ffmpeg not found on PATH, cannot write " + a.out +
                                         " (install ffmpeg, or add --fallback-frames for PNG frames)");
     frame_dir = a.out.substr(0, a.out.size() - 4) + "_frames";
-    std::cerr << "ffmpeg not found on PATH: writing PNG frames to " << frame_dir << " instead" << std::endl;
+    log_warn("ffmpeg not found on PATH: writing PNG frames to " + frame_dir + " instead");
   } else {
     frame_dir = a.out;
   }
@@ -175,8 +176,7 @@ void run_render(const RenderArgs& a) {
 
   AbleNerf model = load_run_model(run, device);
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
-    std::cerr << "note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing"
-              << std::endl;
+    log_warn("note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing");
   torch::Generator gen = at::detail::createCPUGenerator(static_cast<uint64_t>(a.seed));
   ForwardOptions fo;
   fo.branches = a.branches;

@@ -47,7 +47,7 @@ TrainResult train_with_view(const Config& config, TrainOptions o, const TrainArg
   live->session = std::make_unique<ViewSession>(a.out, o.device, /*live=*/true);
   ViewServer server(*live->session, "127.0.0.1", a.view_port, &live->control);
   const int port = server.bind();
-  std::cerr << "train: live view at http://127.0.0.1:" << port << "/" << std::endl;
+  std::cout << "train: live view at http://127.0.0.1:" << port << "/" << std::endl;
   const ServingThread serving(server);
   return trainer.run();
 #else
@@ -121,7 +121,7 @@ void setup(CLI::App& app) {
       throw CommandExit(kExitDiverged, e.what());
     }
     if (r == TrainResult::Interrupted) throw CommandExit(kExitInterrupted);
-    if (env.rank == 0) std::cerr << "train: run written to " << a->out << std::endl;
+    if (env.rank == 0) std::cout << "train: run written to " << a->out << std::endl;
   });
 }
 

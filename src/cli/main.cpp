@@ -8,6 +8,7 @@
 
 #include "cli/command.h"
 #include "util/errors.h"
+#include "util/log.h"
 
 namespace {
 
@@ -38,6 +39,9 @@ int main(int argc, char** argv) {
   std::sort(reg.begin(), reg.end(), [](const auto& a, const auto& b) { return a.order < b.order; });
   for (auto& spec : reg) {
     CLI::App* sub = app.add_subcommand(spec.name, spec.help);
+    // Every command: how much of the log (util/log.h) reaches standard error.
+    sub->add_flag_callback("--quiet", [] { set_log_level(LogLevel::Warn); }, "Only warnings and errors (no progress)");
+    sub->add_flag_callback("--verbose", [] { set_log_level(LogLevel::Debug); }, "Also debugging detail");
     spec.setup(*sub);
   }
   try {

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "data/capture.h"
 #include "data/transforms_json.h"
@@ -16,6 +17,7 @@
 #include "util/fs.h"
 #include "util/image_codec.h"
 #include "util/image_io.h"
+#include "util/log.h"
 #include "util/progress.h"
 
 namespace fs = std::filesystem;
@@ -216,6 +218,12 @@ Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& op
   ds.intrinsics = ds.splits.begin()->second.cameras.front();
   ds.notes = js.notes;
   ds.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (log_enabled(LogLevel::Debug)) {
+    std::ostringstream line;
+    line << "load: " << root << " (" << ds.format << "), " << total << " images at " << w / opts.downscale << "x"
+         << h / opts.downscale << " in " << ds.load_seconds << " s";
+    log_debug(line.str());
+  }
   return ds;
 }
 

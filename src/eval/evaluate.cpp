@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <iostream>
 #include <optional>
 
 #include "data/dataset.h"
@@ -16,6 +15,7 @@
 #include "eval/report.h"
 #include "run/run_log.h"
 #include "util/errors.h"
+#include "util/log.h"
 #include "util/fs.h"
 #include "util/image_io.h"
 #include "util/progress.h"
@@ -54,7 +54,7 @@ std::string eval_dir(const RunFolder& run, const std::string& split) { return ru
 
 nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   std::function<void(const std::string&)> note = opts.note;
-  if (!note) note = [](const std::string& s) { std::cerr << s << std::endl; };
+  if (!note) note = [](const std::string& s) { log_info(s); };
   const std::string data_dir = opts.data_dir.empty() ? run.data_dir : opts.data_dir;
   if (data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded (pass --data DIR)");
   if (!fs::is_directory(data_dir))

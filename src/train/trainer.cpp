@@ -4,7 +4,7 @@
 #include <chrono>
 #include <csignal>
 #include <filesystem>
-#include <iostream>
+#include <sstream>
 #include <nlohmann/json.hpp>
 
 #include "data/load_options.h"
@@ -23,6 +23,7 @@
 #include "train/ray_batch.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/log.h"
 #include "util/progress.h"
 
 namespace fs = std::filesystem;
@@ -148,8 +149,8 @@ void Trainer::setup() {
     write_file_atomic(s.run.path("config.toml"), config_.to_toml());
     s.run.write_scene(s.ds->scene);
     if (!opts_.quiet) {
-      std::cerr << "train: " << s.ds->format << " capture, " << s.ds->scene.describe() << "\n";
-      for (const auto& note : s.ds->notes) std::cerr << "train: " << note << "\n";
+      log_info("train: " + s.ds->format + " capture, " + s.ds->scene.describe());
+      for (const auto& note : s.ds->notes) log_info("train: " + note);
     }
   }
 
@@ -165,11 +166,12 @@ void Trainer::setup() {
     }
     s.elapsed_before = s.state.elapsed_seconds;
     s.agreed_elapsed = s.elapsed_before;
-    if (s.leader) std::cerr << "train: resumed " << s.run.checkpoint_path() << " at step " << s.state.step << "\n";
+    if (s.leader) log_info("train: resumed " + s.run.checkpoint_path() + " at step " + std::to_string(s.state.step));
   }
   if (opts_.dist) {
     opts_.dist->broadcast_parameters(s.model);  // every rank starts from rank 0's weights
-    if (s.leader && !opts_.quiet) std::cerr << "train: data-parallel over a c10d group of " << s.world << " process(es)\n";
+    if (s.leader && !opts_.quiet)
+      log_info("train: data-parallel over a c10d group of " + std::to_string(s.world) + " process(es)");
   }
 }
 
@@ -199,6 +201,13 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.schedule.emplace(tc);
   s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
   s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
+  if (s.leader && log_enabled(LogLevel::Debug)) {
+    std::ostringstream line;
+    line << "train: " << s.model->parameter_count() << " parameters on " << opts_.device << ", " << s.local_rays
+         << " rays per step in micro-batches of " << s.micro << ", " << train.size() << " training images, "
+         << (device_form ? "device-side Adam" : "host Adam");
+    log_debug(line.str());
+  }
   if (device_form) {
     s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
     const auto dev = torch::TensorOptions().device(opts_.device);
@@ -367,8 +376,8 @@ void Trainer::check_divergence(const StepReport& r) {
   }
   ++s.bad_in_a_row;
   if (s.leader)
-    std::cerr << "\ntrain: step " << r.step << ": non-finite loss or gradient, step skipped (" << s.bad_in_a_row
-              << " in a row)\n";
+    log_warn("train: step " + std::to_string(r.step) + ": non-finite loss or gradient, step skipped (" +
+             std::to_string(s.bad_in_a_row) + " in a row)");
   if (s.bad_in_a_row >= config_.train.max_bad_steps)
     throw TrainingDiverged("training diverged: " + std::to_string(s.bad_in_a_row) +
                            " consecutive non-finite steps at step " + std::to_string(r.step) + "; the last checkpoint (" +
@@ -434,7 +443,11 @@ void Trainer::held_out_check() {
   const double p = views.empty() ? NAN : sum / static_cast<double>(views.size());
   append_run_log(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
                               {"view_indices", views}, {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
-  if (!opts_.quiet) std::cerr << "\ntrain: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB\n";
+  if (!opts_.quiet) {
+    std::ostringstream line;
+    line << "train: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB";
+    log_info(line.str());
+  }
 }
 
 TrainResult Trainer::run() {
@@ -447,13 +460,16 @@ TrainResult Trainer::run() {
   while (s.state.step < tc.steps) {
     if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
     if (tc.time_budget_s > 0 && schedule_fraction() >= 1.0) {
-      if (s.leader && !opts_.quiet)
-        std::cerr << "\ntrain: time budget of " << tc.time_budget_s << " s spent at step " << s.state.step << "\n";
+      if (s.leader && !opts_.quiet) {
+        std::ostringstream line;
+        line << "train: time budget of " << tc.time_budget_s << " s spent at step " << s.state.step;
+        log_info(line.str());
+      }
       break;
     }
     if (g_interrupt.load()) {
       save();
-      if (s.leader) std::cerr << "\ntrain: interrupted; checkpoint saved at step " << s.state.step << "\n";
+      if (s.leader) log_warn("train: interrupted; checkpoint saved at step " + std::to_string(s.state.step));
       return TrainResult::Interrupted;
     }
     const bool step_limit = opts_.max_steps_this_run >= 0 && s.steps_this_run >= opts_.max_steps_this_run;
@@ -463,7 +479,8 @@ TrainResult Trainer::run() {
     if (step_limit || time_limit) {
       save();
       if (time_limit && s.leader && !opts_.quiet)
-        std::cerr << "\ntrain: time limit reached at step " << s.state.step << "; checkpoint saved (--resume continues)\n";
+        log_info("train: time limit reached at step " + std::to_string(s.state.step) +
+                 "; checkpoint saved (--resume continues)");
       return TrainResult::StoppedEarly;
     }
     const StepReport r = step();

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "util/log.h"
+
 namespace ablenerf {
 
 Progress::Progress(std::string label, int64_t total, double min_interval_s)
@@ -32,6 +34,10 @@ std::string Progress::format_duration(double s) {
 }
 
 void Progress::update(int64_t done, const std::string& fields, bool force, double fraction) {
+  report(done, fields, force, fraction, /*last=*/false);
+}
+
+void Progress::report(int64_t done, const std::string& fields, bool force, double fraction, bool last) {
   if (start_done_ < 0) start_done_ = done;  // a resumed run starts counting from where it is
   if (fraction >= 0 && start_fraction_ < 0) start_fraction_ = fraction;
   const auto now = std::chrono::steady_clock::now();
@@ -49,15 +55,15 @@ void Progress::update(int64_t done, const std::string& fields, bool force, doubl
     pct = 100.0 * f;
     eta = frate > 0 ? (1.0 - f) / frate : NAN;
   }
-  std::fprintf(stderr, "%s%s %lld/%lld (%.1f%%) %s elapsed %s ETA %s%s", tty_ ? "\r\033[K" : "", label_.c_str(),
-               static_cast<long long>(done), static_cast<long long>(total_), pct, fields.c_str(),
-               format_duration(el).c_str(), format_duration(eta).c_str(), tty_ ? "" : "\n");
-  std::fflush(stderr);
+  char head[160];
+  std::snprintf(head, sizeof head, "%s %lld/%lld (%.1f%%) ", label_.c_str(), static_cast<long long>(done),
+                static_cast<long long>(total_), pct);
+  const std::string text = head + fields + " elapsed " + format_duration(el) + " ETA " + format_duration(eta);
+  // The last report stays on screen as an ordinary line; the others redraw in place on a terminal.
+  if (last) log_info(text);
+  else log_progress(text);
 }
 
-void Progress::finish(const std::string& fields) {
-  update(total_, fields, true);
-  if (tty_) std::fprintf(stderr, "\n");
-}
+void Progress::finish(const std::string& fields) { report(total_, fields, true, -1, /*last=*/true); }
 
 }  // namespace ablenerf

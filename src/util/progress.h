@@ -1,7 +1,7 @@
 #pragma once
-// A progress line for long work: done/total, rate, elapsed, ETA and caller-supplied fields.
-// On a terminal it redraws one line; otherwise (logs, CI) it prints a line at most every
-// `min_interval` seconds so that output stays readable.
+// A progress line for long work: done/total, rate, elapsed, ETA and caller-supplied fields, written
+// to the log (util/log.h) at Info level. On a terminal it redraws one line; otherwise (logs, CI) it
+// prints a line at most every `min_interval` seconds so that output stays readable.
 #include <chrono>
 #include <string>
 
@@ -20,6 +20,7 @@ class Progress {
   static std::string format_duration(double seconds);
 
  private:
+  void report(int64_t done, const std::string& fields, bool force, double fraction, bool last);
   std::string label_;
   int64_t total_, start_done_ = -1;
   double start_fraction_ = -1;

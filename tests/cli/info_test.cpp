@@ -3,6 +3,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <sstream>
@@ -76,4 +77,29 @@ TEST(Cli, InfoReportsTheCamerasCoverage) {
   EXPECT_NEAR(cov["elevation_min_deg"].get<double>(), 10.0, 1e-3);
   EXPECT_NEAR(cov["elevation_max_deg"].get<double>(), 40.0, 1e-3);
   EXPECT_NEAR(cov["mean_distance"].get<double>(), 4.0, 1e-4);
+}
+
+// --quiet and --verbose on every command set how much of the log (util/log.h) reaches the terminal:
+// the loader's debug line only with --verbose, the training progress and notes not at all with
+// --quiet (the command's result on standard output stays).
+TEST(Cli, QuietAndVerboseSetHowMuchOfTheLogShows) {
+  test::TempDir t;
+  ASSERT_EQ(test::run_cli("synth --out " + t / "d" + " --res 8 --train-views 3 --test-views 1").exit_code, 0);
+  const auto plain = test::run_cli("info --data " + t / "d");
+  const auto verbose = test::run_cli("info --data " + t / "d" + " --verbose");
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  ASSERT_EQ(verbose.exit_code, 0) << verbose.output;
+  EXPECT_EQ(plain.output.find("load: "), std::string::npos) << plain.output;
+  EXPECT_NE(verbose.output.find("load: "), std::string::npos) << verbose.output;
+  const std::string train = "train --data " + t / "d" + " --config " + test::source_dir() +
+                            "/configs/demo.toml --set train.steps=3 --set train.eval_every=0 --set train.log_every=1 --out ";
+  const auto loud = test::run_cli(train + t / "r1");
+  const auto quiet = test::run_cli(train + t / "r2 --quiet");
+  ASSERT_EQ(loud.exit_code, 0) << loud.output;
+  ASSERT_EQ(quiet.exit_code, 0) << quiet.output;
+  EXPECT_NE(loud.output.find("train 3/3"), std::string::npos) << loud.output;
+  EXPECT_EQ(quiet.output.find("train 3/3"), std::string::npos) << quiet.output;
+  // Quiet: only the command's result, the run folder it wrote.
+  EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 1) << quiet.output;
+  EXPECT_NE(quiet.output.find("run written to"), std::string::npos) << quiet.output;
 }

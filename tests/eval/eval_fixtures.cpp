@@ -60,29 +60,13 @@ void write_split(const std::string& dir, const std::string& split, int n, int w,
 }
 }  // namespace
 
-Config tiny_config() {
-  Config c;
-  c.model.width = 16;
-  c.model.heads = 1;
-  c.model.ff_ratio = 1;
-  c.model.coarse_layers = 1;
-  c.model.fine_layers = 1;
-  c.model.samples = 8;
-  c.model.ipe_degrees = 4;
-  c.model.le_count = 2;
-  c.model.le_layers = 1;
-  c.eval.chunk = 100;
-  c.validate();
-  return c;
-}
-
 void make_tiny_scene(const std::string& dir, int n_train, int n_test, int w, int h, bool with_depth) {
   write_split(dir, "train", n_train, w, h, 0.0, false);
   write_split(dir, "test", n_test, w, h, 0.3, with_depth);
 }
 
 RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir) {
-  const Config cfg = tiny_config();
+  const Config cfg = tiny_model_config();
   RunFolder run = RunFolder::create(run_dir, cfg, data_dir);
   torch::manual_seed(kModelSeed);
   AbleNerf model(cfg.model);

@@ -1,6 +1,6 @@
 #pragma once
-// Shared fixtures of the eval tests: a tiny model config, a tiny Blender scene written on the
-// fly, and a run folder holding a fresh (untrained) tiny model.
+// Shared fixtures of the eval tests: a tiny Blender scene written on the fly, and a run folder
+// holding a fresh (untrained) model of test::tiny_model_config() (test_util.h).
 #include <torch/torch.h>
 
 #include <string>
@@ -9,9 +9,6 @@
 #include "util/config.h"
 
 namespace ablenerf::test {
-
-// A model small enough to render a 32x32 image in well under a second on one core.
-Config tiny_config();
 
 // A Blender-format scene in `dir`: `n_train` train and `n_test` test views of w x h, cameras at
 // distance 4 around the origin; RGBA images with an opaque left half (smooth colours) and a

@@ -49,17 +49,11 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   test::TempDir t;
   const test::IntraOpThreads threads(2);
   write_forward_capture(t / "data", 32);
-  Config c = test::tiny_config();
-  for (const char* kv : {"model.width=32", "model.samples=12", "model.le_count=4", "train.steps=300",
-                         "train.rays_per_step=128", "train.micro_batch=128", "train.lr_init=5e-3",
-                         "train.lr_final=5e-4", "train.lr_warmup_steps=20", "train.ckpt_every=0"})
-    c.set(kv);
-  c.validate();
-  TrainOptions o;
-  o.data_dir = t / "data";
-  o.out_dir = t / "run";
-  o.quiet = true;
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  Config c = test::config_with(
+      test::tiny_config(), {"model.width=32", "model.samples=12", "model.le_count=4", "train.steps=300",
+                            "train.rays_per_step=128", "train.micro_batch=128", "train.lr_init=5e-3", "train.lr_final=5e-4",
+                            "train.lr_warmup_steps=20", "train.ckpt_every=0"});
+  ASSERT_EQ(train(c, test::quiet_run(t / "run", t / "data")), TrainResult::Finished);
   const RunFolder run = RunFolder::open(t / "run");
   const SceneFrame scene = run.scene();
   ASSERT_EQ(scene.kind, SceneKind::ForwardFacing);  // auto, from the layout and the LLFF bounds
@@ -67,8 +61,7 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   const double psnr = test::held_out_psnr(t / "run");
   // The same capture trained as an unbounded scene (contraction, the other choice for it).
   c.set("data.scene=unbounded");
-  o.out_dir = t / "run_unbounded";
-  ASSERT_EQ(train(c, o), TrainResult::Finished);
+  ASSERT_EQ(train(c, test::quiet_run(t / "run_unbounded", t / "data")), TrainResult::Finished);
   const double unbounded = test::held_out_psnr(t / "run_unbounded");
   std::cout << "forward-facing capture, held-out PSNR: NDC " << psnr << " dB, unbounded " << unbounded << " dB"
             << std::endl;

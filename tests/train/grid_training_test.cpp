@@ -17,21 +17,11 @@ using namespace ablenerf;
 namespace {
 
 Config tiny_grid_config() {
-  Config c = test::tiny_config();
-  for (const char* kv : {"model.embedding=grid", "model.grid_levels=4", "model.grid_log2_table=8",
-                         "model.grid_base_resolution=2", "model.grid_max_resolution=32"})
-    c.set(kv);
-  c.validate();
-  return c;
+  return test::config_with(test::tiny_config(), {"model.embedding=grid", "model.grid_levels=4", "model.grid_log2_table=8",
+                                                 "model.grid_base_resolution=2", "model.grid_max_resolution=32"});
 }
 
-TrainOptions grid_run_options(const std::string& out) {
-  TrainOptions o;
-  o.data_dir = test::tiny_dataset();
-  o.out_dir = out;
-  o.quiet = true;
-  return o;
-}
+TrainOptions grid_run_options(const std::string& out) { return test::quiet_run(out); }
 
 std::string grid_refusal(const std::function<void()>& fn) {
   try {
@@ -98,9 +88,7 @@ TEST(GridTraining, LearnsTheDemoSceneInFewerStepsThanIpe) {
       c.set(kv);
     for (const char* kv : extra) c.set(kv);
     c.validate();
-    TrainOptions o = grid_run_options(t / name);
-    o.data_dir = t / "data";
-    EXPECT_EQ(train(c, o), TrainResult::Finished);
+    EXPECT_EQ(train(c, test::quiet_run(t / name, t / "data")), TrainResult::Finished);
     return test::held_out_psnr(t / name);
   };
   const double ipe = held_out_psnr("ipe", {});

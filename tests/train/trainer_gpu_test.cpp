@@ -16,10 +16,7 @@ namespace {
 bool have_gpu() { return torch::cuda::is_available() && Adam::device_form_available(torch::Device(torch::kCUDA, 0)); }
 
 TrainOptions gpu_options(const std::string& out) {
-  TrainOptions o;
-  o.data_dir = test::tiny_dataset();
-  o.out_dir = out;
-  o.quiet = true;
+  TrainOptions o = test::quiet_run(out);
   o.device = torch::Device(torch::kCUDA, 0);
   return o;
 }

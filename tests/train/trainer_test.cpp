@@ -41,13 +41,7 @@ std::vector<nlohmann::json> read_log(const std::string& run) {
   return out;
 }
 
-TrainOptions options(const std::string& out) {
-  TrainOptions o;
-  o.data_dir = test::tiny_dataset();
-  o.out_dir = out;
-  o.quiet = true;
-  return o;
-}
+TrainOptions options(const std::string& out) { return test::quiet_run(out); }
 
 // A tiny run for a time budget of `seconds`: 10^6 schedule steps (the budget ends it), lr 1e-3 ->
 // 1e-4 decaying over the budget, a warm-up of `warmup_steps`, every step logged, nothing else.

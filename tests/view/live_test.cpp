@@ -35,7 +35,7 @@ bool eventually(const std::function<bool()>& f) {
 TEST(LiveView, PauseSaveResumeAndNoCopiesWhileIdle) {
   test::TempDir t;
   test::make_tiny_scene(t / "scene", 4, 2, 16, 16, false);
-  Config c = test::tiny_config();
+  Config c = test::tiny_model_config();
   for (const char* kv : {"train.steps=60", "train.rays_per_step=32", "train.micro_batch=32", "train.lr_warmup_steps=2",
                          "train.ckpt_every=0", "train.log_every=1", "train.eval_every=0"})
     c.set(kv);
