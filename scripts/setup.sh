@@ -33,7 +33,9 @@ packages=(
   libgtest-dev libgmock-dev
   ffmpeg                                  # MP4 output of `ablenerf render`
   libcpp-httplib-dev                      # the web viewer (`ablenerf view`)
+  libopen3d-dev                           # geometry out (`ablenerf export --points / --mesh`)
   clang libclang-rt-14-dev                # libFuzzer + ASan/UBSan runtimes (fuzz smoke run in scripts/test.sh)
+  clang-format                            # the C++ format check (scripts/format.sh --check in scripts/test.sh)
 )
 # Tensors and autograd: Debian's LibTorch and the fast BLAS it should use (the CUDA build uses
 # the LibTorch inside PyTorch instead).

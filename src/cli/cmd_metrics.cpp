@@ -5,6 +5,7 @@
 // "psnr": null with a "psnr_note"; "mse" is always printed. Without LPIPS weights (no
 // --lpips-weights, no $ABLENERF_LPIPS_WEIGHTS, no shared weights beside the repository) or for
 // images smaller than AlexNet accepts, "lpips" is null and "lpips_note" says why.
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <memory>
@@ -13,6 +14,11 @@
 #include "cli/command.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
+#ifdef ABLENERF_HAVE_GEOMETRY
+#include "data/dataset.h"
+#include "geometry/fuse.h"
+#include "geometry/surface_score.h"
+#endif
 #include "util/errors.h"
 
 namespace ablenerf::cli {
@@ -20,13 +26,47 @@ namespace cmd_metrics {
 
 struct MetricsArgs {
   std::string ref, img, lpips_weights, ssim = "standard";
+  std::string geometry, truth;  // geometry against a synth scene's spheres
+  double tau = 0;
+  int64_t samples = 200000;
 };
+
+// --geometry FILE --truth DATA: the file's points (a mesh sampled on its surface) against the
+// spheres of DATA/scene.json, seen from DATA's cameras (geometry/surface_score.h).
+void run_geometry(const MetricsArgs& a) {
+#ifdef ABLENERF_HAVE_GEOMETRY
+  const auto spheres = read_scene_spheres(a.truth + "/scene.json");
+  const CameraList cams = capture_cameras(a.truth, SceneFrame{}, 1);
+  const auto eyes = cams.c2w.select(2, 3);  // camera centres (N,3)
+  // tau: 1% of the size of the objects (their bounding box's diagonal) unless given.
+  double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+  for (const auto& s : spheres)
+    for (size_t i = 0; i < 3; ++i) lo[i] = std::min(lo[i], s.centre[i] - s.radius), hi[i] = std::max(hi[i], s.centre[i] + s.radius);
+  const double size = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                                (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  const double tau = a.tau > 0 ? a.tau : 0.01 * size;
+  const PointSet pts = read_geometry_points(a.geometry, a.samples);
+  auto out = score_against_spheres(pts.xyz, spheres, eyes, tau);
+  out["file"] = a.geometry;
+  out["scene_size"] = size;
+  std::cout << out.dump(2) << std::endl;
+#else
+  throw EnvironmentError("metrics", "this build has no geometry scoring", "install Open3D: apt-get install libopen3d-dev");
+#endif
+}
 
 std::string size_str(const torch::Tensor& im) {
   return std::to_string(im.size(1)) + "x" + std::to_string(im.size(0));
 }
 
 void run(const MetricsArgs& a) {
+  if (!a.geometry.empty() || !a.truth.empty()) {
+    if (a.geometry.empty() || a.truth.empty())
+      throw InputError("metrics", "--geometry", "give both --geometry FILE and --truth DATA (a synth scene)");
+    run_geometry(a);
+    return;
+  }
+  if (a.ref.empty() || a.img.empty()) throw InputError("metrics", "--ref", "give --ref A.png and --img B.png");
   const SsimVariant variant = parse_ssim_variant(a.ssim, "metrics", "--ssim");
   const torch::Tensor ref = read_rgb_for_metrics(a.ref);
   const torch::Tensor img = read_rgb_for_metrics(a.img);
@@ -66,8 +106,12 @@ void run(const MetricsArgs& a) {
 
 void setup(CLI::App& app) {
   auto a = std::make_shared<MetricsArgs>();
-  app.add_option("--ref", a->ref, "Reference (ground-truth) PNG")->required();
-  app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)")->required();
+  app.add_option("--ref", a->ref, "Reference (ground-truth) PNG");
+  app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)");
+  app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
+  app.add_option("--truth", a->truth, "A scene made by `ablenerf synth` (its scene.json and cameras)");
+  app.add_option("--tau", a->tau, "Distance threshold of precision / recall (default: 1% of the objects' size)");
+  app.add_option("--samples", a->samples, "Points sampled on a mesh's surface")->capture_default_str();
   app.add_option("--lpips-weights", a->lpips_weights,
                  "LPIPS AlexNet v0.1 weights (default: $ABLENERF_LPIPS_WEIGHTS or ../shared/weights)");
   app.add_option("--ssim", a->ssim, "SSIM variant: standard (mip-NeRF, valid) or release (authors', zero-padded)")
@@ -76,5 +120,5 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_metrics
-ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair", cmd_metrics::setup);
+ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair; or geometry against a synth scene", cmd_metrics::setup);
 }  // namespace ablenerf::cli

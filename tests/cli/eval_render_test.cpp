@@ -166,3 +166,32 @@ TEST(CliDevice, EvalAndRenderTakeDeviceAndRefuseMissingGpusInOneLine) {
     }
   EXPECT_FALSE(fs::exists(t / "new_run"));  // refused before anything was written
 }
+
+// `export --points / --mesh` end to end on the tiny run: what it wrote is named in its last line and
+// opens as PLY; bad requests are refused with one line before any rendering (a run without
+// weights, a bad crop, an unknown extension: exit 2; a missing output folder: exit 1), and nothing
+// is left behind.
+TEST(CliExport, PointsAndMeshOfATinyRunAndItsRefusals) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 1, 16, 16, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const std::string base = "export --run " + t / "run" + " --views 3 --max-side 16";
+  const auto bad = [&](const std::string& args, int code, const std::string& named) {
+    const auto r = test::run_cli(base + " " + args);
+    EXPECT_EQ(r.exit_code, code) << args << ": " << r.output;
+    EXPECT_NE(r.output.find(named), std::string::npos) << args << ": " << r.output;
+    EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+  };
+  const auto probe = test::run_cli(base + " --points " + t / "probe.xyz");
+  if (probe.output.find("libopen3d-dev") != std::string::npos) GTEST_SKIP() << "built without Open3D";
+  bad("--points " + t / "p.xyz", 2, "p.xyz");
+  bad("--points " + t / "p.ply --crop 0,0,0,1,1", 2, "--crop");
+  bad("--points " + t / "no/such/p.ply", 1, "no/such");
+  bad("--mesh " + t / "m.stl", 2, "m.stl");
+  bad("--mesh " + t / "m.ply --method marching", 2, "--method");
+  bad("--mesh " + t / "m.ply --resolution 100000", 2, "--resolution");
+  std::filesystem::remove(t / "run/weights.pt");
+  bad("--points " + t / "p.ply", 2, "weights.pt");
+  for (const auto& e : std::filesystem::directory_iterator(t.path()))
+    EXPECT_TRUE(e.path().filename() == "scene" || e.path().filename() == "run") << "nothing written: " << e.path();
+}

@@ -1,0 +1,97 @@
+#include "geometry/depth_points.h"
+
+#include <cmath>
+#include <sstream>
+
+#include "data/rays.h"
+#include "util/errors.h"
+
+namespace ablenerf {
+
+bool CropBox::contains(const std::array<double, 3>& p) const {
+  for (int i = 0; i < 3; ++i)
+    if (p[static_cast<size_t>(i)] < lo[static_cast<size_t>(i)] || p[static_cast<size_t>(i)] > hi[static_cast<size_t>(i)])
+      return false;
+  return true;
+}
+
+double CropBox::diagonal() const {
+  double s = 0;
+  for (size_t i = 0; i < 3; ++i) s += (hi[i] - lo[i]) * (hi[i] - lo[i]);
+  return std::sqrt(s);
+}
+
+CropBox CropBox::parse(const std::string& text, const std::string& option) {
+  std::vector<double> v;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    try {
+      size_t used = 0;
+      v.push_back(std::stod(item, &used));
+      if (used != item.size() || !std::isfinite(v.back())) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw InputError(option, "'" + item + "'", "expected a number (xmin,ymin,zmin,xmax,ymax,zmax)");
+    }
+  }
+  if (v.size() != 6) throw InputError(option, text, "expected six numbers: xmin,ymin,zmin,xmax,ymax,zmax");
+  CropBox b;
+  for (size_t i = 0; i < 3; ++i) {
+    b.lo[i] = v[i];
+    b.hi[i] = v[i + 3];
+    if (!(b.hi[i] > b.lo[i])) throw InputError(option, text, "empty box: every max must exceed its min");
+  }
+  return b;
+}
+
+PointSet points_from_depth(const torch::Tensor& c2w, const Intrinsics& k, const torch::Tensor& depth,
+                           const torch::Tensor& rgb, double near, double far, const CropBox& crop,
+                           const torch::Tensor& keep) {
+  TORCH_CHECK(depth.dim() == 2 && depth.size(0) == k.height && depth.size(1) == k.width,
+              "points_from_depth: depth must be (H,W) of the camera");
+  const Rays rays = rays_for_image(c2w.to(torch::kFloat), k);
+  const auto d = depth.reshape({-1}).to(torch::kFloat);
+  auto ok = (d > near) & (d < far) & torch::isfinite(d);
+  if (keep.defined()) ok = ok & keep.reshape({-1});
+  const auto xyz = rays.origins + rays.directions * d.unsqueeze(-1);
+  const auto lo = torch::tensor({crop.lo[0], crop.lo[1], crop.lo[2]}, torch::kFloat);
+  const auto hi = torch::tensor({crop.hi[0], crop.hi[1], crop.hi[2]}, torch::kFloat);
+  ok = ok & (xyz >= lo).all(-1) & (xyz <= hi).all(-1);
+  const auto idx = ok.nonzero().squeeze(-1);
+  PointSet out;
+  out.xyz = xyz.index_select(0, idx).contiguous();
+  out.rgb = rgb.reshape({-1, 3}).to(torch::kFloat).index_select(0, idx).contiguous();
+  return out;
+}
+
+torch::Tensor points_to_capture(const torch::Tensor& xyz, const SceneFrame& scene) {
+  // point_to_scene: p_s = scale * R (p - centre), so p = R^T p_s / scale + centre.
+  const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble)
+                     .reshape({3, 3});
+  const auto c = torch::tensor(std::vector<double>(scene.centre.begin(), scene.centre.end()), torch::kDouble);
+  return (torch::matmul(xyz.to(torch::kDouble), r) / scene.scale + c).to(xyz.scalar_type());
+}
+
+PointSet concat_points(const std::vector<PointSet>& sets) {
+  std::vector<torch::Tensor> xyz, rgb, normals;
+  bool all_normals = true;
+  for (const auto& s : sets) {
+    if (s.size() == 0) continue;
+    xyz.push_back(s.xyz);
+    rgb.push_back(s.rgb);
+    all_normals = all_normals && s.normals.defined();
+    if (s.normals.defined()) normals.push_back(s.normals);
+  }
+  PointSet out;
+  if (xyz.empty()) {
+    out.xyz = torch::zeros({0, 3});
+    out.rgb = torch::zeros({0, 3});
+    return out;
+  }
+  out.xyz = torch::cat(xyz);
+  out.rgb = torch::cat(rgb);
+  if (all_normals) out.normals = torch::cat(normals);
+  return out;
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,230 @@
+#include "geometry/export_geometry.h"
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+
+#include "data/dataset.h"
+#include "eval/renderer.h"
+#include "geometry/fuse.h"
+#include "util/errors.h"
+#include "util/progress.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+
+namespace {
+
+// Outlier removal: each point against its 20 nearest, dropped beyond 2 deviations (Open3D's usual).
+constexpr int kOutlierNeighbours = 20;
+constexpr double kOutlierStdRatio = 2.0;
+// Poisson: octree depth 9 (512 cells per side), vertices below the 5% density quantile trimmed.
+constexpr int kPoissonDepth = 9;
+constexpr double kPoissonTrim = 0.05;
+// Auto TSDF voxel: this many rendered pixels' footprints at the median depth, no finer than the
+// crop box's longest side / kMaxAutoResolution.
+constexpr double kAutoFootprints = 1.5;
+constexpr double kMaxAutoResolution = 512;
+// TSDF truncation in voxels.
+constexpr double kTruncationVoxels = 4.0;
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+// The box of the output frame's crop in the scene frame: the bounds of its 8 corners moved there.
+CropBox scene_box_of(const CropBox& out_box, const SceneFrame& scene, bool scene_frame) {
+  if (scene_frame) return out_box;
+  CropBox b;
+  b.lo = {1e300, 1e300, 1e300};
+  b.hi = {-1e300, -1e300, -1e300};
+  for (int corner = 0; corner < 8; ++corner) {
+    const std::array<double, 3> p{corner & 1 ? out_box.hi[0] : out_box.lo[0], corner & 2 ? out_box.hi[1] : out_box.lo[1],
+                                  corner & 4 ? out_box.hi[2] : out_box.lo[2]};
+    const auto s = scene.point_to_scene(p);
+    for (size_t i = 0; i < 3; ++i) b.lo[i] = std::min(b.lo[i], s[i]), b.hi[i] = std::max(b.hi[i], s[i]);
+  }
+  return b;
+}
+
+// Keeps the rows of `xyz` (and their colours/normals) inside `box`.
+PointSet crop_points(const PointSet& p, const CropBox& box) {
+  if (p.size() == 0) return p;
+  const auto lo = torch::tensor({box.lo[0], box.lo[1], box.lo[2]}, p.xyz.options());
+  const auto hi = torch::tensor({box.hi[0], box.hi[1], box.hi[2]}, p.xyz.options());
+  const auto idx = ((p.xyz >= lo).all(-1) & (p.xyz <= hi).all(-1)).nonzero().squeeze(-1);
+  PointSet out{p.xyz.index_select(0, idx), p.rgb.index_select(0, idx), {}};
+  if (p.normals.defined()) out.normals = p.normals.index_select(0, idx);
+  return out;
+}
+
+// The photo's alpha resampled to the rendered size (area average), or undefined when the photo is
+// opaque everywhere (JPEGs, RGB PNGs): decoded at the largest downscale that keeps it at least that size.
+torch::Tensor photo_alpha(const CaptureFrame& frame, const Capture& capture, const Intrinsics& k) {
+  const int downscale = std::max(1, std::min(capture.width / k.width, capture.height / k.height));
+  const auto rgba = frame_photo_rgba(frame, capture.height, capture.width, downscale);
+  const auto alpha = rgba.select(-1, 3).to(torch::kFloat);
+  if (alpha.min().item<float>() >= 1.0f) return {};
+  return torch::nn::functional::interpolate(
+             alpha.unsqueeze(0).unsqueeze(0),
+             torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{k.height, k.width}).mode(torch::kArea))
+      .squeeze(0)
+      .squeeze(0);
+}
+
+}  // namespace
+
+CropBox default_crop(const RunFolder& run, const SceneFrame& scene) {
+  CropBox b;
+  const double half = scene.kind == SceneKind::Unbounded ? 1.0 : run.config.model.grid_bound;
+  b.lo = {-half, -half, -half};
+  b.hi = {half, half, half};
+  return b;
+}
+
+nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts) {
+  const auto start = std::chrono::steady_clock::now();
+  if (opts.points_path.empty() && opts.mesh_path.empty())
+    throw InputError("export", "--points", "give --points FILE.ply and/or --mesh FILE.ply|.obj|.glb");
+  if (!opts.points_path.empty()) check_points_path(opts.points_path);
+  if (!opts.mesh_path.empty()) check_mesh_path(opts.mesh_path);
+  if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "the run has no weights (train it first)");
+  if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded: its cameras are needed");
+  const SceneFrame scene = run.scene();
+  if (scene.kind == SceneKind::ForwardFacing)
+    throw InputError(run.path("scene.json"), "kind",
+                     "forward-facing runs are not exported yet (their attention depth is NDC's, not metric)");
+  const CropBox scene_box =
+      opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
+  const double longest = std::max({scene_box.hi[0] - scene_box.lo[0], scene_box.hi[1] - scene_box.lo[1],
+                                   scene_box.hi[2] - scene_box.lo[2]});
+  double voxel = longest / std::max(opts.resolution, 1);
+  if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf && opts.resolution != 0) {
+    double voxels = 1;
+    for (size_t i = 0; i < 3; ++i) voxels *= std::ceil((scene_box.hi[i] - scene_box.lo[i]) / voxel);
+    if (opts.resolution < 8 || voxels > kMaxTsdfVoxels)
+      throw InputError("export", "--resolution",
+                       std::to_string(opts.resolution) + " gives a volume of " + std::to_string(voxels) +
+                           " voxels; use 8 to " + std::to_string(static_cast<int>(std::cbrt(kMaxTsdfVoxels))));
+  }
+
+  // The cameras: every one of the capture's (all splits), evenly thinned to opts.views.
+  const Capture capture = read_capture(run.data_dir, {}, 1);
+  std::vector<const CaptureFrame*> frames;
+  for (const auto& sp : capture.splits)
+    for (const auto& f : sp.frames) frames.push_back(&f);
+  CameraList cams = capture_cameras(capture, scene, run.config.data.downscale);
+  const int64_t n_all = cams.c2w.size(0);
+  const int64_t n = std::min<int64_t>(n_all, std::max<int64_t>(opts.views, 1));
+  Intrinsics k = cams.intrinsics;
+  const int side = std::max(k.width, k.height);
+  if (side > opts.max_side) {
+    const double s = static_cast<double>(opts.max_side) / side;
+    const int w = std::max(1, static_cast<int>(std::lround(k.width * s))), h = std::max(1, static_cast<int>(std::lround(k.height * s)));
+    k = k.scaled(static_cast<double>(w) / k.width, w, h);
+  }
+  AbleNerf model = load_run_model(run, opts.device);
+
+  std::vector<PointSet> sets;
+  std::vector<torch::Tensor> eyes;  // each point's camera centre, to orient its normal
+  std::vector<DepthView> views;
+  std::optional<Progress> progress;
+  if (opts.progress) progress.emplace("export: render", n * k.width * k.height, 2.0);
+  const auto render_start = std::chrono::steady_clock::now();
+  for (int64_t v = 0; v < n; ++v) {
+    const int64_t i = n == n_all ? v : v * n_all / n;
+    const auto c2w = cams.c2w[i];
+    const int64_t before = v * k.width * k.height;
+    const RenderResult r = render_image(model, c2w, k, scene.near, scene.far, opts.chunk, {}, opts.device,
+                                        [&](int64_t done, int64_t) {
+                                          if (progress) progress->update(before + done);
+                                        });
+    // A pixel counts where the attention's mean and argmax depths agree (it looked at one place)
+    // and, with alpha masks, where the photo is opaque.
+    auto agree = (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
+    if (opts.alpha_mask) {
+      const auto alpha = photo_alpha(*frames[static_cast<size_t>(i)], capture, k);
+      if (alpha.defined()) agree = agree & (alpha > 0.5);
+    }
+    PointSet p = points_from_depth(c2w, k, r.depth_mean, r.rgb, scene.near, scene.far, scene_box, agree);
+    eyes.push_back(c2w.slice(1, 3, 4).reshape({1, 3}).to(torch::kFloat).expand({p.size(), 3}));
+    sets.push_back(std::move(p));
+    if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf)
+      views.push_back({c2w, torch::where(agree, r.depth_mean, torch::zeros_like(r.depth_mean)), r.rgb, k});
+  }
+  if (progress) progress->finish();
+  const double render_s = seconds_since(render_start);
+  if (opts.resolution == 0) {
+    // Auto: 1.5 pixel footprints at the median depth of the points, no finer than longest / 512.
+    std::vector<torch::Tensor> depths;
+    for (const auto& v : views) depths.push_back(v.depth.flatten().index_select(0, (v.depth.flatten() > 0).nonzero().squeeze(-1)));
+    const auto d = depths.empty() ? torch::zeros({0}) : torch::cat(depths);
+    const double median = d.numel() ? d.median().item<double>() : 0.0;
+    voxel = std::max(longest / kMaxAutoResolution, kAutoFootprints * median / std::max(k.fx, k.fy));
+  }
+
+  nlohmann::json out;
+  out["views"] = n;
+  out["image"] = std::to_string(k.width) + "x" + std::to_string(k.height);
+  out["render_s"] = render_s;
+  out["frame"] = opts.scene_frame ? "scene" : "capture";
+  const auto to_output = [&](torch::Tensor xyz) { return opts.scene_frame ? xyz : points_to_capture(xyz, scene); };
+  const auto to_output_normals = [&](const torch::Tensor& nrm) {
+    if (opts.scene_frame || !nrm.defined()) return nrm;
+    // Normals turn with the frame's rotation (R^T), without its scale or shift.
+    const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble).reshape({3, 3});
+    return torch::matmul(nrm.to(torch::kDouble), r).to(nrm.scalar_type());
+  };
+  PointSet all = concat_points(sets);
+  const auto eye = eyes.empty() ? torch::zeros({0, 3}) : torch::cat(eyes);
+
+  if (!opts.points_path.empty() || opts.method == MeshMethod::Poisson) {
+    const auto t = std::chrono::steady_clock::now();
+    PointSet clean = clean_points(all, opts.num_points, kOutlierNeighbours, kOutlierStdRatio, eye);
+    clean.xyz = to_output(clean.xyz);
+    clean.normals = to_output_normals(clean.normals);
+    if (opts.crop) clean = crop_points(clean, *opts.crop);
+    if (!opts.points_path.empty()) {
+      if (clean.size() == 0) throw InputError("export", "--crop", "no point of the scene lies inside the crop box");
+      write_points(clean, opts.points_path);
+      out["points"] = {{"path", opts.points_path}, {"count", clean.size()}, {"raw", all.size()},
+                       {"seconds", seconds_since(t)}};
+    }
+    if (!opts.mesh_path.empty() && opts.method == MeshMethod::Poisson) {
+      const auto tm = std::chrono::steady_clock::now();
+      const CropBox box = opts.crop ? *opts.crop : CropBox{{-1e300, -1e300, -1e300}, {1e300, 1e300, 1e300}};
+      Mesh m = poisson_mesh(clean, kPoissonDepth, kPoissonTrim, box);
+      if (m.triangle_count() == 0) throw InputError("export", "--crop", "the mesh is empty inside the crop box");
+      write_mesh(m, opts.mesh_path);
+      out["mesh"] = {{"path", opts.mesh_path}, {"method", "poisson"}, {"vertices", m.vertex_count()},
+                     {"triangles", m.triangle_count()}, {"seconds", seconds_since(tm)}};
+    }
+  }
+  if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf) {
+    const auto t = std::chrono::steady_clock::now();
+    TsdfOptions to;
+    to.voxel = voxel;
+    to.truncation = kTruncationVoxels * voxel;
+    to.crop = scene_box;
+    Mesh m = fuse_tsdf(views, to);
+    m.vertices = to_output(m.vertices);
+    if (opts.crop) {
+      // Triangles with a vertex outside the output frame's box go.
+      const auto lo = torch::tensor({opts.crop->lo[0], opts.crop->lo[1], opts.crop->lo[2]}, torch::kDouble);
+      const auto hi = torch::tensor({opts.crop->hi[0], opts.crop->hi[1], opts.crop->hi[2]}, torch::kDouble);
+      const auto inside = (m.vertices >= lo).all(-1) & (m.vertices <= hi).all(-1);
+      const auto keep = inside.index({m.triangles}).all(-1).nonzero().squeeze(-1);
+      m.triangles = m.triangles.index_select(0, keep);
+    }
+    if (m.triangle_count() == 0) throw InputError("export", "--crop", "the mesh is empty inside the crop box");
+    write_mesh(m, opts.mesh_path);
+    out["mesh"] = {{"path", opts.mesh_path}, {"method", "tsdf"}, {"resolution", static_cast<int>(std::lround(longest / voxel))},
+                   {"voxel", voxel}, {"vertices", m.vertex_count()}, {"triangles", m.triangle_count()},
+                   {"seconds", seconds_since(t)}};
+  }
+  out["seconds"] = seconds_since(start);
+  return out;
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,140 @@
+#include "geometry/surface_score.h"
+
+#include <cmath>
+
+#include "util/errors.h"
+#include "util/fs.h"
+
+namespace ablenerf {
+
+namespace {
+
+// Rows of `points` per distance block: bounds the (block x N) distance matrix.
+constexpr int64_t kBlock = 256;
+
+// Distance from each row of p (N,3) to the surface of every sphere: (N, S).
+torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<SphereTruth>& spheres) {
+  std::vector<torch::Tensor> cols;
+  for (const auto& s : spheres) {
+    const auto c = torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
+    cols.push_back(((p - c).norm(2, -1) - s.radius).abs());
+  }
+  return torch::stack(cols, 1);
+}
+
+// Nearest-neighbour distance from each row of `from` (K,3) to the rows of `to` (N,3), in blocks.
+torch::Tensor nearest_distances(const torch::Tensor& from, const torch::Tensor& to) {
+  auto out = torch::full({from.size(0)}, INFINITY, torch::kDouble);
+  if (to.size(0) == 0) return out;
+  for (int64_t b = 0; b < from.size(0); b += kBlock) {
+    const auto f = from.slice(0, b, std::min(from.size(0), b + kBlock));
+    out.slice(0, b, b + f.size(0)).copy_(std::get<0>(torch::cdist(f, to).min(1)));
+  }
+  return out;
+}
+
+nlohmann::json summary(const torch::Tensor& acc, const torch::Tensor& comp, double tau) {
+  nlohmann::json j;
+  const int64_t n = acc.size(0), k = comp.size(0);
+  j["points"] = n;
+  j["samples"] = k;
+  const double am = n ? acc.mean().item<double>() : NAN, cm = k ? comp.mean().item<double>() : NAN;
+  const double precision = n ? (acc < tau).to(torch::kDouble).mean().item<double>() : 0.0;
+  const double recall = k ? (comp < tau).to(torch::kDouble).mean().item<double>() : 0.0;
+  j["accuracy_mean"] = std::isfinite(am) ? nlohmann::json(am) : nlohmann::json(nullptr);
+  j["completeness_mean"] = std::isfinite(cm) ? nlohmann::json(cm) : nlohmann::json(nullptr);
+  j["chamfer"] = std::isfinite(am) && std::isfinite(cm) ? nlohmann::json(0.5 * (am + cm)) : nlohmann::json(nullptr);
+  j["precision"] = precision;
+  j["recall"] = recall;
+  j["fscore"] = precision + recall > 0 ? 2 * precision * recall / (precision + recall) : 0.0;
+  return j;
+}
+
+}  // namespace
+
+std::vector<SphereTruth> read_scene_spheres(const std::string& scene_json) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_file(scene_json));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(scene_json, "", "invalid JSON");
+  }
+  if (!j.is_object() || !j.contains("objects") || !j["objects"].is_array())
+    throw InputError(scene_json, "objects", "missing (not a scene.json written by `ablenerf synth`)");
+  std::vector<SphereTruth> out;
+  for (size_t i = 0; i < j["objects"].size(); ++i) {
+    const auto& o = j["objects"][i];
+    const std::string where = "objects[" + std::to_string(i) + "]";
+    if (!o.is_object() || o.value("shape", "") != "sphere") continue;
+    SphereTruth s;
+    s.name = o.value("name", where);
+    s.material = o.value("material", "");
+    if (!o.contains("centre") || !o["centre"].is_array() || o["centre"].size() != 3 || !o.contains("radius") ||
+        !o["radius"].is_number())
+      throw InputError(scene_json, where, "a sphere needs centre [x, y, z] and radius");
+    for (size_t a = 0; a < 3; ++a) s.centre[a] = o["centre"][a].get<double>();
+    s.radius = o["radius"].get<double>();
+    if (!(s.radius > 0)) throw InputError(scene_json, where + ".radius", "must be positive");
+    out.push_back(s);
+  }
+  if (out.empty()) throw InputError(scene_json, "objects", "no sphere to score against");
+  return out;
+}
+
+std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector<SphereTruth>& spheres,
+                                                               const torch::Tensor& eyes, int64_t per_sphere) {
+  const auto i = torch::arange(per_sphere, torch::kDouble);
+  const auto z = 1 - (2 * i + 1) / static_cast<double>(per_sphere);
+  const auto r = torch::sqrt(1 - z * z), phi = i * 2.399963229728653;  // the golden angle
+  const auto unit = torch::stack({r * torch::cos(phi), r * torch::sin(phi), z}, 1);  // (P,3)
+  const auto e = eyes.to(torch::kDouble);
+  std::vector<torch::Tensor> kept, owner;
+  for (size_t s = 0; s < spheres.size(); ++s) {
+    const auto c = torch::tensor({spheres[s].centre[0], spheres[s].centre[1], spheres[s].centre[2]}, torch::kDouble);
+    const auto p = c + unit * spheres[s].radius;  // (P,3)
+    auto seen = torch::zeros({per_sphere}, torch::kBool);
+    for (int64_t m = 0; m < e.size(0); ++m) {
+      const auto to_eye = e[m] - p;                          // (P,3)
+      auto visible = (to_eye * unit).sum(-1) > 0;            // facing the camera
+      const auto len = to_eye.norm(2, -1, true);
+      const auto d = to_eye / len;
+      for (size_t o = 0; o < spheres.size(); ++o) {
+        if (o == s) continue;
+        // Does the segment p -> eye pass through sphere o?
+        const auto co = torch::tensor({spheres[o].centre[0], spheres[o].centre[1], spheres[o].centre[2]}, torch::kDouble);
+        const auto oc = p - co;
+        const auto b = (oc * d).sum(-1), cc = (oc * oc).sum(-1) - spheres[o].radius * spheres[o].radius;
+        const auto disc = b * b - cc;
+        const auto t = -b - torch::sqrt(disc.clamp_min(0));
+        visible = visible & ~((disc > 0) & (t > 0) & (t < len.squeeze(-1)));
+      }
+      seen = seen | visible;
+    }
+    const auto idx = seen.nonzero().squeeze(-1);
+    kept.push_back(p.index_select(0, idx));
+    owner.push_back(torch::full({idx.size(0)}, static_cast<int64_t>(s), torch::kLong));
+  }
+  return {torch::cat(kept), torch::cat(owner)};
+}
+
+nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<SphereTruth>& spheres,
+                                     const torch::Tensor& eyes, double tau, int64_t per_sphere) {
+  const auto p = points.to(torch::kDouble).reshape({-1, 3});
+  const auto [samples, owner] = visible_sphere_samples(spheres, eyes, per_sphere);
+  const auto dist = surface_distances(p, spheres);
+  const auto [acc, nearest] = dist.min(1);
+  const auto comp = nearest_distances(samples, p);
+  nlohmann::json out;
+  out["tau"] = tau;
+  out["all"] = summary(acc, comp, tau);
+  for (size_t s = 0; s < spheres.size(); ++s) {
+    const auto mine = (nearest == static_cast<int64_t>(s)).nonzero().squeeze(-1);
+    const auto own = (owner == static_cast<int64_t>(s)).nonzero().squeeze(-1);
+    auto j = summary(acc.index_select(0, mine), comp.index_select(0, own), tau);
+    j["material"] = spheres[s].material;
+    out[spheres[s].name] = j;
+  }
+  return out;
+}
+
+}  // namespace ablenerf
