@@ -94,6 +94,21 @@ std::vector<std::array<double, 3>> cameras_all_round(int n) {
   return eyes;
 }
 
+// The sphere's points seen by `cameras` 40x40 cameras all round, and each point's camera centre.
+std::pair<PointSet, torch::Tensor> sphere_points_all_round(int cameras) {
+  const Intrinsics k = sphere_camera(40);
+  std::vector<PointSet> sets;
+  std::vector<torch::Tensor> eyes;
+  const CropBox all{{-10, -10, -10}, {10, 10, 10}};
+  for (const auto& eye : cameras_all_round(cameras)) {
+    const auto c2w = look_at_sphere(eye);
+    PointSet p = points_from_depth(c2w, k, sphere_depth(c2w, k), torch::full({40, 40, 3}, 0.5), 0.1, 10, all);
+    eyes.push_back(torch::tensor({eye[0], eye[1], eye[2]}, torch::kFloat).expand({p.size(), 3}));
+    sets.push_back(p);
+  }
+  return {concat_points(sets), torch::cat(eyes)};
+}
+
 TEST(Geometry, DepthOfASphereBecomesPointsOnIt) {
   const Intrinsics k = sphere_camera(48);
   const auto c2w = look_at_sphere({2.0, -1.0, 1.2});
@@ -193,22 +208,12 @@ TEST(Geometry, TsdfOfSphereDepthMapsIsTheSphere) {
 }
 
 TEST(Geometry, CleaningDropsOutliersThinsAndFacesNormalsToTheCameras) {
-  const Intrinsics k = sphere_camera(40);
-  std::vector<PointSet> sets;
-  std::vector<torch::Tensor> eyes;
-  CropBox all{{-10, -10, -10}, {10, 10, 10}};
-  for (const auto& eye : cameras_all_round(8)) {
-    const auto c2w = look_at_sphere(eye);
-    PointSet p = points_from_depth(c2w, k, sphere_depth(c2w, k), torch::full({40, 40, 3}, 0.5), 0.1, 10, all);
-    eyes.push_back(torch::tensor({eye[0], eye[1], eye[2]}, torch::kFloat).expand({p.size(), 3}));
-    sets.push_back(p);
-  }
-  PointSet p = concat_points(sets);
+  auto [p, eyes] = sphere_points_all_round(8);
   // Ten stray points far off the surface.
   const auto stray = torch::tensor({3.0, 3.0, 3.0}, torch::kFloat) + torch::rand({10, 3}) * 0.5;
   p.xyz = torch::cat({p.xyz, stray});
   p.rgb = torch::cat({p.rgb, torch::zeros({10, 3})});
-  auto eye = torch::cat({torch::cat(eyes), torch::zeros({10, 3})});
+  auto eye = torch::cat({eyes, torch::zeros({10, 3})});
   const PointSet clean = clean_points(p, 2000, 20, 2.0, eye);
   ASSERT_GT(clean.size(), 500);
   EXPECT_LE(clean.size(), 2000);
@@ -222,17 +227,9 @@ TEST(Geometry, CleaningDropsOutliersThinsAndFacesNormalsToTheCameras) {
 }
 
 TEST(Geometry, PoissonOfOrientedSpherePointsIsTheSphere) {
-  const Intrinsics k = sphere_camera(40);
-  std::vector<PointSet> sets;
-  std::vector<torch::Tensor> eyes;
-  CropBox all{{-10, -10, -10}, {10, 10, 10}};
-  for (const auto& eye : cameras_all_round(12)) {
-    const auto c2w = look_at_sphere(eye);
-    PointSet p = points_from_depth(c2w, k, sphere_depth(c2w, k), torch::full({40, 40, 3}, 0.5), 0.1, 10, all);
-    eyes.push_back(torch::tensor({eye[0], eye[1], eye[2]}, torch::kFloat).expand({p.size(), 3}));
-    sets.push_back(p);
-  }
-  const PointSet clean = clean_points(concat_points(sets), 20000, 20, 2.0, torch::cat(eyes));
+  const auto [points, eyes] = sphere_points_all_round(12);
+  const PointSet clean = clean_points(points, 20000, 20, 2.0, eyes);
+  const CropBox all{{-10, -10, -10}, {10, 10, 10}};
   const Mesh m = poisson_mesh(clean, 7, 0.02, all);
   ASSERT_GT(m.triangle_count(), 500);
   // Poisson smooths: within 2% of the radius, nearly everywhere.

@@ -9,24 +9,11 @@
 #include "model/compute.h"
 #include "kernels/cpu_parallel.h"
 #include "test_util.h"
+#include "train_fixture.h"
 #include "train/grad_accumulation.h"
 
 namespace ablenerf {
 namespace {
-
-ModelConfig small_model() {
-  ModelConfig m;
-  m.width = 16;
-  m.heads = 2;
-  m.ff_ratio = 2;
-  m.coarse_layers = 1;
-  m.fine_layers = 2;
-  m.samples = 8;
-  m.ipe_degrees = 4;
-  m.le_count = 3;
-  m.le_layers = 1;
-  return m;
-}
 
 RayBatch some_batch(int64_t n) {
   auto gen = at::detail::createCPUGenerator(18);
@@ -61,7 +48,7 @@ void expect_gradients_equal(AbleNerf& model, const std::vector<torch::Tensor>& r
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
-  AbleNerf model(small_model());
+  AbleNerf model(test::two_head_model());
   model->to(torch::kDouble);
   model->train();
   TrainConfig tc;
@@ -100,7 +87,7 @@ TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
   // stream (coarse, then fine), exactly as one forward over the whole batch draws it. Draws made
   // per thread would differ from the reference (and from run to run).
   const test::IntraOpThreads threads(2);
-  auto cfg = small_model();
+  auto cfg = test::two_head_model();
   cfg.randomized = true;
   torch::manual_seed(8);
   AbleNerf model(cfg);
@@ -130,7 +117,7 @@ TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
 
 TEST(GradAccumulation, ReportedFineMseIsTheBatchMse) {
   torch::manual_seed(9);
-  AbleNerf model(small_model());
+  AbleNerf model(test::two_head_model());
   model->to(torch::kDouble);
   TrainConfig tc;
   const RayBatch batch = some_batch(24);

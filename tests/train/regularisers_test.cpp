@@ -7,6 +7,7 @@
 #include <torch/torch.h>
 
 #include "test_util.h"
+#include "train_fixture.h"
 #include "train/grad_accumulation.h"
 #include "train/regularisers.h"
 
@@ -37,16 +38,7 @@ std::pair<torch::Tensor, torch::Tensor> random_rays_weights(int64_t b, int64_t s
 }
 
 ModelConfig regulariser_model(bool grid) {
-  ModelConfig m;
-  m.width = 16;
-  m.heads = 2;
-  m.ff_ratio = 2;
-  m.coarse_layers = 1;
-  m.fine_layers = 2;
-  m.samples = 8;
-  m.ipe_degrees = 4;
-  m.le_count = 3;
-  m.le_layers = 1;
+  ModelConfig m = test::two_head_model();
   if (grid) {
     m.embedding = Embedding::Grid;
     m.grid_levels = 3;
