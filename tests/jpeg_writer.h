@@ -83,12 +83,12 @@ inline std::string exif_payload(bool little, int orientation) {
   };
   s += little ? "II" : "MM";
   u16(42);
-  u32(8);                             // IFD0 right after the header
-  u16(2);                             // two entries
+  u32(8);                                                // IFD0 right after the header
+  u16(2);                                                // two entries
   u16(0x010F), u16(2), u32(6), u32(8 + 2 + 2 * 12 + 4);  // Make: 6 ASCII bytes after IFD0
-  u16(0x0112), u16(3), u32(1);        // Orientation: one SHORT ...
-  u16(static_cast<unsigned>(orientation)), u16(0);  // ... left-justified in the value field
-  u32(0);                             // no IFD1
+  u16(0x0112), u16(3), u32(1);                           // Orientation: one SHORT ...
+  u16(static_cast<unsigned>(orientation)), u16(0);       // ... left-justified in the value field
+  u32(0);                                                // no IFD1
   s += std::string("Phone\0", 6);
   return s;
 }

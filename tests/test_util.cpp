@@ -103,8 +103,10 @@ void expect_input_error(const std::function<void()>& f, const std::string& file,
     ADD_FAILURE() << "expected an InputError for " << file << ": " << field << ": " << what;
   } catch (const InputError& e) {
     EXPECT_EQ(e.file(), file) << e.what();
-    if (exact_field) EXPECT_EQ(e.field(), field) << e.what();
-    else EXPECT_NE(e.field().find(field), std::string::npos) << e.what();
+    if (exact_field)
+      EXPECT_EQ(e.field(), field) << e.what();
+    else
+      EXPECT_NE(e.field().find(field), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
     EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << "one line: " << e.what();
   }

@@ -35,15 +35,16 @@ std::string source_dir();
 // Inline: the kernel tests link no Config and never call it.
 inline Config tiny_model_config() {
   Config c;
-  for (const char* kv : {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1",
-                         "model.fine_layers=1", "model.samples=8", "model.ipe_degrees=4", "model.le_count=2",
-                         "model.le_layers=1", "eval.chunk=64"})
+  for (const char* kv :
+       {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1", "model.fine_layers=1",
+        "model.samples=8", "model.ipe_degrees=4", "model.le_count=2", "model.le_layers=1", "eval.chunk=64"})
     c.set(kv);
   c.validate();
   return c;
 }
 
-// ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent (optional test data: tests that need it skip).
+// ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent (optional test data: tests that
+// need it skip).
 std::string lego_dir();
 
 // ../shared/weights beside the repository, or "" when absent (optional: tests that need it skip).

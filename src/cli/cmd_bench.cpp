@@ -101,7 +101,9 @@ void setup(CLI::App& app) {
     nlohmann::json j{{"fast", fast},
                      {"reference", reference},
                      {"speedup", {{"train", ratio("train")}, {"render", ratio("render")}}},
-                     {"speedup_note", "rays/s of the config's compute settings over fp32 + plain attention + cpu_split=ops + no CUDA graph, same run"}};
+                     {"speedup_note",
+                      "rays/s of the config's compute settings over fp32 + plain attention + cpu_split=ops + no CUDA "
+                      "graph, same run"}};
     std::cout << j.dump(2) << std::endl;
   });
 }

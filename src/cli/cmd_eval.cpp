@@ -25,11 +25,13 @@ void setup(CLI::App& app) {
   app.add_option("--split", a->split, "Dataset split to evaluate")->capture_default_str();
   app.add_option("--max-images", a->max_images, "Evaluate only the first N views (default: all)")
       ->check(CLI::PositiveNumber);
-  auto* downscale = app.add_option("--downscale", a->downscale, "Image downscale factor (default: the run's data.downscale)")
-                        ->check(CLI::PositiveNumber);
+  auto* downscale =
+      app.add_option("--downscale", a->downscale, "Image downscale factor (default: the run's data.downscale)")
+          ->check(CLI::PositiveNumber);
   app.add_option("--data", a->data, "Dataset folder (default: the one recorded in RUN/run.json)");
-  app.add_option("--ssim", a->ssim, "SSIM variant: standard (valid 11x11 window) or release (zero-padded, "
-                                    "the authors' code); default: the run's eval.ssim");
+  app.add_option("--ssim", a->ssim,
+                 "SSIM variant: standard (valid 11x11 window) or release (zero-padded, "
+                 "the authors' code); default: the run's eval.ssim");
   app.add_option("--lpips-weights", a->lpips_weights,
                  "LPIPS AlexNet weights (default: $ABLENERF_LPIPS_WEIGHTS or shared/weights; none -> skipped)");
   auto* chunk = app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
@@ -50,9 +52,11 @@ void setup(CLI::App& app) {
     const auto m = evaluate_run(run, o);
     write_report(run);
     const auto& mean = m["mean"];
-    auto show = [](const nlohmann::json& v) { return v.is_number() ? std::to_string(v.get<double>()) : std::string("n/a"); };
-    std::cout << "eval " << a->split << ": " << m["images"].size() << " views  PSNR " << show(mean["psnr"])
-              << "  SSIM " << show(mean["ssim"]) << "  LPIPS " << show(mean["lpips"]);
+    auto show = [](const nlohmann::json& v) {
+      return v.is_number() ? std::to_string(v.get<double>()) : std::string("n/a");
+    };
+    std::cout << "eval " << a->split << ": " << m["images"].size() << " views  PSNR " << show(mean["psnr"]) << "  SSIM "
+              << show(mean["ssim"]) << "  LPIPS " << show(mean["lpips"]);
     if (mean.contains("depth_mae")) std::cout << "  depth MAE " << show(mean["depth_mae"]);
     std::cout << "\nwrote " << eval_dir(run, a->split) << "/metrics.json and " << run.report_path() << std::endl;
   });

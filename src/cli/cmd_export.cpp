@@ -39,7 +39,8 @@ void run_geometry(const ExportArgs& a) {
     throw InputError("export", "--method", "'" + a.method + "' (expected tsdf or poisson)");
   if (a.frame != "capture" && a.frame != "scene")
     throw InputError("export", "--frame", "'" + a.frame + "' (expected capture or scene)");
-  if (a.mask != "alpha" && a.mask != "none") throw InputError("export", "--mask", "'" + a.mask + "' (expected alpha or none)");
+  if (a.mask != "alpha" && a.mask != "none")
+    throw InputError("export", "--mask", "'" + a.mask + "' (expected alpha or none)");
   if (a.num_points < 1) throw InputError("export", "--num-points", "must be >= 1");
 #ifdef ABLENERF_HAVE_GEOMETRY
   GeometryOptions o;
@@ -69,7 +70,8 @@ void run_export(const ExportArgs& a) {
     run_geometry(a);
     return;
   }
-  if (a.out.empty()) throw InputError("export", "--out", "give --out FILE.pt (weights), --points FILE.ply or --mesh FILE");
+  if (a.out.empty())
+    throw InputError("export", "--out", "give --out FILE.pt (weights), --points FILE.ply or --mesh FILE");
   run_export_weights(a);
 }
 
@@ -105,14 +107,19 @@ void setup(CLI::App& app) {
   app.add_option("--points", a->points, "Coloured points with normals from the run's depth, as FILE.ply");
   app.add_option("--mesh", a->mesh, "A mesh of the run's surfaces, as FILE.ply, .obj or .glb");
   app.add_option("--num-points", a->num_points, "Points kept at most, evenly thinned")->capture_default_str();
-  app.add_option("--resolution", a->resolution, "TSDF voxels along the crop box's longest side (0: from the rendered pixels' size)")->capture_default_str();
+  app.add_option("--resolution", a->resolution,
+                 "TSDF voxels along the crop box's longest side (0: from the rendered pixels' size)")
+      ->capture_default_str();
   app.add_option("--method", a->method, "Mesh from depth maps fused in a TSDF (tsdf) or from the points (poisson)")
       ->capture_default_str();
-  app.add_option("--crop", a->crop, "xmin,ymin,zmin,xmax,ymax,zmax in the output frame (default: what the cameras look at)");
-  app.add_option("--frame", a->frame, "capture (the input poses' coordinates) or scene (normalised)")->capture_default_str();
+  app.add_option("--crop", a->crop,
+                 "xmin,ymin,zmin,xmax,ymax,zmax in the output frame (default: what the cameras look at)");
+  app.add_option("--frame", a->frame, "capture (the input poses' coordinates) or scene (normalised)")
+      ->capture_default_str();
   app.add_option("--views", a->views, "Cameras of the capture rendered at most")->capture_default_str();
   app.add_option("--max-side", a->max_side, "Rendered images' longest side at most (pixels)")->capture_default_str();
-  app.add_option("--mask", a->mask, "alpha: the photos' transparent pixels give no geometry; none")->capture_default_str();
+  app.add_option("--mask", a->mask, "alpha: the photos' transparent pixels give no geometry; none")
+      ->capture_default_str();
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
   app.callback([a] { run_export(*a); });
 }

@@ -41,7 +41,8 @@ void run_geometry(const MetricsArgs& a) {
   // tau: 1% of the size of the objects (their bounding box's diagonal) unless given.
   double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
   for (const auto& s : spheres)
-    for (size_t i = 0; i < 3; ++i) lo[i] = std::min(lo[i], s.centre[i] - s.radius), hi[i] = std::max(hi[i], s.centre[i] + s.radius);
+    for (size_t i = 0; i < 3; ++i)
+      lo[i] = std::min(lo[i], s.centre[i] - s.radius), hi[i] = std::max(hi[i], s.centre[i] + s.radius);
   const double size = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
                                 (hi[2] - lo[2]) * (hi[2] - lo[2]));
   const double tau = a.tau > 0 ? a.tau : 0.01 * size;
@@ -51,13 +52,12 @@ void run_geometry(const MetricsArgs& a) {
   out["scene_size"] = size;
   std::cout << out.dump(2) << std::endl;
 #else
-  throw EnvironmentError("metrics", "this build has no geometry scoring", "install Open3D: apt-get install libopen3d-dev");
+  throw EnvironmentError("metrics", "this build has no geometry scoring",
+                         "install Open3D: apt-get install libopen3d-dev");
 #endif
 }
 
-std::string size_str(const torch::Tensor& im) {
-  return std::to_string(im.size(1)) + "x" + std::to_string(im.size(0));
-}
+std::string size_str(const torch::Tensor& im) { return std::to_string(im.size(1)) + "x" + std::to_string(im.size(0)); }
 
 void run(const MetricsArgs& a) {
   if (!a.geometry.empty() || !a.truth.empty()) {
@@ -71,11 +71,13 @@ void run(const MetricsArgs& a) {
   const torch::Tensor ref = read_rgb_for_metrics(a.ref);
   const torch::Tensor img = read_rgb_for_metrics(a.img);
   if (ref.sizes() != img.sizes())
-    throw InputError(a.img, "", "is " + size_str(img) + " but " + a.ref + " is " + size_str(ref) +
-                                    "; the images must have the same size");
+    throw InputError(
+        a.img, "",
+        "is " + size_str(img) + " but " + a.ref + " is " + size_str(ref) + "; the images must have the same size");
   if (variant == SsimVariant::Standard && (ref.size(0) < kSsimWindow || ref.size(1) < kSsimWindow))
-    throw InputError(a.ref, "", "standard SSIM needs images of at least " + std::to_string(kSsimWindow) +
-                                    "x" + std::to_string(kSsimWindow) + " (use --ssim release)");
+    throw InputError(a.ref, "",
+                     "standard SSIM needs images of at least " + std::to_string(kSsimWindow) + "x" +
+                         std::to_string(kSsimWindow) + " (use --ssim release)");
 
   nlohmann::json out;
   const double p = psnr(img, ref);
@@ -120,5 +122,6 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_metrics
-ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair; or geometry against a synth scene", cmd_metrics::setup);
+ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair; or geometry against a synth scene",
+                 cmd_metrics::setup);
 }  // namespace ablenerf::cli

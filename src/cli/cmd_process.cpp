@@ -22,25 +22,28 @@ void setup(CLI::App& app) {
                "Intrinsics per photo (several cameras or zoom) instead of one shared camera");
   app.add_option("--matcher", o->matcher,
                  "exhaustive (every pair), sequential (neighbours by file name) or auto (sequential for a video, "
-                 "exhaustive up to " + std::to_string(kExhaustiveMaxImages) + " photos)")
+                 "exhaustive up to " +
+                     std::to_string(kExhaustiveMaxImages) + " photos)")
       ->capture_default_str();
   app.add_option("--threads", o->threads, "COLMAP's threads (0 = all cores)")->capture_default_str();
   app.add_option("--colmap", o->colmap, "The COLMAP program")->capture_default_str();
   app.callback([o] {
     const ProcessResult r = process_capture(*o, std::cerr);
-    nlohmann::json j{{"capture", o->out},
-                     {"images", r.images},
-                     {"registered", r.registered},
-                     {"points", r.points},
-                     {"camera", r.camera},
-                     {"matcher", r.matcher},
-                     {"seconds", r.seconds},
-                     {"next", "ablenerf train --data " + o->out + " --config configs/demo.toml --time-budget 15m --out runs/NAME"}};
+    nlohmann::json j{
+        {"capture", o->out},
+        {"images", r.images},
+        {"registered", r.registered},
+        {"points", r.points},
+        {"camera", r.camera},
+        {"matcher", r.matcher},
+        {"seconds", r.seconds},
+        {"next", "ablenerf train --data " + o->out + " --config configs/demo.toml --time-budget 15m --out runs/NAME"}};
     std::cout << j.dump() << std::endl;
   });
 }
 
 }  // namespace cmd_process
-ABLENERF_COMMAND("process", 15, "Make a capture from your own photos or video: camera poses by COLMAP (structure from motion)",
+ABLENERF_COMMAND("process", 15,
+                 "Make a capture from your own photos or video: camera poses by COLMAP (structure from motion)",
                  cmd_process::setup);
 }  // namespace ablenerf::cli

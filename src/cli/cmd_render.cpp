@@ -88,7 +88,8 @@ std::pair<int, int> output_size(const std::string& json_path, int width, int hei
   if (width > 0 && height > 0) return {width, height};
   const auto [nw, nh] = native_size(json_path);
   if (nw <= 0 || nh <= 0)
-    throw InputError(json_path, "w", "image size unknown (no w/h and no readable first image): give --width and --height");
+    throw InputError(json_path, "w",
+                     "image size unknown (no w/h and no readable first image): give --width and --height");
   if (width > 0) return {width, static_cast<int>(std::lround(static_cast<double>(width) * nh / nw))};
   if (height > 0) return {static_cast<int>(std::lround(static_cast<double>(height) * nw / nh)), height};
   return {nw / downscale, nh / downscale};
@@ -145,8 +146,9 @@ void run_render(const RenderArgs& a) {
   if (!a.path.empty() && is_path_file(a.path))
     poses = read_path_file(a.path);  // recorded in the viewer, already in the scene frame
   else if (!a.path.empty())
-    poses = scene.kind == SceneKind::ForwardFacing ? forward_facing_path(parse_path_kind(a.path), a.frames, cams.c2w)
-                                                   : camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
+    poses = scene.kind == SceneKind::ForwardFacing
+                ? forward_facing_path(parse_path_kind(a.path), a.frames, cams.c2w)
+                : camera_path(parse_path_kind(a.path), a.frames, camera_rig(cams.c2w));
   const int n = static_cast<int>(poses.size(0));
   // H.264 (yuv420p) needs even sides: an odd native size (a capture at 135x240, say) loses its
   // last column or row, principal point unchanged. An odd size asked for is refused below.
@@ -165,8 +167,9 @@ void run_render(const RenderArgs& a) {
     writer.emplace(a.out, w, h, a.fps);
   } else if (video) {
     if (!a.fallback_frames)
-      throw InputError("--out", "", "ffmpeg not found on PATH, cannot write " + a.out +
-                                        " (install ffmpeg, or add --fallback-frames for PNG frames)");
+      throw InputError("--out", "",
+                       "ffmpeg not found on PATH, cannot write " + a.out +
+                           " (install ffmpeg, or add --fallback-frames for PNG frames)");
     frame_dir = a.out.substr(0, a.out.size() - 4) + "_frames";
     log_warn("ffmpeg not found on PATH: writing PNG frames to " + frame_dir + " instead");
   } else {
@@ -228,10 +231,12 @@ void setup(CLI::App& app) {
   auto a = std::make_shared<RenderArgs>();
   app.add_option("--run", a->run, "Run folder written by `ablenerf train`")->required();
   auto* cams = app.add_option("--cameras", a->cameras, "Render at the poses of this Blender/transforms json");
-  auto* path = app.add_option("--path", a->path,
-                              "Camera path: FILE.json recorded in `ablenerf view`, or around the origin at the training cameras' mean distance: "
-                              "orbit (mean elevation) or spiral (elevation oscillating up to +-15 deg), over the azimuth arc "
-                              "the cameras cover (out and back when they did not go all the way round)");
+  auto* path =
+      app.add_option("--path", a->path,
+                     "Camera path: FILE.json recorded in `ablenerf view`, or around the origin at the training "
+                     "cameras' mean distance: "
+                     "orbit (mean elevation) or spiral (elevation oscillating up to +-15 deg), over the azimuth arc "
+                     "the cameras cover (out and back when they did not go all the way round)");
   cams->excludes(path);
   app.add_option("--frames", a->frames, "Frames along --path")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--width", a->width, "Output width (default: dataset width / data.downscale)")
@@ -258,7 +263,8 @@ void setup(CLI::App& app) {
                "With a .mp4 --out and no ffmpeg: write PNG frames to OUT_frames/ instead of failing");
   app.add_option("--out", a->out, "Output folder for PNG frames, or FILE.mp4 (needs ffmpeg)")->required();
   app.callback([a] {
-    if (a->cameras.empty() && a->path.empty()) throw InputError("render", "--path", "give --path orbit|spiral|FILE.json or --cameras FILE");
+    if (a->cameras.empty() && a->path.empty())
+      throw InputError("render", "--path", "give --path orbit|spiral|FILE.json or --cameras FILE");
     run_render(*a);
   });
 }

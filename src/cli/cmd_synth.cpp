@@ -35,7 +35,9 @@ void setup(CLI::App& app) {
   app.add_option("--test-views", a->opts.test_views, "Number of test views (>= 1)")->capture_default_str();
   app.add_option("--seed", a->opts.seed, "Seed of the training camera positions")->capture_default_str();
   app.add_option("--threads", a->opts.threads, "Worker threads (0 = all cores)")->capture_default_str();
-  app.add_option("--lens", a->opts.lens, "pinhole, or opencv: render through a wide-angle lens with barrel distortion (OpenCV model)")->capture_default_str();
+  app.add_option("--lens", a->opts.lens,
+                 "pinhole, or opencv: render through a wide-angle lens with barrel distortion (OpenCV model)")
+      ->capture_default_str();
   app.add_option("--background", a->opts.background,
                  "transparent, or environment: the sky and ground at infinity behind the objects")
       ->capture_default_str();
@@ -55,5 +57,8 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_synth
-ABLENERF_COMMAND("synth", 10, "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset (or a nerfstudio capture: --lens, --background)", cmd_synth::setup);
+ABLENERF_COMMAND("synth", 10,
+                 "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset (or a "
+                 "nerfstudio capture: --lens, --background)",
+                 cmd_synth::setup);
 }  // namespace ablenerf::cli

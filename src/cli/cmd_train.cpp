@@ -52,7 +52,8 @@ TrainResult train_with_view(const Config& config, TrainOptions o, const TrainArg
   return trainer.run();
 #else
   (void)config, (void)o, (void)a;
-  throw EnvironmentError("train", "--view: this build has no viewer", "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");
+  throw EnvironmentError("train", "--view: this build has no viewer",
+                         "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");
 #endif
 }
 
@@ -71,7 +72,8 @@ void setup(CLI::App& app) {
                  "5m, 90s, 2h, 1h30m or seconds");
   app.add_flag("--view", a->view, "Serve the live viewer while training (loopback, --view-port): see `ablenerf view`");
   app.add_option("--view-port", a->view_port, "Port of --view's viewer (0 = any free port)")
-      ->capture_default_str()->check(CLI::Range(0, 65535));
+      ->capture_default_str()
+      ->check(CLI::Range(0, 65535));
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
@@ -90,8 +92,8 @@ void setup(CLI::App& app) {
     if (!a->time_budget.empty()) {
       const auto seconds = parse_duration(a->time_budget);
       if (!seconds || *seconds <= 0)
-        throw InputError("train", "--time-budget", "expected a duration such as 5m, 90s, 2h or 1h30m, got '" +
-                                                       a->time_budget + "'");
+        throw InputError("train", "--time-budget",
+                         "expected a duration such as 5m, 90s, 2h or 1h30m, got '" + a->time_budget + "'");
       config.train.time_budget_s = *seconds;
       config.validate();
     }
@@ -126,5 +128,6 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_train
-ABLENERF_COMMAND("train", 20, "Train a model on a dataset (writes a run folder: config, checkpoints, log, weights)", cmd_train::setup);
+ABLENERF_COMMAND("train", 20, "Train a model on a dataset (writes a run folder: config, checkpoints, log, weights)",
+                 cmd_train::setup);
 }  // namespace ablenerf::cli

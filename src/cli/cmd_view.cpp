@@ -38,7 +38,8 @@ void run(const ViewArgs& a) {
   server.run();
   g_server = nullptr;
 #else
-  throw EnvironmentError("view", "this build has no viewer", "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");
+  throw EnvironmentError("view", "this build has no viewer",
+                         "install libcpp-httplib-dev and rebuild (scripts/setup.sh)");
 #endif
 }
 

@@ -30,7 +30,7 @@ class CommandExit : public std::exception {
 struct CommandSpec {
   std::string name;
   std::string help;
-  int order;  // position in --help
+  int order;                             // position in --help
   std::function<void(CLI::App&)> setup;  // adds options and a callback
 };
 
@@ -52,7 +52,7 @@ struct ConfigOptions {
 
 #define ABLENERF_CAT2(a, b) a##b
 #define ABLENERF_CAT(a, b) ABLENERF_CAT2(a, b)
-#define ABLENERF_COMMAND(name, order, help, setup_fn)                                     \
+#define ABLENERF_COMMAND(name, order, help, setup_fn)                                       \
   static const ::ablenerf::cli::CommandRegistrar ABLENERF_CAT(ablenerf_cmd_, __COUNTER__) { \
-    ::ablenerf::cli::CommandSpec { name, help, order, setup_fn }                         \
+    ::ablenerf::cli::CommandSpec { name, help, order, setup_fn }                            \
   }

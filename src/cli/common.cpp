@@ -29,8 +29,9 @@ torch::Device parse_device(const std::string& name) {
                        "no GPU: this LibTorch build has no CUDA or this machine has no GPU (use --device cpu)");
     const int64_t count = static_cast<int64_t>(torch::cuda::device_count());
     if (d->has_index() && d->index() >= count)
-      throw InputError("--device", name, "no such GPU: this machine has " + std::to_string(count) +
-                                             " (cuda:0 to cuda:" + std::to_string(count - 1) + ")");
+      throw InputError("--device", name,
+                       "no such GPU: this machine has " + std::to_string(count) +
+                           " (cuda:0 to cuda:" + std::to_string(count - 1) + ")");
     if (!d->has_index()) d.emplace(torch::kCUDA, 0);
   }
   return *d;

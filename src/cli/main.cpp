@@ -40,8 +40,10 @@ int main(int argc, char** argv) {
   for (auto& spec : reg) {
     CLI::App* sub = app.add_subcommand(spec.name, spec.help);
     // Every command: how much of the log (util/log.h) reaches standard error.
-    sub->add_flag_callback("--quiet", [] { set_log_level(LogLevel::Warn); }, "Only warnings and errors (no progress)");
-    sub->add_flag_callback("--verbose", [] { set_log_level(LogLevel::Debug); }, "Also debugging detail");
+    sub->add_flag_callback(
+        "--quiet", [] { set_log_level(LogLevel::Warn); }, "Only warnings and errors (no progress)");
+    sub->add_flag_callback(
+        "--verbose", [] { set_log_level(LogLevel::Debug); }, "Also debugging detail");
     spec.setup(*sub);
   }
   try {

@@ -33,8 +33,8 @@ Intrinsics Intrinsics::scaled(double s, int new_width, int new_height) const {
 
 std::string Intrinsics::describe() const {
   std::ostringstream o;
-  o << lens_model_name(model) << " " << width << "x" << height << " f=(" << fx << ", " << fy << ") c=(" << cx
-    << ", " << cy << ")";
+  o << lens_model_name(model) << " " << width << "x" << height << " f=(" << fx << ", " << fy << ") c=(" << cx << ", "
+    << cy << ")";
   static const char* const names[kLensCoeffs] = {"k1", "k2", "k3", "k4", "p1", "p2"};
   for (int i = 0; i < kLensCoeffs; ++i)
     if (dist[static_cast<size_t>(i)] != 0.0) o << " " << names[i] << "=" << dist[static_cast<size_t>(i)];

@@ -42,7 +42,8 @@ Capture read_capture(const std::string& root, const std::vector<std::string>& sp
   if (!fs::is_directory(root)) throw InputError(root, "", "dataset folder not found");
   if (downscale < 1) throw InputError(root, "downscale", "must be >= 1");
   const auto& formats = capture_formats();
-  const auto format = std::find_if(formats.begin(), formats.end(), [&](const CaptureFormat& f) { return f.detect(root); });
+  const auto format =
+      std::find_if(formats.begin(), formats.end(), [&](const CaptureFormat& f) { return f.detect(root); });
   if (format == formats.end())
     throw InputError(root, "transforms_train.json",
                      "no capture found: expected transforms_{train,val,test}.json (Blender), transforms.json "
@@ -90,11 +91,13 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
   for (++it; it != rel.end(); ++it) rest /= *it;
   const fs::path dir = canon_root / ("images_" + std::to_string(downscale)) / rest.parent_path();
   if (!fs::is_directory(dir)) return "";
-  for (const std::string& ext : {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"),
-                                std::string(".JPG"), std::string(".PNG"), std::string(".JPEG")}) {
+  for (const std::string& ext :
+       {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"), std::string(".JPG"),
+        std::string(".PNG"), std::string(".JPEG")}) {
     const fs::path cand = dir / (rest.stem().string() + ext);
-    if (fs::is_regular_file(cand)) return resolve_in_root(root, cand.lexically_relative(canon_root).string(), image,
-                                                   "images_" + std::to_string(downscale));
+    if (fs::is_regular_file(cand))
+      return resolve_in_root(root, cand.lexically_relative(canon_root).string(), image,
+                             "images_" + std::to_string(downscale));
   }
   return "";
 }
@@ -102,7 +105,8 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
 void split_every_eighth(std::vector<CaptureFrame> all, const std::vector<std::string>& splits, const std::string& file,
                         FrameOrder order, Capture& out) {
   if (order == FrameOrder::ByImageName)
-    std::stable_sort(all.begin(), all.end(), [](const CaptureFrame& a, const CaptureFrame& b) { return a.image < b.image; });
+    std::stable_sort(all.begin(), all.end(),
+                     [](const CaptureFrame& a, const CaptureFrame& b) { return a.image < b.image; });
   CaptureSplit train{"train", file, {}}, test{"test", file, {}};
   for (size_t i = 0; i < all.size(); ++i)
     (i % kTestEvery == 0 && all.size() > 1 ? test : train).frames.push_back(all[i]);

@@ -27,9 +27,9 @@ struct CaptureFrame {
   // (images_N/, see resolve_downscaled) when one matches the requested downscale.
   std::string image;
   bool prescaled = false;  // `image` is already downscaled (decoded as is, the camera scaled to its size)
-  Intrinsics camera;  // at full resolution (width x height of Capture)
-  std::string depth;  // canonical path of its depth tensor ("" when the frame has none)
-  std::string field;  // the field that names the image, e.g. "frames[3].file_path", for errors
+  Intrinsics camera;       // at full resolution (width x height of Capture)
+  std::string depth;       // canonical path of its depth tensor ("" when the frame has none)
+  std::string field;       // the field that names the image, e.g. "frames[3].file_path", for errors
   Pose34 pose{};
 };
 
@@ -46,11 +46,11 @@ struct Capture {
   std::vector<CaptureSplit> splits;  // selected splits that have frames, in train, val, test order
   int width = 0, height = 0;         // full-resolution image size (every frame's)
   // What the capture says about the scene's extent, in the poses' units (empty / 0 when absent):
-  std::vector<std::array<double, 3>> points;   // sparse points (COLMAP points3D)
-  std::vector<std::array<double, 2>> bounds;   // near/far of every image of the capture (LLFF)
-  double aabb_scale = 0;                       // instant-ngp's aabb_scale (> 1: content beyond the unit cube)
-  bool synthetic = false;                      // Blender: a bounded object, near/far 2/6 by convention
-  std::vector<std::string> notes;              // what was read, for `info` (one line each)
+  std::vector<std::array<double, 3>> points;  // sparse points (COLMAP points3D)
+  std::vector<std::array<double, 2>> bounds;  // near/far of every image of the capture (LLFF)
+  double aabb_scale = 0;                      // instant-ngp's aabb_scale (> 1: content beyond the unit cube)
+  bool synthetic = false;                     // Blender: a bounded object, near/far 2/6 by convention
+  std::vector<std::string> notes;             // what was read, for `info` (one line each)
 
   // The names of the splits read, in order.
   std::vector<std::string> split_names() const;

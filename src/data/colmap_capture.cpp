@@ -49,8 +49,9 @@ Intrinsics colmap_camera(const ColmapCamera& c, const std::string& file) {
     k.model = LensModel::Fisheye;
   } else {
     throw InputError(file, where + ": model",
-                     c.model + " is not supported (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, "
-                               "OPENCV_FISHEYE; or undistort with `colmap image_undistorter`)");
+                     c.model +
+                         " is not supported (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, "
+                         "OPENCV_FISHEYE; or undistort with `colmap image_undistorter`)");
   }
   if (!(k.fx > 0 && k.fy > 0)) throw InputError(file, where, "focal length must be positive");
   return k;

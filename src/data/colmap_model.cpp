@@ -58,7 +58,6 @@ constexpr size_t kPoint2DBytes = 8 + 8 + 8;                            // x, y, 
 constexpr size_t kPointMinBytes = 8 + 3 * 8 + 3 + 8 + 8;               // id, xyz, rgb, error, track_length
 constexpr size_t kTrackEntryBytes = 4 + 4;                             // image_id, point2D_idx
 
-
 std::string image_label(uint32_t id, const std::string& name) {
   return "image " + std::to_string(id) + " (" + printable(name, kColmapQuoteChars) + ")";
 }
@@ -262,7 +261,8 @@ double parse_real(std::string_view tok, const std::string& origin, const std::st
     if (any) return std::numeric_limits<double>::quiet_NaN();
     throw InputError(origin, field, "'" + printable(tok, kColmapQuoteChars) + "' is out of range of a double");
   }
-  if (!any && !std::isfinite(v)) throw InputError(origin, field, "non-finite value '" + printable(tok, kColmapQuoteChars) + "'");
+  if (!any && !std::isfinite(v))
+    throw InputError(origin, field, "non-finite value '" + printable(tok, kColmapQuoteChars) + "'");
   return v;
 }
 
@@ -273,7 +273,8 @@ uint64_t parse_whole(std::string_view tok, uint64_t max, const std::string& orig
   if (end != tok.data() + tok.size() || (ec != std::errc() && ec != std::errc::result_out_of_range))
     throw InputError(origin, field, "expected a whole number, got '" + printable(tok, kColmapQuoteChars) + "'");
   if (ec == std::errc::result_out_of_range || v > max)
-    throw InputError(origin, field, "'" + printable(tok, kColmapQuoteChars) + "' is out of range [0, " + std::to_string(max) + "]");
+    throw InputError(origin, field,
+                     "'" + printable(tok, kColmapQuoteChars) + "' is out of range [0, " + std::to_string(max) + "]");
   return v;
 }
 
@@ -398,7 +399,8 @@ std::vector<ColmapCamera> parse_cameras_txt(const std::string& text, const std::
     for (int k = 0; k < kNumCameraModels; ++k)
       if (c.model == kCameraModels[k].name) c.model_id = k;
     if (c.model_id < 0)
-      throw InputError(origin, where + ": model", "unknown COLMAP camera model '" + printable(c.model, kColmapQuoteChars) + "'");
+      throw InputError(origin, where + ": model",
+                       "unknown COLMAP camera model '" + printable(c.model, kColmapQuoteChars) + "'");
     c.width = parse_whole(f[2], kMaxU64, origin, where + ": width");
     c.height = parse_whole(f[3], kMaxU64, origin, where + ": height");
     const size_t np = static_cast<size_t>(kCameraModels[c.model_id].params);

@@ -19,8 +19,8 @@ namespace ablenerf {
 
 namespace {
 
-const std::vector<std::string> kSfmCameraModels{"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV",
-                                              "OPENCV_FISHEYE"};
+const std::vector<std::string> kSfmCameraModels{"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL",
+                                                "RADIAL",         "OPENCV",  "OPENCV_FISHEYE"};
 
 void check_options(const ProcessOptions& o) {
   if (o.images.empty() == o.video.empty()) throw InputError("process", "--images/--video", "give exactly one of them");
@@ -33,7 +33,8 @@ void check_options(const ProcessOptions& o) {
                      "'" + printable(o.camera_model, 40) +
                          "' is not one of SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE");
   if (o.matcher != "auto" && o.matcher != "exhaustive" && o.matcher != "sequential")
-    throw InputError("process", "--matcher", "'" + printable(o.matcher, 40) + "' is not auto, exhaustive or sequential");
+    throw InputError("process", "--matcher",
+                     "'" + printable(o.matcher, 40) + "' is not auto, exhaustive or sequential");
   if (o.threads < 0) throw InputError("process", "--threads", "must be >= 0");
   if (o.out.empty()) throw InputError("process", "--out", "missing");
   if (fs::exists(o.out) && (!fs::is_directory(o.out) || !fs::is_empty(o.out)))
@@ -46,7 +47,8 @@ void require(const std::string& program, const std::string& package) {
 }
 
 std::string threads_arg(const ProcessOptions& o) {
-  return std::to_string(o.threads > 0 ? o.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
+  return std::to_string(o.threads > 0 ? o.threads
+                                      : static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
 }
 
 // COLMAP 3.8's command-line tools create a Qt application; without a display they need this.
@@ -77,12 +79,15 @@ void check_photos(const std::vector<std::string>& files) {
   const auto common = std::max_element(count.begin(), count.end(), [](const auto& a, const auto& b) {
                         return a.second < b.second;
                       })->first;
-  const auto text = [](const std::pair<int, int>& hw) { return std::to_string(hw.second) + "x" + std::to_string(hw.first); };
+  const auto text = [](const std::pair<int, int>& hw) {
+    return std::to_string(hw.second) + "x" + std::to_string(hw.first);
+  };
   for (size_t i = 0; i < files.size(); ++i)
     if (sizes[i] != common)
       throw InputError(files[i], "size",
-                       text(sizes[i]) + " but " + std::to_string(count[common]) + " of the " + std::to_string(files.size()) +
-                           " photos are " + text(common) + ": a capture has one image size (rotate or resize it to match, or leave it out)");
+                       text(sizes[i]) + " but " + std::to_string(count[common]) + " of the " +
+                           std::to_string(files.size()) + " photos are " + text(common) +
+                           ": a capture has one image size (rotate or resize it to match, or leave it out)");
 }
 
 int copy_photos(const std::vector<std::string>& files, const std::string& images) {
@@ -97,8 +102,8 @@ int extract_frames(const ProcessOptions& o, const std::string& images, const std
   require(o.ffprobe, "ffmpeg");
   int status = 0;
   const std::string counted = run_captured({o.ffprobe, "-v", "error", "-select_streams", "v:0", "-count_packets",
-                                           "-show_entries", "stream=nb_read_packets", "-of", "csv=p=0", o.video},
-                                          log, &status);
+                                            "-show_entries", "stream=nb_read_packets", "-of", "csv=p=0", o.video},
+                                           log, &status);
   long total = 0;
   try {
     total = std::stol(counted);
@@ -151,7 +156,8 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
                              " not read: convert to JPEG (HEIC: heif-convert from Debian's libheif-examples; "
                              "TIFF, WebP, RAW: ffmpeg or your photo tool)";
     if (photos.empty())
-      throw InputError(o.images, "--images", "no JPEG or PNG photos in this folder" + (convert.empty() ? "" : "; " + convert));
+      throw InputError(o.images, "--images",
+                       "no JPEG or PNG photos in this folder" + (convert.empty() ? "" : "; " + convert));
     if (!convert.empty()) progress << "process: note: " << convert << std::endl;
     check_photos(photos);
   }

@@ -18,14 +18,14 @@ struct ProcessOptions {
   std::string images;  // a folder of JPEG / PNG photos (not searched recursively), or
   std::string video;   // a video file, sampled to about `frames` evenly spaced frames
   int frames = 150;
-  std::string out;     // the capture folder to create: absent or empty
+  std::string out;  // the capture folder to create: absent or empty
   // COLMAP's camera model: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE.
   std::string camera_model = "OPENCV";
   bool single_camera = true;  // one camera (intrinsics shared by every photo), as one phone or lens
   // exhaustive (every pair), sequential (neighbours in file-name order: video), or auto: sequential
   // for a video, exhaustive for up to kExhaustiveMaxImages photos, sequential above.
   std::string matcher = "auto";
-  int threads = 0;  // COLMAP's threads; 0 = all cores
+  int threads = 0;                  // COLMAP's threads; 0 = all cores
   std::string colmap = "colmap";    // the COLMAP program
   std::string ffmpeg = "ffmpeg";    // for --video
   std::string ffprobe = "ffprobe";  // counts the video's frames
@@ -52,6 +52,7 @@ ProcessResult process_capture(const ProcessOptions& options, std::ostream& progr
 
 // The COLMAP command lines of the pipeline for `n_images` photos, in order: feature extraction,
 // matching, mapping (exposed for the tests).
-std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& options, const std::string& out, int n_images);
+std::vector<std::vector<std::string>> colmap_commands(const ProcessOptions& options, const std::string& out,
+                                                      int n_images);
 
 }  // namespace ablenerf

@@ -64,8 +64,9 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const Image8& image, int64_t wa
   torch::Tensor raw = image_tensor(image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
     return InputError(fr.image, fr.field,
-                      "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) + " but the capture's images are " +
-                          std::to_string(want_w) + "x" + std::to_string(want_h) + (fr.prescaled ? " (pre-downscaled copy)" : ""));
+                      "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) +
+                          " but the capture's images are " + std::to_string(want_w) + "x" + std::to_string(want_h) +
+                          (fr.prescaled ? " (pre-downscaled copy)" : ""));
   };
   if (fr.prescaled) {
     // images_N/ copies are W/N rounded or floored: one extra row or column is cropped.
@@ -84,8 +85,8 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const Image8& image, int64_t wa
 // Decodes the frames of a split into tensors. The images are decoded a group at a time, one frame
 // per core (the codecs are torch-free); each group then goes through LibTorch on this thread, in
 // frame order, so the first bad frame in capture order is the one reported.
-Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect_h, int expect_w, const SceneFrame& scene,
-                   Progress* progress, int64_t& done, int64_t total) {
+Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect_h, int expect_w,
+                   const SceneFrame& scene, Progress* progress, int64_t& done, int64_t total) {
   Split s;
   s.name = spec.name;
   const int64_t n = static_cast<int64_t>(spec.frames.size());
@@ -116,8 +117,8 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
       const auto& e = errors[static_cast<size_t>(i - start)];
       if (e) std::rethrow_exception(e);
       const auto& fr = spec.frames[static_cast<size_t>(i)];
-      const torch::Tensor im = frame_rgba(fr, decoded[static_cast<size_t>(i - start)].image, fr.prescaled ? h : expect_h,
-                                          fr.prescaled ? w : expect_w, f, h, w);
+      const torch::Tensor im = frame_rgba(fr, decoded[static_cast<size_t>(i - start)].image,
+                                          fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w, f, h, w);
       auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
       const float bg = opts.white_background ? 1.0f : 0.0f;
       s.images[i].copy_(rgb * a + bg * (1.0f - a));
@@ -169,8 +170,7 @@ void check_memory(const std::vector<CaptureSplit>& specs, int h, int w, const Lo
   if (need > static_cast<double>(have))
     throw InputError(root, "images",
                      "the decoded images need " + std::to_string(static_cast<int64_t>(need / (1 << 20))) +
-                         " MiB but only " +
-                         std::to_string(have / (1 << 20)) +
+                         " MiB but only " + std::to_string(have / (1 << 20)) +
                          " MiB are available (try --set data.downscale=2 or fewer splits)");
 }
 
@@ -201,7 +201,8 @@ Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& op
   if (!opts.splits.empty()) {
     std::vector<CaptureSplit> keep;
     for (auto& sp : js.splits)
-      if (std::find(opts.splits.begin(), opts.splits.end(), sp.name) != opts.splits.end()) keep.push_back(std::move(sp));
+      if (std::find(opts.splits.begin(), opts.splits.end(), sp.name) != opts.splits.end())
+        keep.push_back(std::move(sp));
     js.splits = std::move(keep);
   }
   if (js.splits.empty()) throw InputError(root, "split", "none of the requested splits is present");

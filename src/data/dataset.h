@@ -37,19 +37,20 @@ struct LoadOptions {
 
 struct Split {
   std::string name;
-  torch::Tensor images;  // (N,H,W,3) float32 in [0,1], composited on the background
-  torch::Tensor alpha;   // (N,H,W) float32 alpha after downscale
-  torch::Tensor c2w;     // (N,3,4) float32 camera-to-world, OpenGL axes, in the scene frame
+  torch::Tensor images;             // (N,H,W,3) float32 in [0,1], composited on the background
+  torch::Tensor alpha;              // (N,H,W) float32 alpha after downscale
+  torch::Tensor c2w;                // (N,3,4) float32 camera-to-world, OpenGL axes, in the scene frame
   std::vector<Intrinsics> cameras;  // each image's camera at the loaded resolution
-  std::vector<std::string> files;  // image paths
-  torch::Tensor depth;   // (N,H,W) float32 depth along the optical axis in scene units, if the dataset has it (else undefined)
+  std::vector<std::string> files;   // image paths
+  torch::Tensor
+      depth;  // (N,H,W) float32 depth along the optical axis in scene units, if the dataset has it (else undefined)
   int64_t size() const { return c2w.defined() ? c2w.size(0) : 0; }
 };
 
 struct Dataset {
   std::string root;
-  std::string format;  // "blender" | "instant-ngp" | "nerfstudio" | "colmap" | "llff"
-  Intrinsics intrinsics;  // the first image's camera (every image's, unless the capture has per-image ones)
+  std::string format;            // "blender" | "instant-ngp" | "nerfstudio" | "colmap" | "llff"
+  Intrinsics intrinsics;         // the first image's camera (every image's, unless the capture has per-image ones)
   double near = 2.0, far = 6.0;  // scene.near / scene.far
   SceneFrame scene;
   std::vector<std::string> notes;  // what the loader read and chose, for `info`

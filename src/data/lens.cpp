@@ -48,7 +48,8 @@ torch::Tensor distort_points(const CameraTable& cams, const torch::Tensor& xy) {
 torch::Tensor undistort_points(const CameraTable& cams, const torch::Tensor& xy) { return apply(cams, xy, inverse_of); }
 
 torch::Tensor undistorted_step_y(const CameraTable& cams, const torch::Tensor& xy) {
-  if (cams.all_pinhole()) return torch::stack({torch::zeros_like(xy.select(1, 0)), torch::ones_like(xy.select(1, 0))}, 1);
+  if (cams.all_pinhole())
+    return torch::stack({torch::zeros_like(xy.select(1, 0)), torch::ones_like(xy.select(1, 0))}, 1);
   // The two offsets made on xy's device (torch::tensor would copy from the host, a synchronising
   // copy that a CUDA graph capturing the training step refuses).
   const auto steps = torch::eye(2, xy.options()) * kLensStep;

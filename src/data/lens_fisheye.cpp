@@ -39,7 +39,8 @@ torch::Tensor fisheye_undistort(const torch::Tensor& xy_distorted, const torch::
     theta = theta - torch::where(ok, f / torch::where(ok, df, torch::ones_like(df)), torch::zeros_like(f));
     theta = theta.clamp(0.0, kFisheyeMaxTheta);
   }
-  const auto scale = torch::where(theta_d > kFeTiny, torch::tan(theta) / theta_d.clamp_min(kFeTiny), torch::ones_like(theta));
+  const auto scale =
+      torch::where(theta_d > kFeTiny, torch::tan(theta) / theta_d.clamp_min(kFeTiny), torch::ones_like(theta));
   return xy_distorted * scale.unsqueeze(1);
 }
 

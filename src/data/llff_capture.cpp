@@ -31,7 +31,8 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   std::vector<std::string> names;
   for (const auto& f : image_files(dir.string())) names.push_back(fs::path(f).filename().string());
   if (static_cast<int64_t>(names.size()) != n)
-    throw InputError(file, "shape", std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
+    throw InputError(file, "shape",
+                     std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
   out.format = "llff";
   std::vector<CaptureFrame> frames;
   for (int64_t i = 0; i < n; ++i) {

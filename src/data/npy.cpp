@@ -193,7 +193,8 @@ NpyArray parse_npy(const std::string& b, const std::string& origin) {
   else if (h.descr == "<f4" || h.descr == ">f4")
     item = 4;
   else
-    throw InputError(origin, "descr", "dtype '" + printable(h.descr, kNpyQuoteChars) + "' not supported (need float32 or float64)");
+    throw InputError(origin, "descr",
+                     "dtype '" + printable(h.descr, kNpyQuoteChars) + "' not supported (need float32 or float64)");
   const bool big_endian = h.descr[0] == '>';
 
   // The element count, checked so that count * item cannot overflow: a dimension of 0 makes it 0

@@ -13,8 +13,8 @@ namespace ablenerf {
 namespace {
 
 struct PlyProperty {
-  int bytes = 0;     // size in the binary encoding
-  char kind = 'f';   // 'i' signed, 'u' unsigned, 'f' floating
+  int bytes = 0;    // size in the binary encoding
+  char kind = 'f';  // 'i' signed, 'u' unsigned, 'f' floating
   std::string name;
 };
 
@@ -25,8 +25,8 @@ bool scalar_type(const std::string& t, PlyProperty& p) {
     const char* b;
     int bytes;
     char kind;
-  } types[] = {{"char", "int8", 1, 'i'},    {"uchar", "uint8", 1, 'u'},     {"short", "int16", 2, 'i'},
-               {"ushort", "uint16", 2, 'u'}, {"int", "int32", 4, 'i'},       {"uint", "uint32", 4, 'u'},
+  } types[] = {{"char", "int8", 1, 'i'},     {"uchar", "uint8", 1, 'u'},   {"short", "int16", 2, 'i'},
+               {"ushort", "uint16", 2, 'u'}, {"int", "int32", 4, 'i'},     {"uint", "uint32", 4, 'u'},
                {"float", "float32", 4, 'f'}, {"double", "float64", 8, 'f'}};
   for (const auto& ty : types)
     if (t == ty.a || t == ty.b) {
@@ -91,7 +91,8 @@ std::vector<std::array<double, 3>> parse_ply_points(const std::string& bytes, co
       long long n = -1;
       w >> name >> n;
       if (!seen_element) {
-        if (name != "vertex") throw InputError(origin, "vertex", "the first element must be 'vertex', not '" + name + "'");
+        if (name != "vertex")
+          throw InputError(origin, "vertex", "the first element must be 'vertex', not '" + name + "'");
         if (w.fail() || n < 0 || static_cast<uint64_t>(n) > kMaxPlyVertices)
           throw InputError(origin, "vertex", "bad vertex count");
         count = static_cast<uint64_t>(n);
@@ -148,18 +149,24 @@ std::vector<std::array<double, 3>> parse_ply_points(const std::string& bytes, co
   // ASCII: one vertex per line, one number per property.
   std::istringstream data(bytes.substr(body));
   for (uint64_t i = 0; i < count; ++i) {
-    if (!std::getline(data, line)) throw InputError(origin, "data", "truncated: vertex " + std::to_string(i) + " missing");
+    if (!std::getline(data, line))
+      throw InputError(origin, "data", "truncated: vertex " + std::to_string(i) + " missing");
     std::istringstream w(line);
     std::vector<double> vals(props.size());
     for (auto& v : vals)
-      if (!(w >> v)) throw InputError(origin, "data", "vertex " + std::to_string(i) + ": expected " + std::to_string(props.size()) + " numbers");
-    const std::array<double, 3> v{vals[static_cast<size_t>(ix)], vals[static_cast<size_t>(iy)], vals[static_cast<size_t>(iz)]};
+      if (!(w >> v))
+        throw InputError(origin, "data",
+                         "vertex " + std::to_string(i) + ": expected " + std::to_string(props.size()) + " numbers");
+    const std::array<double, 3> v{vals[static_cast<size_t>(ix)], vals[static_cast<size_t>(iy)],
+                                  vals[static_cast<size_t>(iz)]};
     check(v, i);
     out.push_back(v);
   }
   return out;
 }
 
-std::vector<std::array<double, 3>> read_ply_points(const std::string& path) { return parse_ply_points(read_file(path), path); }
+std::vector<std::array<double, 3>> read_ply_points(const std::string& path) {
+  return parse_ply_points(read_file(path), path);
+}
 
 }  // namespace ablenerf

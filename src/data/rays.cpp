@@ -67,7 +67,7 @@ Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const t
   }
   // OpenGL camera axes: y up, looking down -z.
   auto dirs_cam = torch::stack({x, -y, -torch::ones_like(x)}, -1).to(opts);  // (B,3)
-  auto rot = c2w.slice(1, 0, 3).slice(2, 0, 3).to(torch::kFloat);  // (B,3,3)
+  auto rot = c2w.slice(1, 0, 3).slice(2, 0, 3).to(torch::kFloat);            // (B,3,3)
   auto dirs = torch::bmm(rot, dirs_cam.unsqueeze(-1)).squeeze(-1);
   auto origins = c2w.slice(1, 0, 3).select(2, 3).to(torch::kFloat).contiguous();
   return {origins, dirs.contiguous(), radii.contiguous()};

@@ -53,8 +53,7 @@ double pixel_radius(const Intrinsics& k);
 Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
                      const CameraTable& cams);
 // Every ray through the same camera.
-Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
-                     const Intrinsics& k);
+Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row, const Intrinsics& k);
 
 // Every ray of one image, row-major (H*W rays). c2w: (3,4) or (4,4).
 Rays rays_for_image(const torch::Tensor& c2w, const Intrinsics& k);

@@ -16,7 +16,9 @@ using V3 = std::array<double, 3>;
 V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 double norm(const V3& a) { return std::sqrt(dot(a, a)); }
-V3 cross(const V3& a, const V3& b) { return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]}; }
+V3 cross(const V3& a, const V3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
 
 V3 column(const Pose34& p, int c) {
   return {p[static_cast<size_t>(c)], p[static_cast<size_t>(4 + c)], p[static_cast<size_t>(8 + c)]};
@@ -54,7 +56,8 @@ V3 rotate_t(const std::array<double, 9>& r, const V3& v) {
 
 // Solves the 3x3 system A x = b (Cramer); false when A is near singular relative to its size.
 bool solve3(const double A[3][3], const V3& b, V3& x) {
-  const double det = A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1]) - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0]) +
+  const double det = A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1]) -
+                     A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0]) +
                      A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0]);
   double scale = 0;
   for (int i = 0; i < 3; ++i)
@@ -64,8 +67,10 @@ bool solve3(const double A[3][3], const V3& b, V3& x) {
     double M[3][3];
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) M[i][j] = j == c ? b[static_cast<size_t>(i)] : A[i][j];
-    x[static_cast<size_t>(c)] = (M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) - M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
-                                 M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0])) / det;
+    x[static_cast<size_t>(c)] =
+        (M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) - M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
+         M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0])) /
+        det;
   }
   return true;
 }
@@ -166,7 +171,8 @@ Pose34 SceneFrame::to_capture(const Pose34& c2w) const {
   const V3 t = column(c2w, 3);
   const V3 back = rotate_t(rotation, {t[0] / scale, t[1] / scale, t[2] / scale});
   for (int r = 0; r < 3; ++r)
-    out[static_cast<size_t>(r * 4 + 3)] = static_cast<float>(back[static_cast<size_t>(r)] + centre[static_cast<size_t>(r)]);
+    out[static_cast<size_t>(r * 4 + 3)] =
+        static_cast<float>(back[static_cast<size_t>(r)] + centre[static_cast<size_t>(r)]);
   return out;
 }
 
@@ -208,7 +214,8 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
   }
   if (!(f.scale > 0 && std::isfinite(f.scale))) throw InputError(origin, "scale", "must be positive");
   if (!(f.near >= 0 && f.far > f.near)) throw InputError(origin, "far", "need 0 <= near < far");
-  if (f.kind == SceneKind::ForwardFacing && !(f.ndc_a > 0 && f.ndc_b > 0 && std::isfinite(f.ndc_a) && std::isfinite(f.ndc_b)))
+  if (f.kind == SceneKind::ForwardFacing &&
+      !(f.ndc_a > 0 && f.ndc_b > 0 && std::isfinite(f.ndc_a) && std::isfinite(f.ndc_b)))
     throw InputError(origin, "ndc_a", "a forward-facing scene needs positive ndc_a and ndc_b");
   return f;
 }
@@ -223,8 +230,8 @@ std::string SceneFrame::describe() const {
   return o.str();
 }
 
-SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKind requested, double near,
-                           double far, bool bounds_from_config) {
+SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKind requested, double near, double far,
+                           bool bounds_from_config) {
   SceneFrame f;
   if (cap.synthetic) {
     f.kind = requested == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
@@ -273,9 +280,10 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
   if (requested == SceneKind::ForwardFacing && !has_near)
     throw InputError(root, "data.scene", "forward needs the scene's near bound: sparse points (COLMAP) or LLFF bounds");
   if (requested == SceneKind::ForwardFacing && !facing_one_way)
-    throw InputError(root, "data.scene", "forward needs cameras that all look the same way (none may turn more than " +
-                                             std::to_string(static_cast<int>(kForwardFacingMaxAngleDeg)) +
-                                             " degrees from their mean direction); use unbounded");
+    throw InputError(root, "data.scene",
+                     "forward needs cameras that all look the same way (none may turn more than " +
+                         std::to_string(static_cast<int>(kForwardFacingMaxAngleDeg)) +
+                         " degrees from their mean direction); use unbounded");
   if (requested == SceneKind::ForwardFacing || (requested == SceneKind::Auto && facing_one_way && has_near))
     return fit_forward_facing(cap, poses, mean, back, up, root);
 

@@ -24,7 +24,7 @@ struct SceneFrame {
   double near = 2, far = 6;             // in scene units (ForwardFacing: 0 and 1, the NDC ray's t)
   // ForwardFacing: the NDC projection's focal factors 2 fx / W and 2 fy / H (model/ndc.h).
   double ndc_a = 0, ndc_b = 0;
-  std::string bounds_source = "config"; // "points" | "llff bounds" | "cameras" | "config"
+  std::string bounds_source = "config";  // "points" | "llff bounds" | "cameras" | "config"
 
   bool identity() const;
   // A camera-to-world pose in capture coordinates -> scene coordinates (and back).

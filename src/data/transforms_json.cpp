@@ -37,8 +37,10 @@ std::string mark_nonfinite(const std::string& text) {
     const char c = text[i];
     if (in_string) {
       out += c;
-      if (c == '\\' && i + 1 < text.size()) out += text[++i];
-      else if (c == '"') in_string = false;
+      if (c == '\\' && i + 1 < text.size())
+        out += text[++i];
+      else if (c == '"')
+        in_string = false;
       ++i;
       continue;
     }
@@ -90,8 +92,7 @@ json parse_json_file(const std::string& path) {
   }
 }
 
-double number_field(const json& j, const std::string& key, const std::string& file,
-                    const std::string& where) {
+double number_field(const json& j, const std::string& key, const std::string& file, const std::string& where) {
   const std::string field = where.empty() ? key : where + "." + key;
   if (!j.is_object() || !j.contains(key)) throw InputError(file, field, "missing");
   const json& v = j.at(key);
@@ -118,8 +119,8 @@ constexpr double kMaxImageSide = 1 << 20;
 int size_field(const json& j, const std::string& key, const std::string& file) {
   const double v = number_field(j, key, file, "");
   if (!(v >= 1 && v <= kMaxImageSide) || v != std::floor(v))
-    throw InputError(file, key, "image size must be a whole number in [1, " +
-                                    std::to_string(static_cast<int>(kMaxImageSide)) + "]");
+    throw InputError(
+        file, key, "image size must be a whole number in [1, " + std::to_string(static_cast<int>(kMaxImageSide)) + "]");
   return static_cast<int>(v);
 }
 
@@ -150,8 +151,7 @@ Pose34 parse_pose(const json& m, const std::string& file, const std::string& fie
   return checked_pose(top, file, field);
 }
 
-std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, const std::string& file,
-                                    bool add_png) {
+std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, const std::string& file, bool add_png) {
   if (!j.contains("frames")) throw InputError(file, "frames", "missing");
   const json& frames = j.at("frames");
   if (!frames.is_array()) throw InputError(file, "frames", "expected an array");
@@ -171,8 +171,8 @@ std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, c
     if (fr.contains("depth_file_path")) {
       if (!fr.at("depth_file_path").is_string())
         throw InputError(file, where + ".depth_file_path", "expected a string");
-      f.depth = resolve_in_root(root, fr.at("depth_file_path").get<std::string>(), file,
-                              where + ".depth_file_path", false);
+      f.depth =
+          resolve_in_root(root, fr.at("depth_file_path").get<std::string>(), file, where + ".depth_file_path", false);
     }
     out.push_back(std::move(f));
   }
@@ -212,13 +212,20 @@ Intrinsics frame_camera(const json& fr, const json& top, const std::string& imag
     k.width = hw.second;
   }
   const auto flx = number_in(fr, top, "fl_x", file, where), fly = number_in(fr, top, "fl_y", file, where);
-  const auto ax = number_in(fr, top, "camera_angle_x", file, where), ay = number_in(fr, top, "camera_angle_y", file, where);
-  if (flx) k.fx = *flx;
-  else if (ax) k.fx = 0.5 * k.width / std::tan(0.5 * *ax);
-  else throw InputError(file, where.empty() ? "fl_x" : where + ".fl_x", "missing (nor camera_angle_x)");
-  if (fly) k.fy = *fly;
-  else if (ay) k.fy = 0.5 * k.height / std::tan(0.5 * *ay);
-  else k.fy = k.fx;
+  const auto ax = number_in(fr, top, "camera_angle_x", file, where),
+             ay = number_in(fr, top, "camera_angle_y", file, where);
+  if (flx)
+    k.fx = *flx;
+  else if (ax)
+    k.fx = 0.5 * k.width / std::tan(0.5 * *ax);
+  else
+    throw InputError(file, where.empty() ? "fl_x" : where + ".fl_x", "missing (nor camera_angle_x)");
+  if (fly)
+    k.fy = *fly;
+  else if (ay)
+    k.fy = 0.5 * k.height / std::tan(0.5 * *ay);
+  else
+    k.fy = k.fx;
   if (ax && !(*ax > 0 && *ax < M_PI)) throw InputError(file, "camera_angle_x", "must be in (0, pi)");
   if (ay && !(*ay > 0 && *ay < M_PI)) throw InputError(file, "camera_angle_y", "must be in (0, pi)");
   check_focal(k.fx, file, where + "fl_x");
@@ -226,7 +233,8 @@ Intrinsics frame_camera(const json& fr, const json& top, const std::string& imag
   k.cx = number_in(fr, top, "cx", file, where).value_or(0.5 * k.width);
   k.cy = number_in(fr, top, "cy", file, where).value_or(0.5 * k.height);
   static const char* const names[kLensCoeffs] = {"k1", "k2", "k3", "k4", "p1", "p2"};
-  for (int c = 0; c < kLensCoeffs; ++c) k.dist[static_cast<size_t>(c)] = number_in(fr, top, names[c], file, where).value_or(0.0);
+  for (int c = 0; c < kLensCoeffs; ++c)
+    k.dist[static_cast<size_t>(c)] = number_in(fr, top, names[c], file, where).value_or(0.0);
   std::string model = "";
   if (const json* m = key_in(fr, top, "camera_model")) {
     if (!m->is_string()) throw InputError(file, "camera_model", "expected a string");
@@ -239,14 +247,14 @@ Intrinsics frame_camera(const json& fr, const json& top, const std::string& imag
       throw InputError(file, "p1", "a fisheye lens has no tangential coefficients (p1, p2)");
   } else if (model.empty() || model == "OPENCV" || model == "PINHOLE" || model == "SIMPLE_PINHOLE" ||
              model == "SIMPLE_RADIAL" || model == "RADIAL") {
-    if (k.dist[kK4] != 0)
-      throw InputError(file, "k4", "k4 belongs to the fisheye model (camera_model OPENCV_FISHEYE)");
+    if (k.dist[kK4] != 0) throw InputError(file, "k4", "k4 belongs to the fisheye model (camera_model OPENCV_FISHEYE)");
     k.model = k.distorted() ? LensModel::RadialTangential : LensModel::Pinhole;
     if ((model == "PINHOLE" || model == "SIMPLE_PINHOLE") && k.distorted())
       throw InputError(file, "camera_model", model + " with distortion coefficients (use OPENCV)");
   } else {
-    throw InputError(file, "camera_model",
-                     "'" + model + "' is not supported (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE)");
+    throw InputError(
+        file, "camera_model",
+        "'" + model + "' is not supported (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE)");
   }
   for (int c = 0; c < kLensCoeffs; ++c)
     if (std::abs(k.dist[static_cast<size_t>(c)]) > 1e3) throw InputError(file, names[c], "implausibly large");
@@ -306,7 +314,8 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
   const std::string file = (fs::path(root) / "transforms.json").string();
   const json j = parse_json_file(file);
   if (!j.is_object()) throw InputError(file, "", "expected a JSON object");
-  out.format = j.contains("camera_model") || j.contains("applied_transform") || has_own_split(j) ? "nerfstudio" : "instant-ngp";
+  out.format =
+      j.contains("camera_model") || j.contains("applied_transform") || has_own_split(j) ? "nerfstudio" : "instant-ngp";
   auto frames = parse_frames(j, root, file, false);
   const json& jf = j.at("frames");
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -317,8 +326,9 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
       out.height = frames[0].camera.height;
     } else if (frames[i].camera.width != out.width || frames[i].camera.height != out.height) {
       throw InputError(file, where + "w",
-                       "frame size " + std::to_string(frames[i].camera.width) + "x" + std::to_string(frames[i].camera.height) +
-                           " differs from the first frame's " + std::to_string(out.width) + "x" + std::to_string(out.height));
+                       "frame size " + std::to_string(frames[i].camera.width) + "x" +
+                           std::to_string(frames[i].camera.height) + " differs from the first frame's " +
+                           std::to_string(out.width) + "x" + std::to_string(out.height));
     }
   }
   if (j.contains("aabb_scale")) {
@@ -338,7 +348,8 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
     }
   }
   for (const char* k : {"scale", "offset", "applied_transform"})
-    if (j.contains(k)) out.notes.push_back(std::string(k) + " present (poses used as written; ablenerf normalises the scene itself)");
+    if (j.contains(k))
+      out.notes.push_back(std::string(k) + " present (poses used as written; ablenerf normalises the scene itself)");
   // Each frame by its image's canonical path (what parse_frames resolved), for the capture's own
   // split, before pre-downscaled copies replace the paths.
   std::unordered_map<std::string, size_t> frame_of;
@@ -349,7 +360,8 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
   }
   if (has_own_split(j)) {
     // The capture's own split, by image path.
-    std::vector<std::pair<std::string, std::string>> lists{{"train", "train_filenames"}, {"val", "val_filenames"}, {"test", "test_filenames"}};
+    std::vector<std::pair<std::string, std::string>> lists{
+        {"train", "train_filenames"}, {"val", "val_filenames"}, {"test", "test_filenames"}};
     for (const auto& [name, key] : lists) {
       if (!j.contains(key) || !split_wanted(splits, name)) continue;
       const json& names = j.at(key);
@@ -357,9 +369,11 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
       CaptureSplit sp{name, file, {}};
       for (size_t i = 0; i < names.size(); ++i) {
         if (!names[i].is_string()) throw InputError(file, key + "[" + std::to_string(i) + "]", "expected a string");
-        const std::string want = resolve_in_root(root, names[i].get<std::string>(), file, key + "[" + std::to_string(i) + "]");
+        const std::string want =
+            resolve_in_root(root, names[i].get<std::string>(), file, key + "[" + std::to_string(i) + "]");
         const auto it = frame_of.find(want);
-        if (it == frame_of.end()) throw InputError(file, key + "[" + std::to_string(i) + "]", "no frame has this file_path");
+        if (it == frame_of.end())
+          throw InputError(file, key + "[" + std::to_string(i) + "]", "no frame has this file_path");
         sp.frames.push_back(frames[it->second]);
       }
       if (!sp.frames.empty()) out.splits.push_back(std::move(sp));
@@ -371,7 +385,6 @@ void read_transforms_capture(const std::string& root, const std::vector<std::str
   split_every_eighth(std::move(frames), splits, file, FrameOrder::AsGiven, out);
 }
 
-
 CameraJson read_camera_json(const std::string& path, int width, int height) {
   const json j = parse_json_file(path);
   if (!j.is_object()) throw InputError(path, "", "expected a JSON object");
@@ -381,8 +394,10 @@ CameraJson read_camera_json(const std::string& path, int width, int height) {
   const int h = j.contains("h") ? size_field(j, "h", path) : height;
   if (w <= 0 || h <= 0) throw InputError(path, "w", "image size unknown: give --width/--height or w/h");
   double fx;
-  if (j.contains("fl_x")) fx = number_field(j, "fl_x", path, "");
-  else fx = 0.5 * w / std::tan(0.5 * angle_field(j, path));
+  if (j.contains("fl_x"))
+    fx = number_field(j, "fl_x", path, "");
+  else
+    fx = 0.5 * w / std::tan(0.5 * angle_field(j, path));
   const double fy = j.contains("fl_y") ? number_field(j, "fl_y", path, "") : fx;
   check_focal(fx, path, j.contains("fl_x") ? "fl_x" : "camera_angle_x");
   check_focal(fy, path, j.contains("fl_y") ? "fl_y" : "fl_x");

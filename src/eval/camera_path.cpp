@@ -64,7 +64,7 @@ torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, con
   const double xn = x.norm().item<double>();
   if (xn < kDegenerateNorm) throw std::invalid_argument("look_at: view direction parallel to up");
   x = x / xn;
-  const auto y = torch::linalg_cross(z, x);  // unit: z and x are orthonormal
+  const auto y = torch::linalg_cross(z, x);                // unit: z and x are orthonormal
   return torch::stack({x, y, z, e}, 1).to(torch::kFloat);  // columns: right, up, back, centre
 }
 
@@ -74,9 +74,9 @@ torch::Tensor camera_path(PathKind kind, int frames, const CameraRig& rig) {
   const auto up = torch::tensor({0.0, 0.0, 1.0}, torch::kDouble);
   std::vector<torch::Tensor> poses;
   poses.reserve(static_cast<size_t>(frames));
-  const double amplitude = std::clamp(
-      std::min({kSpiralAmplitudeRad, rig.elevation_max - rig.elevation, rig.elevation - rig.elevation_min}), 0.0,
-      kSpiralAmplitudeRad);
+  const double amplitude =
+      std::clamp(std::min({kSpiralAmplitudeRad, rig.elevation_max - rig.elevation, rig.elevation - rig.elevation_min}),
+                 0.0, kSpiralAmplitudeRad);
   for (int k = 0; k < frames; ++k) {
     const double phase = 2.0 * M_PI * k / frames;
     const double azimuth =
@@ -112,9 +112,7 @@ torch::Tensor forward_facing_path(PathKind kind, int frames, const torch::Tensor
   return torch::stack(poses);
 }
 
-bool is_path_file(const std::string& name) {
-  return name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
-}
+bool is_path_file(const std::string& name) { return name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0; }
 
 torch::Tensor read_path_file(const std::string& path) {
   nlohmann::json j;

@@ -17,8 +17,7 @@ namespace ablenerf {
 enum class PathKind { Orbit, Spiral };
 
 // "orbit" / "spiral"; throws InputError(source, field, ...) otherwise.
-PathKind parse_path_kind(const std::string& name, const std::string& source = "--path",
-                         const std::string& field = "");
+PathKind parse_path_kind(const std::string& name, const std::string& source = "--path", const std::string& field = "");
 
 // Where the training cameras sit, seen from the origin.
 struct CameraRig {

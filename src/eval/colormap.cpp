@@ -21,7 +21,7 @@ torch::Tensor colormap(const torch::Tensor& values, double lo, double hi) {
   auto v = values.detach().to(torch::kCPU, torch::kFloat);
   auto x = torch::nan_to_num((v - lo) / (hi - lo), 0.0).clamp(0.0, 1.0) * (kStops - 1);
   auto left = x.floor().clamp(0, kStops - 2).to(torch::kLong);  // segment index
-  auto frac = (x - left.to(torch::kFloat)).unsqueeze(-1);        // position inside the segment
+  auto frac = (x - left.to(torch::kFloat)).unsqueeze(-1);       // position inside the segment
   auto table = torch::empty({kStops, 3}, torch::kFloat);
   for (int i = 0; i < kStops; ++i)
     for (int c = 0; c < 3; ++c) table[i][c] = kViridis[static_cast<size_t>(i)][static_cast<size_t>(c)];

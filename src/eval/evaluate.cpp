@@ -58,7 +58,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const std::string data_dir = opts.data_dir.empty() ? run.data_dir : opts.data_dir;
   if (data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded (pass --data DIR)");
   if (!fs::is_directory(data_dir))
-    throw InputError(data_dir, "", std::string("dataset folder not found") + (opts.data_dir.empty() ? " (recorded in run.json; pass --data DIR)" : ""));
+    throw InputError(data_dir, "",
+                     std::string("dataset folder not found") +
+                         (opts.data_dir.empty() ? " (recorded in run.json; pass --data DIR)" : ""));
   if (opts.chunk && *opts.chunk <= 0)
     throw InputError("--chunk", "", "must be positive (got " + std::to_string(*opts.chunk) + ")");
   if (opts.downscale && *opts.downscale <= 0)
@@ -111,8 +113,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     const auto t0 = std::chrono::steady_clock::now();
     const std::string view = "view " + std::to_string(i + 1) + "/" + std::to_string(count);
     const Intrinsics& cam = split.cameras.empty() ? k : split.cameras[static_cast<size_t>(i)];
-    const RenderResult r = render_image(model, split.c2w[i], cam, ds.near, ds.far, chunk, ForwardOptions{},
-                                        opts.device, [&](int64_t done, int64_t) {
+    const RenderResult r = render_image(model, split.c2w[i], cam, ds.near, ds.far, chunk, ForwardOptions{}, opts.device,
+                                        [&](int64_t done, int64_t) {
                                           if (bar) bar->update(i * rays_per_image + done, view);
                                         });
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -142,8 +144,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
       const auto valid = (d > 0) & (split.alpha[i] > kDepthAlphaThreshold);
       const int64_t n_valid = valid.sum().item<int64_t>();
       auto mae = [&](const torch::Tensor& pred) {
-        return n_valid ? finite_or_null((pred - d).abs().masked_select(valid).mean().item<double>())
-                       : nlohmann::json();
+        return n_valid ? finite_or_null((pred - d).abs().masked_select(valid).mean().item<double>()) : nlohmann::json();
       };
       im["depth_mae"] = mae(r.depth_mean);
       im["depth_mae_argmax"] = mae(r.depth_argmax);

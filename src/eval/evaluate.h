@@ -27,14 +27,14 @@ constexpr double kDepthAlphaThreshold = 0.5;
 
 struct EvalOptions {
   std::string split = "test";
-  int64_t max_images = -1;    // < 0: every view of the split
+  int64_t max_images = -1;       // < 0: every view of the split
   std::optional<int> downscale;  // unset: the run's data.downscale
-  std::string data_dir;       // "": the run's dataset (run.json)
-  std::string ssim;           // "standard" | "release" | "": the run's eval.ssim
-  std::string lpips_weights;  // "": default_lpips_weights_path(); none found -> LPIPS skipped
+  std::string data_dir;          // "": the run's dataset (run.json)
+  std::string ssim;              // "standard" | "release" | "": the run's eval.ssim
+  std::string lpips_weights;     // "": default_lpips_weights_path(); none found -> LPIPS skipped
   std::optional<int64_t> chunk;  // rays per forward; unset: the run's eval.chunk
   torch::Device device = torch::kCPU;
-  bool progress = true;       // progress line with ETA on stderr
+  bool progress = true;  // progress line with ETA on stderr
   // One-line notes for the user (LPIPS skipped, ...); default: stderr.
   std::function<void(const std::string&)> note;
 };

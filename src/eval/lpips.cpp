@@ -45,8 +45,8 @@ std::string shape_str(at::IntArrayRef s) {
   return o.str();
 }
 
-torch::Tensor take(const c10::Dict<c10::IValue, c10::IValue>& dict, const std::string& path,
-                   const std::string& key, std::vector<int64_t> shape) {
+torch::Tensor take(const c10::Dict<c10::IValue, c10::IValue>& dict, const std::string& path, const std::string& key,
+                   std::vector<int64_t> shape) {
   auto it = dict.find(c10::IValue(key));
   if (it == dict.end()) throw InputError(path, key, "missing from the LPIPS weights");
   if (!it->value().isTensor()) throw InputError(path, key, "is not a tensor");
@@ -70,9 +70,7 @@ std::vector<std::string> lpips_weights_candidates() {
   if (!ec && !exe.empty())
     out.push_back((exe.parent_path() / ".." / "assets" / kLpipsFile).lexically_normal().string());
   // The project's shared folder beside the repository (the fp32 original).
-  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / ".." / "shared" / "weights" / kLpipsFile)
-                    .lexically_normal()
-                    .string());
+  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / ".." / "shared" / "weights" / kLpipsFile).lexically_normal().string());
   return out;
 }
 
@@ -86,8 +84,7 @@ std::string default_lpips_weights_path() {
 
 Lpips::Lpips(const std::string& path) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec))
-    throw InputError(path, "", "LPIPS weights file not found");
+  if (!std::filesystem::is_regular_file(path, ec)) throw InputError(path, "", "LPIPS weights file not found");
   const std::string file = read_file(path);
   const std::vector<char> bytes(file.begin(), file.end());
 
@@ -137,8 +134,8 @@ std::array<torch::Tensor, Lpips::kLayers> Lpips::features(const torch::Tensor& x
 torch::Tensor Lpips::forward_nchw(const torch::Tensor& x0, const torch::Tensor& x1) const {
   TORCH_CHECK(x0.dim() == 4 && x0.size(1) == 3, "lpips: expected (N,3,H,W), got ", x0.sizes());
   TORCH_CHECK(x0.sizes() == x1.sizes(), "lpips: shapes differ: ", x0.sizes(), " vs ", x1.sizes());
-  TORCH_CHECK(x0.size(2) >= kMinSide && x0.size(3) >= kMinSide, "lpips: images must be at least ",
-              kMinSide, "x", kMinSide, ", got ", x0.sizes());
+  TORCH_CHECK(x0.size(2) >= kMinSide && x0.size(3) >= kMinSide, "lpips: images must be at least ", kMinSide, "x",
+              kMinSide, ", got ", x0.sizes());
   torch::NoGradGuard no_grad;
   const auto dev = conv_w_[0].device();
   const auto f0 = features(x0.to(dev, torch::kFloat));

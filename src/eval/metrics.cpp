@@ -12,8 +12,7 @@ namespace {
 
 void check_pair(const torch::Tensor& img, const torch::Tensor& ref, const char* what) {
   TORCH_CHECK(img.dim() == 3, what, ": expected an (H,W,C) image, got ", img.sizes());
-  TORCH_CHECK(img.sizes() == ref.sizes(), what, ": image shapes differ: ", img.sizes(), " vs ",
-              ref.sizes());
+  TORCH_CHECK(img.sizes() == ref.sizes(), what, ": image shapes differ: ", img.sizes(), " vs ", ref.sizes());
 }
 
 // (H,W,C) -> (1,C,H,W) float64 on the image's device.
@@ -54,8 +53,7 @@ double psnr_from_mse(double mse) {
 
 double psnr(const torch::Tensor& img, const torch::Tensor& ref) { return psnr_from_mse(mse(img, ref)); }
 
-SsimVariant parse_ssim_variant(const std::string& name, const std::string& source,
-                               const std::string& field) {
+SsimVariant parse_ssim_variant(const std::string& name, const std::string& source, const std::string& field) {
   if (const auto v = enum_from_name<SsimVariant>(name)) return *v;
   throw InputError(source, field, "unknown SSIM variant '" + name + "' (use standard or release)");
 }
@@ -64,8 +62,7 @@ double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant vari
   check_pair(img, ref, "ssim");
   const bool standard = variant == SsimVariant::Standard;
   TORCH_CHECK(!standard || (img.size(0) >= kSsimWindow && img.size(1) >= kSsimWindow),
-              "ssim (standard): images must be at least ", kSsimWindow, "x", kSsimWindow,
-              ", got ", img.sizes());
+              "ssim (standard): images must be at least ", kSsimWindow, "x", kSsimWindow, ", got ", img.sizes());
   const int64_t pad = standard ? 0 : kSsimWindow / 2;
   const double c1 = kSsimK1 * kSsimK1, c2 = kSsimK2 * kSsimK2;
 

@@ -31,8 +31,7 @@ constexpr double kSsimK1 = 0.01;
 constexpr double kSsimK2 = 0.03;
 
 // Mean SSIM of two (H,W,C) images of the same shape.
-double ssim(const torch::Tensor& img, const torch::Tensor& ref,
-            SsimVariant variant = SsimVariant::Standard);
+double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant variant = SsimVariant::Standard);
 
 // Reads a PNG as float (H,W,3) in [0,1] for scoring. RGBA is composited on a white background
 // (rgb * a + (1 - a)), the Blender dataset convention used for training and evaluation;

@@ -10,10 +10,8 @@ constexpr double kMinAttentionMass = 1e-12;
 }  // namespace
 
 AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::Tensor& t) {
-  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) &&
-                  t.size(1) == weights.size(1) + 1,
-              "depth_from_attention: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ",
-              t.sizes());
+  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) && t.size(1) == weights.size(1) + 1,
+              "depth_from_attention: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ", t.sizes());
   const auto mid = 0.5 * (t.slice(1, 0, -1) + t.slice(1, 1));  // (B,S) interval mid-points
   const auto w = weights.to(mid.scalar_type());
   AttentionDepth d;
@@ -22,8 +20,8 @@ AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::T
   return d;
 }
 
-RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near,
-                          double far, int64_t chunk, const ForwardOptions& opts, const torch::Device& device,
+RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near, double far,
+                          int64_t chunk, const ForwardOptions& opts, const torch::Device& device,
                           const RenderProgress& progress) {
   TORCH_CHECK(chunk > 0, "render_image: chunk must be positive");
   TORCH_CHECK(k.width > 0 && k.height > 0, "render_image: empty image ", k.width, "x", k.height);

@@ -39,8 +39,8 @@ using RenderProgress = std::function<void(int64_t done, int64_t total)>;
 // If opts.generator is set, every chunk uses a copy of it in its starting state, so that a
 // random LE perturbation is the same for the whole image and independent of `chunk`; the
 // caller's generator is left untouched. Results are float32 on the CPU.
-RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near,
-                          double far, int64_t chunk, const ForwardOptions& opts, const torch::Device& device,
+RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near, double far,
+                          int64_t chunk, const ForwardOptions& opts, const torch::Device& device,
                           const RenderProgress& progress = {});
 
 }  // namespace ablenerf

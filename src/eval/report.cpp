@@ -56,16 +56,17 @@ std::string colour_bar(double lo, double hi, const std::string& caption) {
   const auto rgb = colormap(values, 0.0, 1.0)[0];
   const int cell = 8, bar_h = 14, width = cell * kColourBarCells;
   std::ostringstream s;
-  s << "<div class=\"legend\">" << html_escape(caption) << " <svg width=\"" << width + 80 << "\" height=\""
-    << bar_h + 4 << "\" xmlns=\"http://www.w3.org/2000/svg\">";
+  s << "<div class=\"legend\">" << html_escape(caption) << " <svg width=\"" << width + 80 << "\" height=\"" << bar_h + 4
+    << "\" xmlns=\"http://www.w3.org/2000/svg\">";
   s << "<text x=\"0\" y=\"" << bar_h - 2 << "\" font-size=\"11\">" << fmt(lo) << "</text>";
   for (int i = 0; i < kColourBarCells; ++i) {
     auto c = rgb[i];
-    s << "<rect x=\"" << 36 + i * cell << "\" y=\"1\" width=\"" << cell << "\" height=\"" << bar_h
-      << "\" fill=\"rgb(" << std::lround(c[0].item<float>() * 255) << "," << std::lround(c[1].item<float>() * 255)
-      << "," << std::lround(c[2].item<float>() * 255) << ")\"/>";
+    s << "<rect x=\"" << 36 + i * cell << "\" y=\"1\" width=\"" << cell << "\" height=\"" << bar_h << "\" fill=\"rgb("
+      << std::lround(c[0].item<float>() * 255) << "," << std::lround(c[1].item<float>() * 255) << ","
+      << std::lround(c[2].item<float>() * 255) << ")\"/>";
   }
-  s << "<text x=\"" << 40 + width << "\" y=\"" << bar_h - 2 << "\" font-size=\"11\">" << fmt(hi) << "</text></svg></div>";
+  s << "<text x=\"" << 40 + width << "\" y=\"" << bar_h - 2 << "\" font-size=\"11\">" << fmt(hi)
+    << "</text></svg></div>";
   return s.str();
 }
 
@@ -136,11 +137,12 @@ std::string metrics_section(const std::vector<SplitMetrics>& all) {
     const auto mean = m.value("mean", nlohmann::json::object());
     s << "<tr><td>" << html_escape(sm.split) << "</td><td>" << m.value("images", nlohmann::json::array()).size()
       << "</td><td>" << fmt_json(mean.value("psnr", nlohmann::json())) << "</td><td>"
-      << fmt_json(mean.value("ssim", nlohmann::json())) << "</td><td>" << fmt_json(mean.value("lpips", nlohmann::json()))
-      << "</td><td>" << fmt_json(mean.value("depth_mae", nlohmann::json())) << "</td><td>"
+      << fmt_json(mean.value("ssim", nlohmann::json())) << "</td><td>"
+      << fmt_json(mean.value("lpips", nlohmann::json())) << "</td><td>"
+      << fmt_json(mean.value("depth_mae", nlohmann::json())) << "</td><td>"
       << fmt_json(m.value("seconds_per_image", nlohmann::json()), 3) << "</td><td>"
-      << fmt_json(m.value("step", nlohmann::json())) << "</td><td>" << fmt_json(m.value("ssim_variant", nlohmann::json()))
-      << "</td></tr>";
+      << fmt_json(m.value("step", nlohmann::json())) << "</td><td>"
+      << fmt_json(m.value("ssim_variant", nlohmann::json())) << "</td></tr>";
   }
   s << "</table>";
   for (const auto& sm : all) {
@@ -183,9 +185,10 @@ std::string views_section(const std::vector<SplitMetrics>& all) {
     const std::string stem = sm.dir + "/r_" + std::to_string(im.value("index", i));
     s << "<div class=\"views\"><figure>" << img_tag(stem + "_gt.png", "ground truth")
       << "<figcaption>ground truth</figcaption></figure><figure>" << img_tag(stem + ".png", "render")
-      << "<figcaption>render, PSNR " << fmt_json(im.value("psnr", nlohmann::json())) << " dB</figcaption></figure><figure>"
-      << img_tag(stem + "_error.png", "error") << "<figcaption>error</figcaption></figure><figure>"
-      << img_tag(stem + "_depth.png", "depth") << "<figcaption>depth</figcaption></figure></div>";
+      << "<figcaption>render, PSNR " << fmt_json(im.value("psnr", nlohmann::json()))
+      << " dB</figcaption></figure><figure>" << img_tag(stem + "_error.png", "error")
+      << "<figcaption>error</figcaption></figure><figure>" << img_tag(stem + "_depth.png", "depth")
+      << "<figcaption>depth</figcaption></figure></div>";
   }
   return s.str();
 }
@@ -258,7 +261,8 @@ std::string base64_encode(const std::string& bytes) {
   size_t i = 0;
   // Each 3-byte group becomes four 6-bit digits.
   for (; i + 3 <= bytes.size(); i += 3) {
-    const uint32_t v = (uint32_t(uint8_t(bytes[i])) << 16) | (uint32_t(uint8_t(bytes[i + 1])) << 8) | uint8_t(bytes[i + 2]);
+    const uint32_t v =
+        (uint32_t(uint8_t(bytes[i])) << 16) | (uint32_t(uint8_t(bytes[i + 1])) << 8) | uint8_t(bytes[i + 2]);
     for (int shift = 18; shift >= 0; shift -= 6) out += kAlphabet[(v >> shift) & 0x3F];
   }
   // A trailing 1 or 2 bytes: zero-fill, emit 2 or 3 digits, pad with '='.
@@ -333,14 +337,14 @@ std::string svg_chart(const std::string& title, const std::string& x_label, cons
   }
   for (const auto& [v, label] : yticks) {
     o << "<line x1=\"" << kMarginL << "\" x2=\"" << kMarginL + pw << "\" y1=\"" << py(v) << "\" y2=\"" << py(v)
-      << "\" stroke=\"#e4e4e4\"/><text x=\"" << kMarginL - 4 << "\" y=\"" << py(v) + 4
-      << "\" text-anchor=\"end\">" << label << "</text>";
+      << "\" stroke=\"#e4e4e4\"/><text x=\"" << kMarginL - 4 << "\" y=\"" << py(v) + 4 << "\" text-anchor=\"end\">"
+      << label << "</text>";
   }
   const double xs = nice_step(x1 - x0);
   for (double v = std::ceil(x0 / xs) * xs; v <= x1 + xs * 1e-6; v += xs)
     o << "<line x1=\"" << px(v) << "\" x2=\"" << px(v) << "\" y1=\"" << kMarginT << "\" y2=\"" << kMarginT + ph
-      << "\" stroke=\"#f0f0f0\"/><text x=\"" << px(v) << "\" y=\"" << kMarginT + ph + 14
-      << "\" text-anchor=\"middle\">" << fmt(v, 6) << "</text>";
+      << "\" stroke=\"#f0f0f0\"/><text x=\"" << px(v) << "\" y=\"" << kMarginT + ph + 14 << "\" text-anchor=\"middle\">"
+      << fmt(v, 6) << "</text>";
   o << "<rect x=\"" << kMarginL << "\" y=\"" << kMarginT << "\" width=\"" << pw << "\" height=\"" << ph
     << "\" fill=\"none\" stroke=\"#888\"/>";
   o << "<text x=\"" << kMarginL + pw / 2 << "\" y=\"" << height - 6 << "\" text-anchor=\"middle\">"
@@ -365,12 +369,14 @@ std::string svg_chart(const std::string& title, const std::string& x_label, cons
       if (!usable(s.x[i], s.y[i])) continue;
       ++n;
       if (s.points)
-        o << "<circle cx=\"" << px(s.x[i]) << "\" cy=\"" << py(ty(s.y[i])) << "\" r=\"3.5\" fill=\"" << s.colour << "\"/>";
+        o << "<circle cx=\"" << px(s.x[i]) << "\" cy=\"" << py(ty(s.y[i])) << "\" r=\"3.5\" fill=\"" << s.colour
+          << "\"/>";
       else
         pts << px(s.x[i]) << "," << py(ty(s.y[i])) << " ";
     }
     if (!s.points && n)
-      o << "<polyline fill=\"none\" stroke=\"" << s.colour << "\" stroke-width=\"1.5\" points=\"" << pts.str() << "\"/>";
+      o << "<polyline fill=\"none\" stroke=\"" << s.colour << "\" stroke-width=\"1.5\" points=\"" << pts.str()
+        << "\"/>";
     if (!n) continue;
     const double ly = kMarginT + 12 + 14 * legend_row++;
     legend << "<rect x=\"" << kMarginL + pw - 120 << "\" y=\"" << ly - 8 << "\" width=\"10\" height=\"10\" fill=\""

@@ -18,9 +18,9 @@ std::string base64_encode(const std::string& bytes);
 // One line (or point set) of a chart.
 struct ChartSeries {
   std::string label;
-  std::string colour;      // CSS colour
+  std::string colour;  // CSS colour
   std::vector<double> x, y;
-  bool points = false;     // markers only, no line
+  bool points = false;  // markers only, no line
 };
 // An inline <svg> line chart. With log_y, values <= 0 are left out and the axis has decade ticks.
 std::string svg_chart(const std::string& title, const std::string& x_label, const std::string& y_label,

@@ -28,14 +28,15 @@ std::string shell_quote(const std::string& s) {
 VideoWriter::VideoWriter(const std::string& path, int width, int height, double fps)
     : path_(path), width_(width), height_(height) {
   if (width <= 0 || height <= 0 || width % 2 || height % 2)
-    throw InputError("--out", "", "H.264 (yuv420p) needs even frame sides, got " + std::to_string(width) + "x" +
-                                      std::to_string(height) + " (use --width/--height)");
+    throw InputError("--out", "",
+                     "H.264 (yuv420p) needs even frame sides, got " + std::to_string(width) + "x" +
+                         std::to_string(height) + " (use --width/--height)");
   if (!(fps > 0)) throw InputError("--fps", "", "must be positive");
   // A dying ffmpeg must surface as a write error here, not kill us with SIGPIPE.
   std::signal(SIGPIPE, SIG_IGN);
   std::ostringstream cmd;
-  cmd << "ffmpeg -hide_banner -loglevel error -y -f rawvideo -pix_fmt rgb24 -s " << width << "x" << height
-      << " -r " << fps << " -i - -c:v libx264 -pix_fmt yuv420p " << shell_quote(path);
+  cmd << "ffmpeg -hide_banner -loglevel error -y -f rawvideo -pix_fmt rgb24 -s " << width << "x" << height << " -r "
+      << fps << " -i - -c:v libx264 -pix_fmt yuv420p " << shell_quote(path);
   pipe_ = ::popen(cmd.str().c_str(), "w");
   if (!pipe_) throw InputError(path, "", "cannot start ffmpeg");
 }

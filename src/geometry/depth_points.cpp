@@ -10,7 +10,8 @@ namespace ablenerf {
 
 bool CropBox::contains(const std::array<double, 3>& p) const {
   for (int i = 0; i < 3; ++i)
-    if (p[static_cast<size_t>(i)] < lo[static_cast<size_t>(i)] || p[static_cast<size_t>(i)] > hi[static_cast<size_t>(i)])
+    if (p[static_cast<size_t>(i)] < lo[static_cast<size_t>(i)] ||
+        p[static_cast<size_t>(i)] > hi[static_cast<size_t>(i)])
       return false;
   return true;
 }
@@ -66,8 +67,8 @@ PointSet points_from_depth(const torch::Tensor& c2w, const Intrinsics& k, const 
 
 torch::Tensor points_to_capture(const torch::Tensor& xyz, const SceneFrame& scene) {
   // point_to_scene: p_s = scale * R (p - centre), so p = R^T p_s / scale + centre.
-  const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble)
-                     .reshape({3, 3});
+  const auto r =
+      torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble).reshape({3, 3});
   const auto c = torch::tensor(std::vector<double>(scene.centre.begin(), scene.centre.end()), torch::kDouble);
   return (torch::matmul(xyz.to(torch::kDouble), r) / scene.scale + c).to(xyz.scalar_type());
 }

@@ -40,7 +40,8 @@ CropBox scene_box_of(const CropBox& out_box, const SceneFrame& scene, bool scene
   b.lo = {1e300, 1e300, 1e300};
   b.hi = {-1e300, -1e300, -1e300};
   for (int corner = 0; corner < 8; ++corner) {
-    const std::array<double, 3> p{corner & 1 ? out_box.hi[0] : out_box.lo[0], corner & 2 ? out_box.hi[1] : out_box.lo[1],
+    const std::array<double, 3> p{corner & 1 ? out_box.hi[0] : out_box.lo[0],
+                                  corner & 2 ? out_box.hi[1] : out_box.lo[1],
                                   corner & 4 ? out_box.hi[2] : out_box.lo[2]};
     const auto s = scene.point_to_scene(p);
     for (size_t i = 0; i < 3; ++i) b.lo[i] = std::min(b.lo[i], s[i]), b.hi[i] = std::max(b.hi[i], s[i]);
@@ -66,9 +67,10 @@ torch::Tensor photo_alpha(const CaptureFrame& frame, const Capture& capture, con
   const auto rgba = frame_photo_rgba(frame, capture.height, capture.width, downscale);
   const auto alpha = rgba.select(-1, 3).to(torch::kFloat);
   if (alpha.min().item<float>() >= 1.0f) return {};
-  return torch::nn::functional::interpolate(
-             alpha.unsqueeze(0).unsqueeze(0),
-             torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{k.height, k.width}).mode(torch::kArea))
+  return torch::nn::functional::interpolate(alpha.unsqueeze(0).unsqueeze(0),
+                                            torch::nn::functional::InterpolateFuncOptions()
+                                                .size(std::vector<int64_t>{k.height, k.width})
+                                                .mode(torch::kArea))
       .squeeze(0)
       .squeeze(0);
 }
@@ -89,16 +91,17 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     throw InputError("export", "--points", "give --points FILE.ply and/or --mesh FILE.ply|.obj|.glb");
   if (!opts.points_path.empty()) check_points_path(opts.points_path);
   if (!opts.mesh_path.empty()) check_mesh_path(opts.mesh_path);
-  if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "the run has no weights (train it first)");
-  if (run.data_dir.empty()) throw InputError(run.path("run.json"), "data", "no dataset recorded: its cameras are needed");
+  if (!fs::exists(run.weights_path()))
+    throw InputError(run.weights_path(), "", "the run has no weights (train it first)");
+  if (run.data_dir.empty())
+    throw InputError(run.path("run.json"), "data", "no dataset recorded: its cameras are needed");
   const SceneFrame scene = run.scene();
   if (scene.kind == SceneKind::ForwardFacing)
     throw InputError(run.path("scene.json"), "kind",
                      "forward-facing runs are not exported yet (their attention depth is NDC's, not metric)");
-  const CropBox scene_box =
-      opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
-  const double longest = std::max({scene_box.hi[0] - scene_box.lo[0], scene_box.hi[1] - scene_box.lo[1],
-                                   scene_box.hi[2] - scene_box.lo[2]});
+  const CropBox scene_box = opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
+  const double longest = std::max(
+      {scene_box.hi[0] - scene_box.lo[0], scene_box.hi[1] - scene_box.lo[1], scene_box.hi[2] - scene_box.lo[2]});
   double voxel = longest / std::max(opts.resolution, 1);
   if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf && opts.resolution != 0) {
     double voxels = 1;
@@ -121,7 +124,8 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   const int side = std::max(k.width, k.height);
   if (side > opts.max_side) {
     const double s = static_cast<double>(opts.max_side) / side;
-    const int w = std::max(1, static_cast<int>(std::lround(k.width * s))), h = std::max(1, static_cast<int>(std::lround(k.height * s)));
+    const int w = std::max(1, static_cast<int>(std::lround(k.width * s))),
+              h = std::max(1, static_cast<int>(std::lround(k.height * s)));
     k = k.scaled(static_cast<double>(w) / k.width, w, h);
   }
   AbleNerf model = load_run_model(run, opts.device);
@@ -136,10 +140,10 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     const int64_t i = n == n_all ? v : v * n_all / n;
     const auto c2w = cams.c2w[i];
     const int64_t before = v * k.width * k.height;
-    const RenderResult r = render_image(model, c2w, k, scene.near, scene.far, opts.chunk, {}, opts.device,
-                                        [&](int64_t done, int64_t) {
-                                          if (progress) progress->update(before + done);
-                                        });
+    const RenderResult r =
+        render_image(model, c2w, k, scene.near, scene.far, opts.chunk, {}, opts.device, [&](int64_t done, int64_t) {
+          if (progress) progress->update(before + done);
+        });
     // A pixel counts where the attention's mean and argmax depths agree (it looked at one place)
     // and, with alpha masks, where the photo is opaque.
     auto agree = (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
@@ -158,7 +162,8 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   if (opts.resolution == 0) {
     // Auto: 1.5 pixel footprints at the median depth of the points, no finer than longest / 512.
     std::vector<torch::Tensor> depths;
-    for (const auto& v : views) depths.push_back(v.depth.flatten().index_select(0, (v.depth.flatten() > 0).nonzero().squeeze(-1)));
+    for (const auto& v : views)
+      depths.push_back(v.depth.flatten().index_select(0, (v.depth.flatten() > 0).nonzero().squeeze(-1)));
     const auto d = depths.empty() ? torch::zeros({0}) : torch::cat(depths);
     const double median = d.numel() ? d.median().item<double>() : 0.0;
     voxel = std::max(longest / kMaxAutoResolution, kAutoFootprints * median / std::max(k.fx, k.fy));
@@ -173,7 +178,8 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   const auto to_output_normals = [&](const torch::Tensor& nrm) {
     if (opts.scene_frame || !nrm.defined()) return nrm;
     // Normals turn with the frame's rotation (R^T), without its scale or shift.
-    const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble).reshape({3, 3});
+    const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble)
+                       .reshape({3, 3});
     return torch::matmul(nrm.to(torch::kDouble), r).to(nrm.scalar_type());
   };
   PointSet all = concat_points(sets);
@@ -188,8 +194,8 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     if (!opts.points_path.empty()) {
       if (clean.size() == 0) throw InputError("export", "--crop", "no point of the scene lies inside the crop box");
       write_points(clean, opts.points_path);
-      out["points"] = {{"path", opts.points_path}, {"count", clean.size()}, {"raw", all.size()},
-                       {"seconds", seconds_since(t)}};
+      out["points"] = {
+          {"path", opts.points_path}, {"count", clean.size()}, {"raw", all.size()}, {"seconds", seconds_since(t)}};
     }
     if (!opts.mesh_path.empty() && opts.method == MeshMethod::Poisson) {
       const auto tm = std::chrono::steady_clock::now();
@@ -197,8 +203,11 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
       Mesh m = poisson_mesh(clean, kPoissonDepth, kPoissonTrim, box);
       if (m.triangle_count() == 0) throw InputError("export", "--crop", "the mesh is empty inside the crop box");
       write_mesh(m, opts.mesh_path);
-      out["mesh"] = {{"path", opts.mesh_path}, {"method", "poisson"}, {"vertices", m.vertex_count()},
-                     {"triangles", m.triangle_count()}, {"seconds", seconds_since(tm)}};
+      out["mesh"] = {{"path", opts.mesh_path},
+                     {"method", "poisson"},
+                     {"vertices", m.vertex_count()},
+                     {"triangles", m.triangle_count()},
+                     {"seconds", seconds_since(tm)}};
     }
   }
   if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf) {
@@ -219,8 +228,12 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     }
     if (m.triangle_count() == 0) throw InputError("export", "--crop", "the mesh is empty inside the crop box");
     write_mesh(m, opts.mesh_path);
-    out["mesh"] = {{"path", opts.mesh_path}, {"method", "tsdf"}, {"resolution", static_cast<int>(std::lround(longest / voxel))},
-                   {"voxel", voxel}, {"vertices", m.vertex_count()}, {"triangles", m.triangle_count()},
+    out["mesh"] = {{"path", opts.mesh_path},
+                   {"method", "tsdf"},
+                   {"resolution", static_cast<int>(std::lround(longest / voxel))},
+                   {"voxel", voxel},
+                   {"vertices", m.vertex_count()},
+                   {"triangles", m.triangle_count()},
                    {"seconds", seconds_since(t)}};
   }
   out["seconds"] = seconds_since(start);

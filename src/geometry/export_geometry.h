@@ -27,10 +27,10 @@ struct GeometryOptions {
   // layers), at most 512 along the box.
   int resolution = 0;
   MeshMethod method = MeshMethod::Tsdf;
-  std::optional<CropBox> crop;         // in the output frame; default: the region the cameras look at
-  bool scene_frame = false;            // write in the normalised scene frame instead of the capture's
-  int64_t views = 48;                  // cameras rendered at most (evenly over the capture's)
-  int max_side = 200;                  // rendered images' longest side at most (pixels)
+  std::optional<CropBox> crop;  // in the output frame; default: the region the cameras look at
+  bool scene_frame = false;     // write in the normalised scene frame instead of the capture's
+  int64_t views = 48;           // cameras rendered at most (evenly over the capture's)
+  int max_side = 200;           // rendered images' longest side at most (pixels)
   // Mean and argmax attention depths must agree within this share of the depth for a pixel to count.
   double agreement = 0.05;
   // Use the photos' alpha where they have one (Blender's RGBA renders): transparent pixels are

@@ -196,9 +196,9 @@ Mesh fuse_tsdf(const std::vector<DepthView>& views, const TsdfOptions& opts) {
   for (const auto& v : views) {
     const auto depth = float_image(torch::nan_to_num(v.depth, 0.0).clamp_min(0), 1);
     const auto colour = rgb8_image(v.rgb);
-    const auto rgbd = open3d::geometry::RGBDImage::CreateFromColorAndDepth(colour, depth, /*depth_scale=*/1.0,
-                                                                          opts.max_depth,
-                                                                          /*convert_rgb_to_intensity=*/false);
+    const auto rgbd =
+        open3d::geometry::RGBDImage::CreateFromColorAndDepth(colour, depth, /*depth_scale=*/1.0, opts.max_depth,
+                                                             /*convert_rgb_to_intensity=*/false);
     const open3d::camera::PinholeCameraIntrinsic k(v.camera.width, v.camera.height, v.camera.fx, v.camera.fy,
                                                    v.camera.cx, v.camera.cy);
     volume.Integrate(*rgbd, k, extrinsic_of(v.c2w));

@@ -85,7 +85,7 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
                                                                const torch::Tensor& eyes, int64_t per_sphere) {
   const auto i = torch::arange(per_sphere, torch::kDouble);
   const auto z = 1 - (2 * i + 1) / static_cast<double>(per_sphere);
-  const auto r = torch::sqrt(1 - z * z), phi = i * 2.399963229728653;  // the golden angle
+  const auto r = torch::sqrt(1 - z * z), phi = i * 2.399963229728653;                // the golden angle
   const auto unit = torch::stack({r * torch::cos(phi), r * torch::sin(phi), z}, 1);  // (P,3)
   const auto e = eyes.to(torch::kDouble);
   std::vector<torch::Tensor> kept, owner;
@@ -94,14 +94,15 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
     const auto p = c + unit * spheres[s].radius;  // (P,3)
     auto seen = torch::zeros({per_sphere}, torch::kBool);
     for (int64_t m = 0; m < e.size(0); ++m) {
-      const auto to_eye = e[m] - p;                          // (P,3)
-      auto visible = (to_eye * unit).sum(-1) > 0;            // facing the camera
+      const auto to_eye = e[m] - p;                // (P,3)
+      auto visible = (to_eye * unit).sum(-1) > 0;  // facing the camera
       const auto len = to_eye.norm(2, -1, true);
       const auto d = to_eye / len;
       for (size_t o = 0; o < spheres.size(); ++o) {
         if (o == s) continue;
         // Does the segment p -> eye pass through sphere o?
-        const auto co = torch::tensor({spheres[o].centre[0], spheres[o].centre[1], spheres[o].centre[2]}, torch::kDouble);
+        const auto co =
+            torch::tensor({spheres[o].centre[0], spheres[o].centre[1], spheres[o].centre[2]}, torch::kDouble);
         const auto oc = p - co;
         const auto b = (oc * d).sum(-1), cc = (oc * oc).sum(-1) - spheres[o].radius * spheres[o].radius;
         const auto disc = b * b - cc;

@@ -29,9 +29,9 @@ void check_inputs(const torch::Tensor& positions, const torch::Tensor& table, co
   TORCH_CHECK(positions.defined() && table.defined(), kOp, ": positions and table must be defined");
   TORCH_CHECK(positions.dim() == 2 && positions.size(1) == 3, kOp, ": positions must be (N, 3), got ",
               positions.sizes());
-  TORCH_CHECK(table.dim() == 3 && table.size(0) == s.levels && table.size(1) == s.table_size &&
-                  table.size(2) == s.features,
-              kOp, ": table must be (", s.levels, ", ", s.table_size, ", ", s.features, "), got ", table.sizes());
+  TORCH_CHECK(
+      table.dim() == 3 && table.size(0) == s.levels && table.size(1) == s.table_size && table.size(2) == s.features,
+      kOp, ": table must be (", s.levels, ", ", s.table_size, ", ", s.features, "), got ", table.sizes());
   TORCH_CHECK(s.features <= kHashGridMaxFeatures, kOp, ": at most ", kHashGridMaxFeatures, " features per level");
   check::dtype(kOp, "positions", positions, torch::kFloat);
   check::dtype(kOp, "table", table, torch::kFloat);
@@ -111,7 +111,8 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
   s.features = features;
   s.table_size = int64_t{1} << log2_table;
   const double growth =
-      levels > 1 ? std::exp((std::log(double(max_resolution)) - std::log(double(base_resolution))) / (levels - 1)) : 1.0;
+      levels > 1 ? std::exp((std::log(double(max_resolution)) - std::log(double(base_resolution))) / (levels - 1))
+                 : 1.0;
   for (int l = 0; l < levels; ++l)
     // The small tolerance keeps a level that lands on an integer (e.g. 16 * 2^l) from flooring below it.
     s.resolution[l] = static_cast<int>(std::floor(base_resolution * std::pow(growth, l) + 1e-9));
@@ -135,9 +136,9 @@ torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tens
 torch::Tensor hash_grid_encode_reference(const torch::Tensor& positions, const torch::Tensor& table,
                                          const HashGridShape& s) {
   TORCH_CHECK(positions.dim() == 2 && positions.size(1) == 3, "hash_grid_encode_reference: positions must be (N, 3)");
-  TORCH_CHECK(table.dim() == 3 && table.size(0) == s.levels && table.size(1) == s.table_size &&
-                  table.size(2) == s.features,
-              "hash_grid_encode_reference: table must be (levels, table_size, features), got ", table.sizes());
+  TORCH_CHECK(
+      table.dim() == 3 && table.size(0) == s.levels && table.size(1) == s.table_size && table.size(2) == s.features,
+      "hash_grid_encode_reference: table must be (levels, table_size, features), got ", table.sizes());
   // As the kernels: NaN -> 0, clamped to [0, 1], cell and fraction in float32.
   const auto p = torch::nan_to_num(positions.to(torch::kFloat), 0.0).clamp(0, 1);
   std::vector<torch::Tensor> out;

@@ -28,8 +28,8 @@ __global__ void __launch_bounds__(kThreads)
 }
 
 __global__ void __launch_bounds__(kThreads)
-    backward_kernel(const float* __restrict__ positions, int64_t n, const float* __restrict__ grad_out,
-                    HashGridShape s, float* __restrict__ grad_table) {
+    backward_kernel(const float* __restrict__ positions, int64_t n, const float* __restrict__ grad_out, HashGridShape s,
+                    float* __restrict__ grad_table) {
   const int64_t i = static_cast<int64_t>(blockIdx.x) * kThreads + threadIdx.x;
   if (i >= n * s.levels) return;
   const int64_t point = i / s.levels;
@@ -55,8 +55,8 @@ cudaError_t launch_hash_grid_forward(const float* positions, int64_t n, const fl
   return cudaGetLastError();
 }
 
-cudaError_t launch_hash_grid_backward(const float* positions, int64_t n, const float* grad_out,
-                                      const HashGridShape& s, float* grad_table, cudaStream_t stream) {
+cudaError_t launch_hash_grid_backward(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
+                                      float* grad_table, cudaStream_t stream) {
   if (n == 0) return cudaSuccess;
   backward_kernel<<<blocks_for(n * s.levels), kThreads, 0, stream>>>(positions, n, grad_out, s, grad_table);
   return cudaGetLastError();

@@ -16,7 +16,7 @@ cudaError_t launch_hash_grid_forward(const float* positions, int64_t n, const fl
 
 // grad_table += the scatter of grad_out into the rows each point read (atomic adds; the caller
 // zeroes grad_table first).
-cudaError_t launch_hash_grid_backward(const float* positions, int64_t n, const float* grad_out,
-                                      const HashGridShape& s, float* grad_table, cudaStream_t stream);
+cudaError_t launch_hash_grid_backward(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
+                                      float* grad_table, cudaStream_t stream);
 
 }  // namespace ablenerf

@@ -25,8 +25,8 @@ constexpr int kHashGridMaxLevels = 32;
 
 struct HashGridShape {
   int levels = 0;
-  int features = 0;         // floats per row
-  int64_t table_size = 0;   // rows per level: a power of two, at most 2^24
+  int features = 0;                         // floats per row
+  int64_t table_size = 0;                   // rows per level: a power of two, at most 2^24
   int resolution[kHashGridMaxLevels] = {};  // cells per side of each level, >= 1
 };
 
@@ -37,7 +37,8 @@ constexpr uint32_t kHashPrimeZ = 805459861u;
 ABLENERF_HOST_DEVICE inline uint32_t hash_grid_row(const HashGridShape& s, int level, uint32_t x, uint32_t y,
                                                    uint32_t z) {
   const uint32_t side = static_cast<uint32_t>(s.resolution[level]) + 1;
-  if (static_cast<uint64_t>(side) * side * side <= static_cast<uint64_t>(s.table_size)) return x + side * (y + side * z);
+  if (static_cast<uint64_t>(side) * side * side <= static_cast<uint64_t>(s.table_size))
+    return x + side * (y + side * z);
   return (x ^ (y * kHashPrimeY) ^ (z * kHashPrimeZ)) & static_cast<uint32_t>(s.table_size - 1);
 }
 

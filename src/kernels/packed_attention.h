@@ -24,8 +24,7 @@ namespace ablenerf {
 bool packed_attention_available(const torch::Tensor& x);
 
 // mask: additive (Lq, Lk), broadcast over rays and heads, or undefined. Differentiable.
-torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
-                                    double scale);
+torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale);
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale);
 
 }  // namespace ablenerf

@@ -159,8 +159,8 @@ void forward_items(const Problem<T>& pr, int64_t lo, int64_t hi, torch::Tensor p
   const T* pp = p.data_ptr<T>();
   for (int64_t it = lo; it < hi; ++it) {
     const int64_t b = it / pr.heads, h = it % pr.heads;
-    product(false, false, pr.lq, pr.dh, pr.lk, T(1), pp + (it - lo) * plane, pr.lk, pr.v.at(b, h, pr.dh),
-            pr.v.row, out.at(b, h, pr.dh), out.row, scratch);
+    product(false, false, pr.lq, pr.dh, pr.lk, T(1), pp + (it - lo) * plane, pr.lk, pr.v.at(b, h, pr.dh), pr.v.row,
+            out.at(b, h, pr.dh), out.row, scratch);
   }
 }
 
@@ -221,9 +221,16 @@ template <class T>
 Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, bool self, int64_t heads, int64_t width,
                         const torch::Tensor& mask, double scale) {
   const KvColumns c = kv_columns(self, width);
-  Problem<T> pr{kv.size(0), heads, width / heads, q_src.size(1), kv.size(1),
-                operand<T>(q_src, 0), operand<T>(kv, c.k), operand<T>(kv, c.v),
-                mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(), scale};
+  Problem<T> pr{kv.size(0),
+                heads,
+                width / heads,
+                q_src.size(1),
+                kv.size(1),
+                operand<T>(q_src, 0),
+                operand<T>(kv, c.k),
+                operand<T>(kv, c.v),
+                mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(),
+                scale};
   return pr;
 }
 
@@ -316,15 +323,14 @@ bool packed_attention_available(const torch::Tensor& x) {
 }
 
 torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale) {
-  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ",
-              qkv.sizes());
+  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
   return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale);
 }
 
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale) {
-  TORCH_CHECK(q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
-              "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ",
-              kv.sizes());
+  TORCH_CHECK(
+      q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
+      "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ", kv.sizes());
   return run(q, kv, torch::Tensor(), heads, q.size(2), scale);
 }
 

@@ -90,11 +90,10 @@ torch::Tensor run_backward(const torch::Tensor& qkv, const torch::Tensor& out, c
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
   const cudaError_t err =
       qkv.scalar_type() == torch::kFloat
-          ? kernels::launch_ray_attention_backward(qkv.data_ptr<float>(), out.data_ptr<float>(),
-                                                   go.data_ptr<float>(), lse.data_ptr<float>(),
-                                                   grad.data_ptr<float>(), shape, stream)
-          : kernels::launch_ray_attention_backward(bf16_ptr(qkv), bf16_ptr(out), bf16_ptr(go),
-                                                   lse.data_ptr<float>(), bf16_ptr(grad), shape, stream);
+          ? kernels::launch_ray_attention_backward(qkv.data_ptr<float>(), out.data_ptr<float>(), go.data_ptr<float>(),
+                                                   lse.data_ptr<float>(), grad.data_ptr<float>(), shape, stream)
+          : kernels::launch_ray_attention_backward(bf16_ptr(qkv), bf16_ptr(out), bf16_ptr(go), lse.data_ptr<float>(),
+                                                   bf16_ptr(grad), shape, stream);
   C10_CUDA_CHECK(err);
   C10_CUDA_KERNEL_LAUNCH_CHECK();
   return grad;
@@ -134,12 +133,13 @@ RayAttentionResult ray_attention(const torch::Tensor& qkv, int64_t heads, bool m
   TORCH_CHECK(qkv.is_cuda(), "ray_attention: qkv must be a CUDA tensor, got device ", qkv.device());
   TORCH_CHECK(qkv.scalar_type() == torch::kFloat || qkv.scalar_type() == torch::kBFloat16,
               "ray_attention: qkv must be float32 or bfloat16, got ", qkv.scalar_type());
-  TORCH_CHECK(g.head_dim == kernels::kRayAttentionHeadDim, "ray_attention: head_dim (qkv.size(2) / (3 * heads)) must be ",
-              kernels::kRayAttentionHeadDim, ", got ", g.head_dim);
+  TORCH_CHECK(g.head_dim == kernels::kRayAttentionHeadDim,
+              "ray_attention: head_dim (qkv.size(2) / (3 * heads)) must be ", kernels::kRayAttentionHeadDim, ", got ",
+              g.head_dim);
   TORCH_CHECK(g.tokens <= kernels::kRayAttentionMaxTokens, "ray_attention: qkv.size(1) (tokens) must be at most ",
               kernels::kRayAttentionMaxTokens, ", got ", g.tokens);
-  TORCH_CHECK(g.batch * heads <= std::numeric_limits<int32_t>::max(), "ray_attention: qkv.size(0) * heads = ",
-              g.batch * heads, " exceeds the kernels' grid");
+  TORCH_CHECK(g.batch * heads <= std::numeric_limits<int32_t>::max(),
+              "ray_attention: qkv.size(0) * heads = ", g.batch * heads, " exceeds the kernels' grid");
   const auto x = aligned(qkv.contiguous());
   const auto r = RayAttentionFunction::apply(x, heads, masked);
   return {r[0], r[1]};

@@ -46,11 +46,9 @@ __device__ __forceinline__ void copy_async(void* dst, const void* src, bool vali
   static_assert(N == 4 || N == 16, "cp.async copies 4 or 16 bytes here");
   const unsigned d = static_cast<unsigned>(__cvta_generic_to_shared(dst));
   if constexpr (N == 16) {
-    asm volatile("cp.async.cg.shared.global [%0], [%1], 16, %2;\n" ::"r"(d), "l"(src), "r"(valid ? 16 : 0)
-                 : "memory");
+    asm volatile("cp.async.cg.shared.global [%0], [%1], 16, %2;\n" ::"r"(d), "l"(src), "r"(valid ? 16 : 0) : "memory");
   } else {
-    asm volatile("cp.async.ca.shared.global [%0], [%1], 4, %2;\n" ::"r"(d), "l"(src), "r"(valid ? 4 : 0)
-                 : "memory");
+    asm volatile("cp.async.ca.shared.global [%0], [%1], 4, %2;\n" ::"r"(d), "l"(src), "r"(valid ? 4 : 0) : "memory");
   }
 }
 
@@ -235,10 +233,10 @@ __global__ void __launch_bounds__(kFp32Threads)
   float* q = smem;
   float* k = q + padded * kHeadStride;
   float* v = k + padded * kHeadStride;
-  float* g = v + padded * kHeadStride;  // dO
-  float* p = g + padded * kHeadStride;  // O (kHeadStride apart), then P, then dS in place
+  float* g = v + padded * kHeadStride;    // dO
+  float* p = g + padded * kHeadStride;    // O (kHeadStride apart), then P, then dS in place
   float* dvec = p + fp32_square(padded);  // D_i = dO_i . O_i
-  float* lrow = dvec + padded;          // the forward's log-sum-exp
+  float* lrow = dvec + padded;            // the forward's log-sum-exp
   load_head_fp32(src, stride, tokens, padded, q);
   load_head_fp32(src + width, stride, tokens, padded, k);
   load_head_fp32(src + 2 * width, stride, tokens, padded, v);
@@ -266,8 +264,7 @@ __global__ void __launch_bounds__(kFp32Threads)
           const int i = i0 + r;
           const int last = i < tokens ? last_column(i, tokens, masked) : -1;
 #pragma unroll
-          for (int c = 0; c < 4; ++c)
-            p[i * ls + j0 + c] = j0 + c <= last ? expf(acc[r][c] * scale - lrow[i]) : 0.f;
+          for (int c = 0; c < 4; ++c) p[i * ls + j0 + c] = j0 + c <= last ? expf(acc[r][c] * scale - lrow[i]) : 0.f;
         }
       });
   __syncthreads();
@@ -341,8 +338,8 @@ using FragB = wmma::fragment<wmma::matrix_b, 16, 16, 16, bf16, wmma::row_major>;
 using FragBT = wmma::fragment<wmma::matrix_b, 16, 16, 16, bf16, wmma::col_major>;
 using FragC = wmma::fragment<wmma::accumulator, 16, 16, 16, float>;
 
-constexpr int kHeadLd = kDh + 8;   // bf16 row stride of the (rows x 64) operands in shared memory
-constexpr int kTileLd = 16 + 4;    // fp32 row stride of a warp's 16 x 16 tile
+constexpr int kHeadLd = kDh + 8;     // bf16 row stride of the (rows x 64) operands in shared memory
+constexpr int kTileLd = 16 + 4;      // fp32 row stride of a warp's 16 x 16 tile
 constexpr int kHalfTileLd = 16 + 8;  // bf16 row stride of a warp's 16 x 16 tile
 constexpr int kMaxTcWarps = 8;
 static_assert(kRayAttentionMaxTokens <= 16 * kMaxTcWarps, "one warp per 16-row strip");
@@ -385,8 +382,8 @@ struct TcGeometry {
 
 // Starts copying rows [0, padded) of a head's (tokens x 64) bf16 matrix (rows row_stride apart;
 // 16-byte aligned) into dst (kHeadLd apart), all threads of the block; rows >= tokens become zero.
-__device__ __forceinline__ void load_head_bf16(const bf16* __restrict__ src, int64_t row_stride, int tokens,
-                                               int padded, bf16* __restrict__ dst) {
+__device__ __forceinline__ void load_head_bf16(const bf16* __restrict__ src, int64_t row_stride, int tokens, int padded,
+                                               bf16* __restrict__ dst) {
   constexpr int kChunks = kDh / 8;  // 16-byte chunks per row
   for (int e = threadIdx.x; e < padded * kChunks; e += blockDim.x) {
     const int i = e / kChunks, c = (e % kChunks) * 8;
@@ -506,7 +503,8 @@ __global__ void __launch_bounds__(32 * kMaxTcWarps)
   __syncwarp();
   bf16* o = out + ray * tokens * width + head * kDh;
 #pragma unroll
-  for (int dt = 0; dt < kDh / 16; ++dt) store_tile_bf16(strip + 16 * dt, geo.lds, 1.f, o, width, r0, 16 * dt, tokens, lane);
+  for (int dt = 0; dt < kDh / 16; ++dt)
+    store_tile_bf16(strip + 16 * dt, geo.lds, 1.f, o, width, r0, 16 * dt, tokens, lane);
 }
 
 // Column strips first: a warp takes keys [16c, 16c + 16) and, over the query tiles that see them,
@@ -530,7 +528,7 @@ __global__ void __launch_bounds__(32 * kMaxTcWarps, 2)
   bf16* qs = reinterpret_cast<bf16*>(smem_bytes);
   bf16* ks = qs + geo.padded * kHeadLd;
   bf16* vs = ks + geo.padded * kHeadLd;
-  bf16* gs = vs + geo.padded * kHeadLd;  // dO
+  bf16* gs = vs + geo.padded * kHeadLd;   // dO
   bf16* dss = gs + geo.padded * kHeadLd;  // O first (kHeadLd apart), then dS (ldp apart)
   float* dvec = reinterpret_cast<float*>(smem_bytes + 4 * geo.head_bytes() + geo.square_bytes());
   float* lrow = dvec + geo.padded;

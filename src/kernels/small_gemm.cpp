@@ -30,9 +30,9 @@ struct D4 {
 // With TAIL the last vector holds the r < lanes columns left after the whole vectors: it loads
 // from bt (those columns of B packed k x lanes, zeros after column r) and stores r columns only.
 template <class S, int NR, int NV, bool TAIL>
-ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp, int64_t si,
-                               const typename S::scalar* b, int64_t ldb, const typename S::scalar* bt,
-                               typename S::scalar* c, int64_t ldc, int64_t r) {
+ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const typename S::scalar* a, int64_t sp,
+                                 int64_t si, const typename S::scalar* b, int64_t ldb, const typename S::scalar* bt,
+                                 typename S::scalar* c, int64_t ldc, int64_t r) {
   using T = typename S::scalar;
   using V = typename S::vec;
   using U = typename S::unaligned;
@@ -67,8 +67,8 @@ ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const type
 // the last whole vector join the last block (see tile's TAIL).
 template <class S, int NR>
 ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
-                               int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
-                               const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
+                                 int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
+                                 const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
   constexpr int64_t W = S::lanes;
   constexpr int64_t kBlock = NR >= 4 ? 3 : 4;
   const int64_t tail = n % W, vectors = n / W + (tail > 0 ? 1 : 0);
@@ -78,9 +78,7 @@ ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha,
     const int64_t j = v0 * W;
     switch (nv * 2 + (last ? 1 : 0)) {
 #define ABLENERF_GEMM_CASE(NV, TAIL) \
-  case NV * 2 + TAIL:                 \
-    tile<S, NR, NV, TAIL>(k, alpha, a, sp, si, b + j, ldb, bt, c + j, ldc, tail); \
-    break;
+  case NV * 2 + TAIL: tile<S, NR, NV, TAIL>(k, alpha, a, sp, si, b + j, ldb, bt, c + j, ldc, tail); break;
       ABLENERF_GEMM_CASE(1, 0)
       ABLENERF_GEMM_CASE(1, 1)
       ABLENERF_GEMM_CASE(2, 0)
@@ -90,16 +88,15 @@ ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha,
       ABLENERF_GEMM_CASE(4, 0)
       ABLENERF_GEMM_CASE(4, 1)
 #undef ABLENERF_GEMM_CASE
-      default:
-        break;
+      default: break;
     }
   }
 }
 
 template <class S>
 ABLENERF_ALWAYS_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_t k, typename S::scalar alpha,
-                               const typename S::scalar* a, int64_t lda, const typename S::scalar* b, int64_t ldb,
-                               typename S::scalar* c, int64_t ldc) {
+                                      const typename S::scalar* a, int64_t lda, const typename S::scalar* b,
+                                      int64_t ldb, typename S::scalar* c, int64_t ldc) {
   using T = typename S::scalar;
   constexpr int64_t W = S::lanes;
   const int64_t sp = trans_a ? lda : 1, si = trans_a ? 1 : lda;
@@ -138,8 +135,8 @@ void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double a
 namespace {
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
-ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
-                                    int64_t lda, const float* b, int64_t ldb, float* c, int64_t ldc) {
+ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
+                                    const float* b, int64_t ldb, float* c, int64_t ldc) {
   gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const double* a,
@@ -149,8 +146,8 @@ ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, do
 #endif
 
 template <class T>
-void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b, int64_t ldb,
-              T* c, int64_t ldc) {
+void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b, int64_t ldb, T* c,
+              int64_t ldc) {
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (cpu_has_avx2_fma()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 #endif
@@ -159,8 +156,8 @@ void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int
 
 }  // namespace
 
-void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
-                const float* b, int64_t ldb, float* c, int64_t ldc) {
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
+                int64_t ldb, float* c, int64_t ldc) {
   dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,

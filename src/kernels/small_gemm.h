@@ -27,8 +27,8 @@ inline bool small_gemm_fits(int64_t m, int64_t n, int64_t k) {
   return m > 0 && n > 0 && k > 0 && m <= kSmallGemmMaxDim && n <= kSmallGemmMaxDim && k <= kSmallGemmMaxDim;
 }
 
-void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
-                const float* b, int64_t ldb, float* c, int64_t ldc);
+void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
+                int64_t ldb, float* c, int64_t ldc);
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
                 const double* b, int64_t ldb, double* c, int64_t ldc);
 

@@ -18,7 +18,7 @@ ABLENERF_ALWAYS_INLINE void exp8(float* p) {
   ExpF8 x;
   std::memcpy(&x, p, sizeof(ExpF8));
   const ExpF8 lo = zero - 87.33654f, hi = zero + 88.72283f;  // ln of the smallest normal, of FLT_MAX
-  const ExpI8 under = x < lo, over = x > hi;
+  const ExpI8 under = x<lo, over = x> hi;
   x = under ? lo : x;
   x = over ? hi : x;
   // n = floor(x / ln2 + 1/2): truncation, then one down where it rounded a negative value up.

@@ -20,8 +20,8 @@ ABTransformerImpl::ABTransformerImpl(int64_t width, int64_t heads, int64_t ff_wi
   }
 }
 
-torch::Tensor ABTransformerImpl::forward(const torch::Tensor& tokens, const torch::Tensor& mask,
-                                         RayQueryProbe* probe, bool ray_token_only) {
+torch::Tensor ABTransformerImpl::forward(const torch::Tensor& tokens, const torch::Tensor& mask, RayQueryProbe* probe,
+                                         bool ray_token_only) {
   auto x = tokens;
   for (size_t i = 0; i < blocks_.size(); ++i) {
     const bool last = i + 1 == blocks_.size();

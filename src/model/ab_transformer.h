@@ -19,8 +19,8 @@ class ABTransformerImpl : public torch::nn::Module {
   // tokens: (B,S+1,E); mask: ray_attention_mask(S) or undefined (bidirectional ablation).
   // `probe` receives the last layer's ray-token query and keys. With `ray_token_only` the result
   // is only the ray token, (B,1,E): the last layer then computes that row alone.
-  torch::Tensor forward(const torch::Tensor& tokens, const torch::Tensor& mask,
-                        RayQueryProbe* probe = nullptr, bool ray_token_only = false);
+  torch::Tensor forward(const torch::Tensor& tokens, const torch::Tensor& mask, RayQueryProbe* probe = nullptr,
+                        bool ray_token_only = false);
   TransformerBlock& block(int64_t i) { return blocks_.at(static_cast<size_t>(i)); }
 
  private:

@@ -15,7 +15,8 @@ namespace ablenerf {
 namespace {
 // Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
 constexpr uint64_t kLeNoiseSeed = 4;
-static_assert(sizeof(ModelOutput) == sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
+static_assert(sizeof(ModelOutput) ==
+                  sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
               "every ModelOutput field must be listed in ModelOutput::kFields");
 
 // Row-wise concatenation of the outputs of consecutive ray slices (undefined fields stay so).
@@ -34,7 +35,10 @@ ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
 }  // namespace
 
 AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjection ndc)
-    : cfg_(cfg), unbounded_(scene == SceneKind::Unbounded), ndc_(scene == SceneKind::ForwardFacing), ndc_projection_(ndc) {
+    : cfg_(cfg),
+      unbounded_(scene == SceneKind::Unbounded),
+      ndc_(scene == SceneKind::ForwardFacing),
+      ndc_projection_(ndc) {
   const int64_t e = cfg.width, ff = int64_t{cfg.width} * cfg.ff_ratio;
   // Plain randn (docs/MODEL.md, section 8: the release's xavier call on these is a no-op).
   ray_token_ = register_parameter("ray_token", torch::randn({1, 1, e}));
@@ -189,8 +193,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
       resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
   const auto t_f = unbounded_ ? unbounded_depths(s_f, near, far) : s_f;
   // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
-  const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view,
-                          view_code, /*colour=*/true, opts.weights_grad);
+  const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view, view_code,
+                          /*colour=*/true, opts.weights_grad);
 
   // Outputs in fp32 whatever the precision of the products (no-ops in fp32).
   const auto fp32 = [](const torch::Tensor& x) { return x.defined() ? x.to(torch::kFloat) : x; };
@@ -204,7 +208,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);
-    out.le_colour_coarse = has_le() || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
+    out.le_colour_coarse =
+        has_le() || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
     out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;

@@ -21,9 +21,9 @@ namespace ablenerf {
 
 // Render-time options for the paper's analyses.
 struct ForwardOptions {
-  bool branches = false;   // also return the two branch colours before tone mapping
-  double le_noise = 0.0;   // std of Gaussian noise added to the LE (0 = none)
-  bool le_zero = false;    // zero the LE
+  bool branches = false;  // also return the two branch colours before tone mapping
+  double le_noise = 0.0;  // std of Gaussian noise added to the LE (0 = none)
+  bool le_zero = false;   // zero the LE
   // Compute the coarse pass's colour (rgb_coarse and its branch colours). Rendering needs only
   // the fine colour: without it the coarse pass skips its LE branch and its last layer computes
   // the ray token's row alone; every fine output is unchanged.
@@ -60,8 +60,8 @@ struct ModelOutput {
   static constexpr torch::Tensor ModelOutput::*kFields[] = {
       &ModelOutput::rgb_coarse,        &ModelOutput::rgb_fine,         &ModelOutput::coarse_weights,
       &ModelOutput::fine_weights,      &ModelOutput::fine_t,           &ModelOutput::fine_s,
-      &ModelOutput::ray_colour_coarse,
-      &ModelOutput::le_colour_coarse,  &ModelOutput::ray_colour_fine,  &ModelOutput::le_colour_fine};
+      &ModelOutput::ray_colour_coarse, &ModelOutput::le_colour_coarse, &ModelOutput::ray_colour_fine,
+      &ModelOutput::le_colour_fine};
 };
 
 class AbleNerfImpl : public torch::nn::Module {
@@ -109,8 +109,8 @@ class AbleNerfImpl : public torch::nn::Module {
   bool ndc_ = false;
   NdcProjection ndc_projection_;
   Compute compute_;
-  torch::Tensor ray_token_;  // (1,1,E) initial ray token
-  torch::Tensor mask_;       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  torch::Tensor ray_token_;      // (1,1,E) initial ray token
+  torch::Tensor mask_;           // (S+1,S+1) additive mask buffer; undefined when model.mask is off
   GridEmbedding grid_{nullptr};  // model.embedding = "grid" only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};

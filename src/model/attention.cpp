@@ -22,8 +22,7 @@ constexpr double kLayerNormEps = 1e-5;  // PyTorch default, used by the release
 constexpr int64_t kWarp = 32, kMaxFusedWidth = 1024;
 }  // namespace
 
-MultiHeadAttentionImpl::MultiHeadAttentionImpl(int64_t width, int64_t heads)
-    : width_(width), heads_(heads) {
+MultiHeadAttentionImpl::MultiHeadAttentionImpl(int64_t width, int64_t heads) : width_(width), heads_(heads) {
   TORCH_CHECK(width % heads == 0, "attention width must be divisible by the head count");
   in_proj_weight = register_parameter("in_proj_weight", torch::empty({3 * width, width}));
   in_proj_bias = register_parameter("in_proj_bias", torch::empty({3 * width}));
@@ -68,7 +67,8 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
   }
 #endif
   if (probe) fill_probe(packed, b, l, probe);
-  if (kernel_ == AttentionKernel::Fused && packed_attention_available(x)) return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(x))
+    return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
   // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
   const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
   return attend(qkv[0], qkv[1], qkv[2], mask);
@@ -77,7 +77,7 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
 void MultiHeadAttentionImpl::fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const {
   // (B,L,3,H,dh) views, no copy.
   const auto heads = packed.view({b, l, 3, heads_, width_ / heads_});
-  const auto q0 = heads.select(1, 0).select(1, 0);           // (B,H,dh)
+  const auto q0 = heads.select(1, 0).select(1, 0);          // (B,H,dh)
   const auto k = heads.select(2, 1).permute({0, 2, 1, 3});  // (B,H,L,dh)
   probe->q0 = probe->keep_graph ? q0 : q0.detach();
   probe->k = probe->keep_graph ? k : k.detach();
@@ -96,14 +96,15 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
     probe->q0 = probe->keep_graph ? q_heads.select(2, 0) : q_heads.select(2, 0).detach();
     probe->k = probe->keep_graph ? kv_heads[0] : kv_heads[0].detach();
   }
-  if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in)) return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in))
+    return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
   return attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor());
 }
 
 double MultiHeadAttentionImpl::scale() const { return 1.0 / std::sqrt(static_cast<double>(width_ / heads_)); }
 
-torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const torch::Tensor& k,
-                                             const torch::Tensor& v, const torch::Tensor& mask) {
+torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const torch::Tensor& k, const torch::Tensor& v,
+                                             const torch::Tensor& mask) {
   const int64_t b = k.size(0), lq = q_in.size(2), dh = width_ / heads_;
   const auto q = q_in.expand({b, heads_, lq, dh});
   torch::Tensor o;

@@ -31,8 +31,7 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   MultiHeadAttentionImpl(int64_t width, int64_t heads);
   // Self-attention. x: (B,L,E); mask: additive (L,L) (0 = may attend, -inf = blocked) or
   // undefined for none. Fills `probe` when given.
-  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
-                             RayQueryProbe* probe = nullptr);
+  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask, RayQueryProbe* probe = nullptr);
   // Cross-attention without mask. q: (Bq,Lq,E) with Bq == B or 1 (broadcast); kv: (B,Lk,E).
   // Fills `probe` (q0 = the first query) when given.
   torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
@@ -64,8 +63,7 @@ TORCH_MODULE(MultiHeadAttention);
 class TransformerBlockImpl : public torch::nn::Module {
  public:
   TransformerBlockImpl(int64_t width, int64_t heads, int64_t ff_width);
-  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask,
-                             RayQueryProbe* probe = nullptr);
+  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask, RayQueryProbe* probe = nullptr);
   // q may have batch 1 (shared queries, e.g. the LE); the result has kv's batch.
   torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
   // Row 0 of forward_self, (B,1,E), for a mask whose row 0 blocks nothing (the ray token's): the

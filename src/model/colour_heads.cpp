@@ -15,9 +15,7 @@ RayColourHeadImpl::RayColourHeadImpl(int64_t width) {
   linear = register_module("linear", torch::nn::Linear(width, kRgbChannels));
 }
 
-torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) {
-  return torch::sigmoid(linear(r) - kRayColourBias);
-}
+torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) { return torch::sigmoid(linear(r) - kRayColourBias); }
 
 LEColourHeadImpl::LEColourHeadImpl(int64_t width, int64_t view_width) {
   hidden = register_module("hidden", torch::nn::Linear(width + view_width, width));

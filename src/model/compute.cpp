@@ -16,9 +16,7 @@
 
 namespace ablenerf {
 
-bool bf16_autocast_available(const torch::Device& device) {
-  return TORCH_VERSION_MAJOR >= 2 && device.is_cuda();
-}
+bool bf16_autocast_available(const torch::Device& device) { return TORCH_VERSION_MAJOR >= 2 && device.is_cuda(); }
 
 AutocastScope::AutocastScope(Precision precision, const torch::Device& device) {
   if (precision != Precision::Bf16) return;

@@ -15,10 +15,10 @@ torch::Tensor contract_points(const torch::Tensor& x) {
 
 Gaussians contract_gaussians(const torch::Tensor& mean, const torch::Tensor& directions, const FrustumMoments& m) {
   // S = a d d^T + b I with a = t_var - r_var / |d|^2, b = r_var (per sample).
-  const auto d = directions.unsqueeze(1);                      // (B,1,3)
-  const auto d2 = (d * d).sum(-1);                             // (B,1)
-  const auto b = m.r_var;                                      // (B,S)
-  const auto a = m.t_var - m.r_var / d2;                       // (B,S)
+  const auto d = directions.unsqueeze(1);  // (B,1,3)
+  const auto d2 = (d * d).sum(-1);         // (B,1)
+  const auto b = m.r_var;                  // (B,S)
+  const auto a = m.t_var - m.r_var / d2;   // (B,S)
   // Inside the unit ball J = I: diag S = a d_c^2 + b.
   // Outside, with r = |x|, f(r) = (2 - 1/r) / r: J = f I + f'(r)/r x x^T, f' = (2/r^3 - 2/r^2).
   const auto r = mean.norm(2, -1, /*keepdim=*/true).clamp_min(kContractEps);  // (B,S,1)
@@ -27,8 +27,8 @@ Gaussians contract_gaussians(const torch::Tensor& mean, const torch::Tensor& dir
   const auto g = torch::where(outside, (2 / (r * r * r) - 2 / (r * r)) / r, torch::zeros_like(r));  // f'(r) / r
   // J = f I + g x x^T is symmetric. Rows: J_c. = f e_c + g x_c x.
   //   (J d)_c = f d_c + g x_c (x . d);   sum_j J_cj^2 = f^2 + 2 f g x_c^2 + g^2 x_c^2 |x|^2.
-  const auto xd = (mean * d).sum(-1, /*keepdim=*/true);        // (B,S,1)
-  const auto jd = f * d + g * mean * xd;                        // (B,S,3)
+  const auto xd = (mean * d).sum(-1, /*keepdim=*/true);  // (B,S,1)
+  const auto jd = f * d + g * mean * xd;                 // (B,S,3)
   const auto x2 = mean * mean;
   const auto jj = f * f + 2 * f * g * x2 + g * g * x2 * (r * r);
   Gaussians out;

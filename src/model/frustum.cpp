@@ -7,8 +7,7 @@ namespace {
 constexpr double kDirNormEps = 1e-10;
 }  // namespace
 
-FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1,
-                                       const torch::Tensor& radius) {
+FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1, const torch::Tensor& radius) {
   const auto mu = 0.5 * (t0 + t1);
   const auto h = 0.5 * (t1 - t0);
   const auto mu2 = mu * mu, h2 = h * h;
@@ -20,8 +19,7 @@ FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Ten
   return m;
 }
 
-Gaussians lift_gaussian(const torch::Tensor& origins, const torch::Tensor& directions,
-                        const FrustumMoments& m) {
+Gaussians lift_gaussian(const torch::Tensor& origins, const torch::Tensor& directions, const FrustumMoments& m) {
   const auto d = directions.unsqueeze(1);  // (B,1,3)
   const auto d2 = d * d;
   const auto perp = 1.0 - d2 / (d2.sum(-1, /*keepdim=*/true) + kDirNormEps);

@@ -17,8 +17,7 @@ struct FrustumMoments {
 };
 
 // t0, t1: (B,S) interval ends; radius: (B,1) cone radius at t = 1 (broadcasts).
-FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1,
-                                       const torch::Tensor& radius);
+FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1, const torch::Tensor& radius);
 
 // A batch of axis-aligned Gaussians. mean, cov: (B,S,3) (cov holds the diagonal).
 struct Gaussians {
@@ -27,8 +26,7 @@ struct Gaussians {
 
 // Lifts the moments to 3-D along unnormalised directions: mean = o + d t_mean,
 // cov_c = t_var d_c^2 + r_var (1 - d_c^2 / |d|^2). origins, directions: (B,3).
-Gaussians lift_gaussian(const torch::Tensor& origins, const torch::Tensor& directions,
-                        const FrustumMoments& m);
+Gaussians lift_gaussian(const torch::Tensor& origins, const torch::Tensor& directions, const FrustumMoments& m);
 
 // Fence-posts t (B,S+1) -> the S interval Gaussians of each ray.
 Gaussians cast_intervals(const torch::Tensor& t, const Rays& rays);

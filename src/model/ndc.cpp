@@ -31,7 +31,8 @@ NdcRay ndc_ray(const torch::Tensor& o_in, const torch::Tensor& d, const NdcProje
   const auto ox = o.select(-1, 0), oy = o.select(-1, 1), oz = o.select(-1, 2);
   NdcRay r;
   r.o = points_to_ndc(o, p);
-  r.d = torch::stack({-p.a * (d.select(-1, 0) / dz - ox / oz), -p.b * (d.select(-1, 1) / dz - oy / oz), -2 * kNdcNear / oz}, -1);
+  r.d = torch::stack(
+      {-p.a * (d.select(-1, 0) / dz - ox / oz), -p.b * (d.select(-1, 1) / dz - oy / oz), -2 * kNdcNear / oz}, -1);
   return r;
 }
 

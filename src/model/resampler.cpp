@@ -46,7 +46,7 @@ torch::Tensor ray_token_attention(const RayQueryProbe& probe) {
 
 torch::Tensor blur_weights(const torch::Tensor& w, double padding) {
   const int64_t s = w.size(-1);
-  const auto padded = torch::cat({w.slice(-1, 0, 1), w, w.slice(-1, s - 1)}, -1);    // S+2
+  const auto padded = torch::cat({w.slice(-1, 0, 1), w, w.slice(-1, s - 1)}, -1);      // S+2
   const auto maxed = torch::maximum(padded.slice(-1, 0, s + 1), padded.slice(-1, 1));  // S+1
   return 0.5 * (maxed.slice(-1, 0, s) + maxed.slice(-1, 1)) + padding;                 // S
 }

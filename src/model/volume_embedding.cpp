@@ -7,8 +7,8 @@ namespace ablenerf {
 VolumeEmbeddingImpl::VolumeEmbeddingImpl(int64_t in_features, int64_t width) {
   for (int i = 0; i < kLayers; ++i) {
     // torch::nn::Linear's reset() is PyTorch's default init (docs/MODEL.md, section 8).
-    layers_.push_back(register_module("linear" + std::to_string(i),
-                                      torch::nn::Linear(i == 0 ? in_features : width, width)));
+    layers_.push_back(
+        register_module("linear" + std::to_string(i), torch::nn::Linear(i == 0 ? in_features : width, width)));
   }
 }
 

@@ -5,7 +5,6 @@
 
 namespace ablenerf {
 
-
 class VolumeEmbeddingImpl : public torch::nn::Module {
  public:
   static constexpr int kLayers = 4;

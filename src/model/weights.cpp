@@ -16,13 +16,18 @@ const std::string kUnusedReleasePrefix = "dir_query.";  // built but never used 
 
 // Suffixes of one transformer block: release -> ours.
 const std::vector<std::pair<std::string, std::string>>& block_suffixes() {
-  static const std::vector<std::pair<std::string, std::string>> s = {
-      {"attn.in_proj_weight", "attn.in_proj_weight"}, {"attn.in_proj_bias", "attn.in_proj_bias"},
-      {"attn.out_proj.weight", "attn.out_proj.weight"}, {"attn.out_proj.bias", "attn.out_proj.bias"},
-      {"ff_layer.0.weight", "ff_in.weight"},          {"ff_layer.0.bias", "ff_in.bias"},
-      {"ff_layer.3.weight", "ff_out.weight"},         {"ff_layer.3.bias", "ff_out.bias"},
-      {"norm1.weight", "norm1.weight"},               {"norm1.bias", "norm1.bias"},
-      {"norm2.weight", "norm2.weight"},               {"norm2.bias", "norm2.bias"}};
+  static const std::vector<std::pair<std::string, std::string>> s = {{"attn.in_proj_weight", "attn.in_proj_weight"},
+                                                                     {"attn.in_proj_bias", "attn.in_proj_bias"},
+                                                                     {"attn.out_proj.weight", "attn.out_proj.weight"},
+                                                                     {"attn.out_proj.bias", "attn.out_proj.bias"},
+                                                                     {"ff_layer.0.weight", "ff_in.weight"},
+                                                                     {"ff_layer.0.bias", "ff_in.bias"},
+                                                                     {"ff_layer.3.weight", "ff_out.weight"},
+                                                                     {"ff_layer.3.bias", "ff_out.bias"},
+                                                                     {"norm1.weight", "norm1.weight"},
+                                                                     {"norm1.bias", "norm1.bias"},
+                                                                     {"norm2.weight", "norm2.weight"},
+                                                                     {"norm2.bias", "norm2.bias"}};
   return s;
 }
 

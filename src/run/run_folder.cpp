@@ -50,7 +50,8 @@ RunFolder RunFolder::create(const std::string& dir, const Config& config, const 
 
 void RunFolder::remove_stale_temporaries() const {
   std::vector<std::string> prefixes;
-  for (const std::string& out : {weights_path(), checkpoint_path(), path("config.toml"), path("run.json"), report_path(), scene_path()})
+  for (const std::string& out :
+       {weights_path(), checkpoint_path(), path("config.toml"), path("run.json"), report_path(), scene_path()})
     prefixes.push_back(fs::path(atomic_temp_prefix(out)).filename().string());
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(dir, ec)) {
@@ -78,7 +79,8 @@ AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
   load_weights(model, run.weights_path());
   model->to(device);
   // A run trained in bf16 on a GPU still renders on a CPU: there, in fp32.
-  model->set_compute(Compute::from_config(run.config.compute, device, run.path("config.toml"), /*bf16_falls_back=*/true));
+  model->set_compute(
+      Compute::from_config(run.config.compute, device, run.path("config.toml"), /*bf16_falls_back=*/true));
   model->eval();
   return model;
 }

@@ -16,8 +16,8 @@ void append_run_log(const std::string& path, const nlohmann::json& record);
 // crash) are skipped and counted.
 struct RunLog {
   std::vector<nlohmann::json> train, eval;
-  int64_t last_step = -1;     // largest "step" of any record, -1 when none
-  double elapsed_s = -1;      // "elapsed_s" of the last train record, -1 when none
+  int64_t last_step = -1;  // largest "step" of any record, -1 when none
+  double elapsed_s = -1;   // "elapsed_s" of the last train record, -1 when none
   int64_t skipped_lines = 0;
 };
 

@@ -18,8 +18,7 @@ constexpr double kTestStartAzimuthDeg = -90.0;
 double unit_uniform(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
 
 Vec3 spherical(double elevation, double azimuth) {
-  return Vec3{std::cos(elevation) * std::cos(azimuth), std::cos(elevation) * std::sin(azimuth),
-              std::sin(elevation)} *
+  return Vec3{std::cos(elevation) * std::cos(azimuth), std::cos(elevation) * std::sin(azimuth), std::sin(elevation)} *
          kCameraDistance;
 }
 

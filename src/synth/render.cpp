@@ -61,7 +61,8 @@ ViewImage render_view(const Camera& cam, int threads, bool environment_backgroun
     return img;
   }
   std::vector<std::thread> pool;
-  for (int t = 0; t < threads; ++t) pool.emplace_back(render_rows, std::cref(cam), t, threads, environment_background, std::ref(img));
+  for (int t = 0; t < threads; ++t)
+    pool.emplace_back(render_rows, std::cref(cam), t, threads, environment_background, std::ref(img));
   for (auto& th : pool) th.join();
   return img;
 }

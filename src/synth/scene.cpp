@@ -47,8 +47,13 @@ json transforms_json(const std::vector<Camera>& cams, const std::string& split, 
 // nerfstudio's layout: one transforms.json, every frame, the split as file lists.
 json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>& test) {
   const Camera& c = train.front();
-  json j{{"w", c.width}, {"h", c.height}, {"fl_x", c.focal}, {"fl_y", c.focal}, {"cx", 0.5 * c.width},
-         {"cy", 0.5 * c.height}, {"camera_model", c.lens.distorted() ? "OPENCV" : "PINHOLE"}};
+  json j{{"w", c.width},
+         {"h", c.height},
+         {"fl_x", c.focal},
+         {"fl_y", c.focal},
+         {"cx", 0.5 * c.width},
+         {"cy", 0.5 * c.height},
+         {"camera_model", c.lens.distorted() ? "OPENCV" : "PINHOLE"}};
   if (c.lens.distorted()) {
     j["k1"] = c.lens.k1;
     j["k2"] = c.lens.k2;
@@ -63,7 +68,8 @@ json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>
   }
   for (size_t k = 0; k < test.size(); ++k) {
     const std::string base = "test/r_" + std::to_string(k);
-    frames.push_back({{"file_path", base + ".png"}, {"depth_file_path", base + "_depth.pt"},
+    frames.push_back({{"file_path", base + ".png"},
+                      {"depth_file_path", base + "_depth.pt"},
                       {"transform_matrix", pose_json(test[k])}});
     test_files.push_back(base + ".png");
   }
@@ -76,8 +82,11 @@ json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>
 json scene_json(const SynthOptions& o) {
   json objects = json::array();
   for (const Sphere& s : scene_spheres()) {
-    json j{{"name", s.name}, {"shape", "sphere"}, {"material", material_name(s.material)},
-           {"centre", vec_json(s.centre)}, {"radius", s.radius}};
+    json j{{"name", s.name},
+           {"shape", "sphere"},
+           {"material", material_name(s.material)},
+           {"centre", vec_json(s.centre)},
+           {"radius", s.radius}};
     if (s.material == MaterialKind::Mirror) j["reflectance_f0"] = vec_json(mirror_f0());
     if (s.material == MaterialKind::Glass) {
       j["ior"] = kGlassIor;
@@ -90,11 +99,14 @@ json scene_json(const SynthOptions& o) {
   return json{
       {"generator", "ablenerf synth"},
       {"seed", o.seed},
-      {"lens", o.lens == "opencv" ? json{{"model", "OPENCV"}, {"k1", kWideLens.k1}, {"k2", kWideLens.k2},
-                                        {"p1", kWideLens.p1}, {"p2", kWideLens.p2}}
+      {"lens", o.lens == "opencv" ? json{{"model", "OPENCV"},
+                                         {"k1", kWideLens.k1},
+                                         {"k2", kWideLens.k2},
+                                         {"p1", kWideLens.p1},
+                                         {"p2", kWideLens.p2}}
                                   : json{{"model", "PINHOLE"}}},
-      {"background", o.background == "environment" ? "the environment (sky and ground at infinity), alpha 1"
-                                                    : "transparent"},
+      {"background",
+       o.background == "environment" ? "the environment (sky and ground at infinity), alpha 1" : "transparent"},
       {"layout", o.resolved_layout()},
       {"resolution", {o.res, o.res}},
       {"train_views", o.train_views},
@@ -115,15 +127,16 @@ json scene_json(const SynthOptions& o) {
       {"cameras",
        {{"camera_angle_x", kCameraAngleX},
         {"distance", kCameraDistance},
-        {"train", {{"layout", "golden-angle spiral, uniform by area"},
-                   {"elevation_deg", {kMinElevationDeg, kMaxElevationDeg}}}},
+        {"train",
+         {{"layout", "golden-angle spiral, uniform by area"}, {"elevation_deg", {kMinElevationDeg, kMaxElevationDeg}}}},
         {"test", {{"layout", "orbit"}, {"elevation_deg", kTestElevationDeg}}}}},
       {"depth", "t of the pixel-centre ray (depth along the optical axis), 0 on a miss"},
   };
 }
 
 void write_depth(const std::string& base, const ViewImage& img) {
-  const auto depth = torch::from_blob(const_cast<float*>(img.depth.data()), {img.height, img.width}, torch::kFloat).clone();
+  const auto depth =
+      torch::from_blob(const_cast<float*>(img.depth.data()), {img.height, img.width}, torch::kFloat).clone();
   const std::vector<char> bytes = torch::pickle_save(depth);
   write_file_atomic(base + "_depth.pt", {bytes.data(), bytes.size()});
   const double near = kCameraDistance - kSceneBound, far = kCameraDistance + kSceneBound;
@@ -196,7 +209,8 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
     for (size_t k = next++; k < jobs.size(); k = next++) {
       try {
         const ViewImage img = render_view(*jobs[k].cam, 1, environment);
-        const auto rgba = torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
+        const auto rgba =
+            torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
         write_png(jobs[k].base + ".png", rgba);
         if (jobs[k].depth) write_depth(jobs[k].base, img);
       } catch (...) {

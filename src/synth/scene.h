@@ -35,7 +35,7 @@ struct SynthOptions {
   int train_views = 100;
   int test_views = 20;
   uint64_t seed = 0;
-  int threads = 0;  // <= 0: hardware concurrency, at least 2
+  int threads = 0;                         // <= 0: hardware concurrency, at least 2
   std::string lens = "pinhole";            // "pinhole" | "opencv"
   std::string background = "transparent";  // "transparent" | "environment"
   std::string layout = "auto";             // "auto" | "blender" | "nerfstudio"

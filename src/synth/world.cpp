@@ -54,8 +54,8 @@ double sun_visibility(const Vec3& p) {
 Vec3 shade_diffuse(const Vec3& p, const Vec3& n) {
   const Vec3 albedo = diffuse_albedo(n);
   const double cos_sun = std::max(0.0, dot(n, sun_direction()));
-  const Vec3 direct = cos_sun > 0 ? sun_irradiance() * (cos_sun * sun_visibility(p + n * kSurfaceOffset) / M_PI)
-                                  : Vec3{};
+  const Vec3 direct =
+      cos_sun > 0 ? sun_irradiance() * (cos_sun * sun_visibility(p + n * kSurfaceOffset) / M_PI) : Vec3{};
   const Vec3 ambient = mix(kAmbientGround, kAmbientSky, 0.5 * (1.0 + n.z));
   return albedo * (direct + ambient);
 }
@@ -118,12 +118,9 @@ Vec3 trace_weighted(const Ray& r, int depth, double weight) {
   const Vec3 p = r.at(h.t);
   const Vec3 n = (p - s.centre) / s.radius;
   switch (s.material) {
-    case MaterialKind::Diffuse:
-      return shade_diffuse(p, n);
-    case MaterialKind::Mirror:
-      return shade_mirror(p, n, d, depth, weight);
-    case MaterialKind::Glass:
-      return shade_glass(p, n, d, h.t * length(r.dir), depth, weight);
+    case MaterialKind::Diffuse: return shade_diffuse(p, n);
+    case MaterialKind::Mirror: return shade_mirror(p, n, d, depth, weight);
+    case MaterialKind::Glass: return shade_glass(p, n, d, h.t * length(r.dir), depth, weight);
   }
   return {};
 }
@@ -132,12 +129,9 @@ Vec3 trace_weighted(const Ray& r, int depth, double weight) {
 
 const char* material_name(MaterialKind k) {
   switch (k) {
-    case MaterialKind::Diffuse:
-      return "diffuse";
-    case MaterialKind::Mirror:
-      return "mirror";
-    case MaterialKind::Glass:
-      return "glass";
+    case MaterialKind::Diffuse: return "diffuse";
+    case MaterialKind::Mirror: return "mirror";
+    case MaterialKind::Glass: return "glass";
   }
   return "?";
 }
@@ -216,7 +210,7 @@ Vec3 environment(const Vec3& d) {
 }
 
 Vec3 diffuse_albedo(const Vec3& n) {
-  const double u = (std::atan2(n.y, n.x) + M_PI) / (2.0 * M_PI);    // longitude in [0,1]
+  const double u = (std::atan2(n.y, n.x) + M_PI) / (2.0 * M_PI);  // longitude in [0,1]
   const double v = std::acos(std::clamp(n.z, -1.0, 1.0)) / M_PI;  // colatitude in [0,1]
   const int iu = std::min(kCheckerLon - 1, static_cast<int>(u * kCheckerLon));
   const int iv = std::min(kCheckerLat - 1, static_cast<int>(v * kCheckerLat));

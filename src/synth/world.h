@@ -25,13 +25,13 @@ constexpr double kSceneBound = 1.3;
 
 // Material and lighting constants (also written to scene.json).
 constexpr double kGlassIor = 1.5;
-constexpr int kMaxBounces = 6;               // reflection/refraction depth before falling back to the sky
-constexpr double kSunAngularRadiusDeg = 2.5;  // visible disc in the environment
+constexpr int kMaxBounces = 6;                     // reflection/refraction depth before falling back to the sky
+constexpr double kSunAngularRadiusDeg = 2.5;       // visible disc in the environment
 constexpr double kGlassShadowTransmittance = 0.6;  // cheap stand-in for light through glass (no caustics)
-Vec3 sun_direction();  // unit vector towards the sun (upper hemisphere)
-Vec3 sun_irradiance();  // directional light's irradiance on a surface facing it
-Vec3 sun_radiance();   // radiance of the visible sun disc
-Vec3 mirror_f0();      // mirror reflectance at normal incidence (Schlick towards 1 at grazing)
+Vec3 sun_direction();                              // unit vector towards the sun (upper hemisphere)
+Vec3 sun_irradiance();                             // directional light's irradiance on a surface facing it
+Vec3 sun_radiance();                               // radiance of the visible sun disc
+Vec3 mirror_f0();         // mirror reflectance at normal incidence (Schlick towards 1 at grazing)
 Vec3 glass_absorption();  // Beer-Lambert coefficients per unit length inside the glass
 
 // A ray o + t d; d need not be unit length (t is then in units of |d|).

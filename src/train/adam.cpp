@@ -203,7 +203,8 @@ void Adam::step_device(const torch::Tensor& loss) {
   step_.add_(1.0 - found_inf_.squeeze(0));
   const std::vector<torch::Tensor> steps(params.size(), step_);
   at::_fused_adam_(params, grads, exp_avg, exp_avg_sq, /*max_exp_avg_sqs=*/{}, steps, lr_, settings_.beta1,
-                   settings_.beta2, kWeightDecay, settings_.eps, /*amsgrad=*/false, /*maximize=*/false, /*grad_scale=*/std::nullopt, found_inf_);
+                   settings_.beta2, kWeightDecay, settings_.eps, /*amsgrad=*/false, /*maximize=*/false,
+                   /*grad_scale=*/std::nullopt, found_inf_);
 #else
   (void)loss;
   throw std::logic_error("Adam::step_device: not compiled in (needs a CUDA LibTorch >= 2)");
@@ -218,9 +219,7 @@ void Adam::to_checkpoint() {
 
 void Adam::from_checkpoint() {
   for (auto& g : optim_.param_groups())
-    static_cast<torch::optim::AdamOptions&>(g.options())
-        .betas({settings_.beta1, settings_.beta2})
-        .eps(settings_.eps);
+    static_cast<torch::optim::AdamOptions&>(g.options()).betas({settings_.beta1, settings_.beta2}).eps(settings_.eps);
   if (device_form_) bind_state();
 }
 

@@ -39,8 +39,8 @@ class Adam {
   bool host_loops() const { return host_loops_; }
   torch::optim::Adam& optim() { return optim_; }
 
-  void set_lr(double lr);      // host form: the options; device form: an asynchronous fill
-  void clear_grads();          // every .grad undefined (the next backward writes fresh buffers)
+  void set_lr(double lr);  // host form: the options; device form: an asynchronous fill
+  void clear_grads();      // every .grad undefined (the next backward writes fresh buffers)
 
   // Host form: when `loss` and every gradient are finite, updates and returns true; otherwise
   // returns false without updating (the caller clears the gradients).
@@ -51,7 +51,7 @@ class Adam {
   void step_device(const torch::Tensor& loss);
   const torch::Tensor& found_inf() const { return found_inf_; }
 
-  void to_checkpoint();    // device form: the step count into optim()'s per-parameter state
+  void to_checkpoint();  // device form: the step count into optim()'s per-parameter state
   // After a load: this run's settings over the ones the checkpoint's options carried (a resumed
   // run follows its own config); device form: rebind the state tensors optim() holds.
   void from_checkpoint();

@@ -95,11 +95,11 @@ void volume_embedding(Tally& t, const ModelConfig& c) {
 void le_branch(Tally& t, const ModelConfig& c) {
   const double e = c.width, ff = double(c.width) * c.ff_ratio, s = c.samples, n = c.le_count;
   const double view = static_cast<double>(view_encoding_width(c.view_encoding));
-  transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);          // LE x volumes
+  transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);  // LE x volumes
   for (int64_t j = 0; j < c.le_layers; ++j) transformer_block(t, n, n, e, ff, true, true);
-  transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);            // view decodes LE
-  t.product(1, e + view, e, kBackwardBothOperands);  // LE colour head hidden layer
-  t.product(1, e, kRgb, kBackwardBothOperands);      // LE colour head output
+  transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);  // view decodes LE
+  t.product(1, e + view, e, kBackwardBothOperands);                       // LE colour head hidden layer
+  t.product(1, e, kRgb, kBackwardBothOperands);                           // LE colour head output
 }
 
 }  // namespace
@@ -175,7 +175,8 @@ Timing time_it(const torch::Device& d, int64_t warmup, int64_t reps, Fn&& fn) {
 torch::Tensor look_at_origin(const torch::Tensor& eye) {
   const auto f = torch::nn::functional::normalize(-eye, torch::nn::functional::NormalizeFuncOptions().dim(0));
   auto up = torch::tensor({0.0f, 1.0f, 0.0f});
-  const auto r = torch::nn::functional::normalize(torch::cross(f, up, 0), torch::nn::functional::NormalizeFuncOptions().dim(0));
+  const auto r =
+      torch::nn::functional::normalize(torch::cross(f, up, 0), torch::nn::functional::NormalizeFuncOptions().dim(0));
   const auto u = torch::cross(r, f, 0);
   return torch::stack({r, u, -f, eye}, 1);  // columns: right, up, back (-forward), position
 }
@@ -187,7 +188,8 @@ Split bench_split(int64_t side, uint64_t seed) {
   s.name = "train";
   std::vector<torch::Tensor> poses;
   for (int64_t i = 0; i < kBenchViews; ++i) {
-    auto eye = torch::nn::functional::normalize(torch::randn({3}, gen), torch::nn::functional::NormalizeFuncOptions().dim(0));
+    auto eye =
+        torch::nn::functional::normalize(torch::randn({3}, gen), torch::nn::functional::NormalizeFuncOptions().dim(0));
     poses.push_back(look_at_origin(eye * kCameraDistance));
   }
   s.c2w = torch::stack(poses);
@@ -234,7 +236,8 @@ std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& de
     trainer.flush();
     torch::cuda::synchronize();
     const auto result = ap::disableProfiler();
-    const auto file = std::filesystem::temp_directory_path() / ("ablenerf_trace_" + std::to_string(::getpid()) + ".json");
+    const auto file =
+        std::filesystem::temp_directory_path() / ("ablenerf_trace_" + std::to_string(::getpid()) + ".json");
     result->save(file.string());
     std::string json = read_file(file.string());
     std::filesystem::remove(file);
@@ -279,7 +282,8 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
 #endif
   m.device_step = trainer.device_form();
   // Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
-  for (int64_t i = 0; i < o.warmup || (m.device_step && c.train.graph && !trainer.graph_captured()); ++i) trainer.step();
+  for (int64_t i = 0; i < o.warmup || (m.device_step && c.train.graph && !trainer.graph_captured()); ++i)
+    trainer.step();
   m.graph = trainer.graph_captured();
   m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
   trainer.flush();
@@ -297,8 +301,8 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   }
   {
     // The peak in the precision the model's products run in.
-    const auto opts = torch::TensorOptions().device(d).dtype(precision == Precision::Bf16 ? torch::kBFloat16
-                                                                                        : torch::kFloat);
+    const auto opts =
+        torch::TensorOptions().device(d).dtype(precision == Precision::Bf16 ? torch::kBFloat16 : torch::kFloat);
     m.matmul_dtype = precision == Precision::Bf16 ? "bf16" : "fp32";
     const auto a = torch::randn({o.matmul_size, o.matmul_size}, opts);
     const auto b = torch::randn({o.matmul_size, o.matmul_size}, opts);
@@ -392,9 +396,8 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
   double total_us = 0;
   for (auto& [tid, list] : by_thread) {
     // Parents first: earlier start, and the longer of two that start together.
-    std::sort(list.begin(), list.end(), [](const Event& a, const Event& b) {
-      return a.start != b.start ? a.start < b.start : a.end > b.end;
-    });
+    std::sort(list.begin(), list.end(),
+              [](const Event& a, const Event& b) { return a.start != b.start ? a.start < b.start : a.end > b.end; });
     std::vector<double> child_us(list.size(), 0.0);
     std::vector<size_t> open;  // indices of the enclosing events
     for (size_t i = 0; i < list.size(); ++i) {

@@ -25,12 +25,12 @@ FlopCount model_flops_per_ray(const ModelConfig& cfg);
 
 struct BenchOptions {
   torch::Device device{torch::kCPU};
-  int64_t train_rays = 64;    // rays per training step
-  int64_t micro_batch = 0;    // rays per forward/backward within a step (0 = the whole step)
-  int64_t render_rays = 0;    // rays per inference forward (0 = same as train_rays)
-  int64_t steps = 5;          // timed repetitions; the median is reported
-  int64_t warmup = 1;         // untimed repetitions first
-  int64_t image_side = 800;   // the "seconds per image" extrapolation is for side x side pixels
+  int64_t train_rays = 64;     // rays per training step
+  int64_t micro_batch = 0;     // rays per forward/backward within a step (0 = the whole step)
+  int64_t render_rays = 0;     // rays per inference forward (0 = same as train_rays)
+  int64_t steps = 5;           // timed repetitions; the median is reported
+  int64_t warmup = 1;          // untimed repetitions first
+  int64_t image_side = 800;    // the "seconds per image" extrapolation is for side x side pixels
   int64_t matmul_size = 2048;  // n of the n x n x n sgemm that measures the device peak
   int64_t matmul_reps = 5;
   double near = 2.0, far = 6.0;
@@ -51,11 +51,11 @@ struct BenchMeasurements {
   Timing train, render, matmul;
   int64_t peak_memory_bytes = -1;  // -1 = unknown
   std::string peak_memory_source;
-  int64_t threads = 1;            // intra-op threads used
+  int64_t threads = 1;  // intra-op threads used
   int64_t parameters = 0;
-  std::string matmul_dtype;       // dtype of the peak-measuring product ("fp32" | "bf16")
-  bool device_step = false;       // the trainer ran its device form (CUDA, one process)
-  bool graph = false;             // ... captured as a CUDA graph
+  std::string matmul_dtype;  // dtype of the peak-measuring product ("fp32" | "bf16")
+  bool device_step = false;  // the trainer ran its device form (CUDA, one process)
+  bool graph = false;        // ... captured as a CUDA graph
   // The operator trace of BenchOptions::trace_steps training steps (Chrome trace JSON, one "X"
   // event per LibTorch op with its start and duration in microseconds), or empty. The legacy
   // profiler records the calling thread only: with the CPU ray split (compute.cpu_split = "rays")

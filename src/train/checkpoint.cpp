@@ -91,11 +91,13 @@ TrainState load_checkpoint(const std::string& path, const Config& config, AbleNe
   std::memcpy(&hash, bytes.data() + off, sizeof(hash));
   off += sizeof(hash);
   if (version != kFormatVersion)
-    throw InputError(path, "version", "checkpoint format " + std::to_string(version) + ", this build reads " +
-                                          std::to_string(kFormatVersion));
+    throw InputError(
+        path, "version",
+        "checkpoint format " + std::to_string(version) + ", this build reads " + std::to_string(kFormatVersion));
   if (bytes.size() - off != length)
-    throw InputError(path, "length", "truncated or padded: " + std::to_string(bytes.size() - off) + " payload bytes, header says " +
-                                         std::to_string(length));
+    throw InputError(path, "length",
+                     "truncated or padded: " + std::to_string(bytes.size() - off) + " payload bytes, header says " +
+                         std::to_string(length));
   if (fnv1a64(bytes.data() + off, length) != hash) throw InputError(path, "checksum", "corrupted (checksum mismatch)");
 
   torch::serialize::InputArchive archive, model_archive, optim_archive;

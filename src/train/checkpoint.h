@@ -17,10 +17,10 @@
 namespace ablenerf {
 
 struct TrainState {
-  int64_t step = 0;             // optimiser steps done
-  torch::Tensor rng_state;      // RaySampler::rng_state()
-  torch::Tensor error_map;      // RaySampler::map_state() (undefined without an error map)
-  double elapsed_seconds = 0;   // training wall time so far
+  int64_t step = 0;            // optimiser steps done
+  torch::Tensor rng_state;     // RaySampler::rng_state()
+  torch::Tensor error_map;     // RaySampler::map_state() (undefined without an error map)
+  double elapsed_seconds = 0;  // training wall time so far
 };
 
 uint64_t fnv1a64(const char* data, size_t size);

@@ -22,7 +22,9 @@ constexpr int kSlots = 2;  // double buffering: a slot is rewritten only after i
 
 struct CudaStep::Impl {
   Impl(const torch::Device& d, bool use_graph, int64_t warmup)
-      : device(d), graph_wanted(use_graph), warmup_left(warmup),
+      : device(d),
+        graph_wanted(use_graph),
+        warmup_left(warmup),
         stream(c10::cuda::getStreamFromPool(/*isHighPriority=*/false, d.index() < 0 ? 0 : d.index())) {
     // Work queued on the previous stream (data and weights uploads) completes before this stream
     // starts using it.

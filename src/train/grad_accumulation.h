@@ -29,7 +29,8 @@ struct LossTerms {
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays);
 
 struct StepSums {
-  torch::Tensor loss;      // the step's loss (this process's share), 0-d, in the parameters' dtype and on their device, detached
+  torch::Tensor
+      loss;  // the step's loss (this process's share), 0-d, in the parameters' dtype and on their device, detached
   torch::Tensor mse_fine;  // the step's fine-colour MSE (this process's share), likewise
   torch::Tensor ray_se;    // (rays,) LossTerms::ray_se of this process's rays, in batch order
 };

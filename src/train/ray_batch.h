@@ -49,8 +49,8 @@ class RaySampler {
 
  private:
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
-  Intrinsics k_;       // the first image's camera (the image size of every image)
-  CameraTable cams_;   // on device: one row per image
+  Intrinsics k_;                // the first image's camera (the image size of every image)
+  CameraTable cams_;            // on device: one row per image
   int64_t pixels_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
   std::optional<ErrorMap> map_;

@@ -55,12 +55,12 @@ void install_interrupt_handlers() {
 struct Trainer::State {
   int rank = 0, world = 1;
   bool leader = true;
-  RunFolder run;            // empty dir: no run folder (bench)
+  RunFolder run;  // empty dir: no run folder (bench)
   std::optional<Dataset> ds;
   // Where samples lie: the dataset's scene (near/far, bounded or unbounded), else the config's.
   double near = 2, far = 6;
   SceneKind scene = SceneKind::Bounded;
-  std::string held_out;     // split for the periodic PSNR ("" = none)
+  std::string held_out;  // split for the periodic PSNR ("" = none)
   AbleNerf model{nullptr};
   std::unique_ptr<Adam> adam;
   std::unique_ptr<RaySampler> sampler;
@@ -69,9 +69,9 @@ struct Trainer::State {
   int64_t local_rays = 0, micro = 0;
   // Device form.
   std::unique_ptr<CudaStep> cuda;
-  torch::Tensor indices_dev;  // this step's ray indices on the device (the graph's input)
-  torch::Tensor figures_dev;  // [loss, mse_fine, found_inf, ray_se...] of the step (the graph's output)
-  double pending_lr = NAN;    // lr of the step whose figures are in flight
+  torch::Tensor indices_dev;      // this step's ray indices on the device (the graph's input)
+  torch::Tensor figures_dev;      // [loss, mse_fine, found_inf, ray_se...] of the step (the graph's output)
+  double pending_lr = NAN;        // lr of the step whose figures are in flight
   torch::Tensor pending_indices;  // its ray indices, until its errors reach the error map
   StepReport last;
   // Time: seconds trained before this invocation, the clock of this one, the agreed elapsed.
@@ -255,8 +255,7 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   s.adam->set_lr(lr);
   s.adam->clear_grads();
   const RayBatch batch = s.sampler->gather(indices);
-  const StepSums sums =
-      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
+  const StepSums sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
   StepReport r;
   r.step = s.state.step + 1;
   r.lr = lr;
@@ -311,7 +310,9 @@ void Trainer::observe_pending(const std::vector<double>& figures) {
   if (!s.pending_indices.defined()) return;  // already fed (flush, then the next step)
   if (s.sampler->error_guided() && figures[2] == 0.0) {
     const auto n = static_cast<int64_t>(figures.size()) - 3;
-    s.sampler->observe(s.pending_indices, torch::tensor(std::vector<double>(figures.begin() + 3, figures.end()), torch::kDouble).reshape({n}));
+    s.sampler->observe(
+        s.pending_indices,
+        torch::tensor(std::vector<double>(figures.begin() + 3, figures.end()), torch::kDouble).reshape({n}));
   }
   s.pending_indices = torch::Tensor();
 }
@@ -380,8 +381,9 @@ void Trainer::check_divergence(const StepReport& r) {
              std::to_string(s.bad_in_a_row) + " in a row)");
   if (s.bad_in_a_row >= config_.train.max_bad_steps)
     throw TrainingDiverged("training diverged: " + std::to_string(s.bad_in_a_row) +
-                           " consecutive non-finite steps at step " + std::to_string(r.step) + "; the last checkpoint (" +
-                           s.run.checkpoint_path() + ") is intact. Lower train.lr_init or check the data.");
+                           " consecutive non-finite steps at step " + std::to_string(r.step) +
+                           "; the last checkpoint (" + s.run.checkpoint_path() +
+                           ") is intact. Lower train.lr_init or check the data.");
 }
 
 void Trainer::log_step(const StepReport& r) {
@@ -405,12 +407,12 @@ void Trainer::log_step(const StepReport& r) {
   }
   if (r.step % tc.log_every == 0 || r.step == tc.steps) {
     append_run_log(s.run.log_path(), {{"type", "train"},
-                                {"step", r.step},
-                                {"loss", s.loss_acc / static_cast<double>(s.acc_steps)},
-                                {"psnr", psnr_from_mse(s.mse_fine_acc / static_cast<double>(s.acc_steps))},
-                                {"lr", r.lr},
-                                {"rays_per_s", s.rays_per_s},
-                                {"elapsed_s", s.state.elapsed_seconds}});
+                                      {"step", r.step},
+                                      {"loss", s.loss_acc / static_cast<double>(s.acc_steps)},
+                                      {"psnr", psnr_from_mse(s.mse_fine_acc / static_cast<double>(s.acc_steps))},
+                                      {"lr", r.lr},
+                                      {"rays_per_s", s.rays_per_s},
+                                      {"elapsed_s", s.state.elapsed_seconds}});
     s.loss_acc = s.mse_fine_acc = 0;
     s.acc_steps = 0;
   }
@@ -441,8 +443,13 @@ void Trainer::held_out_check() {
   }
   s.model->train();
   const double p = views.empty() ? NAN : sum / static_cast<double>(views.size());
-  append_run_log(s.run.log_path(), {{"type", "eval"}, {"step", s.state.step}, {"psnr", p}, {"views", tc.eval_views},
-                              {"view_indices", views}, {"split", s.held_out}, {"elapsed_s", s.state.elapsed_seconds}});
+  append_run_log(s.run.log_path(), {{"type", "eval"},
+                                    {"step", s.state.step},
+                                    {"psnr", p},
+                                    {"views", tc.eval_views},
+                                    {"view_indices", views},
+                                    {"split", s.held_out},
+                                    {"elapsed_s", s.state.elapsed_seconds}});
   if (!opts_.quiet) {
     std::ostringstream line;
     line << "train: step " << s.state.step << " held-out " << s.held_out << " PSNR " << p << " dB";

@@ -44,7 +44,7 @@ struct TrainOptions {
   // Stop (with a checkpoint) once this invocation has trained this many seconds; <= 0 = no limit.
   // The schedule stays the one of train.steps: this is a wall-clock guard, not a budget.
   double time_limit_s = 0;
-  bool quiet = false;  // no progress line (tests)
+  bool quiet = false;           // no progress line (tests)
   Distributed* dist = nullptr;  // null = one process
   // Called by run() after every step and its hooks, on the training thread, between steps (the
   // model is not being updated): the live viewer copies weights there, pauses by blocking, and

@@ -17,8 +17,8 @@ namespace ablenerf {
 
 namespace {
 
-using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*,
-                              CpuSplit*, ViewEncoding*, Background*, SsimVariant*, RaySampling*, SceneKind*, Embedding*>;
+using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*, CpuSplit*, ViewEncoding*,
+                              Background*, SsimVariant*, RaySampling*, SceneKind*, Embedding*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -113,17 +113,20 @@ std::string value_string(const FieldRef& ref) {
   return std::visit(
       [](auto* p) -> std::string {
         using T = std::remove_pointer_t<decltype(p)>;
-        if constexpr (std::is_same_v<T, bool>) return *p ? "true" : "false";
-        else if constexpr (std::is_same_v<T, double>) return format_double(*p);
-        else if constexpr (std::is_enum_v<T>) return std::string("\"") + name_of(*p) + "\"";
-        else return std::to_string(*p);
+        if constexpr (std::is_same_v<T, bool>)
+          return *p ? "true" : "false";
+        else if constexpr (std::is_same_v<T, double>)
+          return format_double(*p);
+        else if constexpr (std::is_enum_v<T>)
+          return std::string("\"") + name_of(*p) + "\"";
+        else
+          return std::to_string(*p);
       },
       ref);
 }
 
 // Sets a field from a TOML node; throws InputError on a type mismatch.
-void set_from_node(const FieldRef& ref, const toml::node& node, const std::string& file,
-                   const std::string& key) {
+void set_from_node(const FieldRef& ref, const toml::node& node, const std::string& file, const std::string& key) {
   std::visit(
       [&](auto* p) {
         using T = std::remove_pointer_t<decltype(p)>;
@@ -135,9 +138,12 @@ void set_from_node(const FieldRef& ref, const toml::node& node, const std::strin
           if (!v) throw InputError(file, key, allowed_names<T>());
           *p = *v;
         } else if constexpr (std::is_same_v<T, double>) {
-          if (node.is_floating_point()) *p = node.as_floating_point()->get();
-          else if (node.is_integer()) *p = static_cast<double>(node.as_integer()->get());
-          else throw InputError(file, key, "expected a number");
+          if (node.is_floating_point())
+            *p = node.as_floating_point()->get();
+          else if (node.is_integer())
+            *p = static_cast<double>(node.as_integer()->get());
+          else
+            throw InputError(file, key, "expected a number");
           if (!std::isfinite(*p)) throw InputError(file, key, "must be finite");
         } else {
           if (!node.is_integer()) throw InputError(file, key, "expected an integer");
@@ -176,8 +182,7 @@ Config Config::parse(const std::string& text, const std::string& origin) {
     tbl = toml::parse(std::string_view(text), std::string_view(origin));
   } catch (const toml::parse_error& e) {
     const auto& b = e.source().begin;
-    throw InputError(origin, "line " + std::to_string(b.line),
-                     "invalid TOML: " + std::string(e.description()));
+    throw InputError(origin, "line " + std::to_string(b.line), "invalid TOML: " + std::string(e.description()));
   }
   apply_table(c, tbl, origin);
   return c;
@@ -187,16 +192,14 @@ Config Config::load(const std::string& path) { return parse(read_file(path), pat
 
 void Config::set(const std::string& assignment) {
   const auto eq = assignment.find('=');
-  if (eq == std::string::npos || eq == 0)
-    throw InputError("--set", assignment, "expected section.key=value");
+  if (eq == std::string::npos || eq == 0) throw InputError("--set", assignment, "expected section.key=value");
   const std::string key = assignment.substr(0, eq), value = assignment.substr(eq + 1);
   auto fields = field_map(*this);
   auto it = fields.find(key);
   if (it == fields.end()) throw InputError("--set", key, "unknown key");
   // Names may be given bare (--set data.background=black).
-  const bool is_string = std::visit(
-      [](auto* p) { return std::is_enum_v<std::remove_pointer_t<decltype(p)>>; },
-      it->second);
+  const bool is_string =
+      std::visit([](auto* p) { return std::is_enum_v<std::remove_pointer_t<decltype(p)>>; }, it->second);
   std::string doc = "v = " + ((is_string && (value.empty() || value[0] != '"')) ? "\"" + value + "\"" : value);
   toml::table tbl;
   try {

@@ -18,8 +18,8 @@ enum class CpuSplit { Rays, Ops };
 // What the run computes or reads, chosen by name in the config.
 enum class ViewEncoding { Release, Paper };  // model.view_encoding (model/view_encoding.h)
 enum class Background { White, Black };      // data.background: the colour RGBA images are composited on
-enum class RaySampling { Uniform, Error };    // train.ray_sampling (train/error_map.h)
-enum class Embedding { Ipe, Grid };           // model.embedding: the paper's IPE or the grid front end (model/grid_embedding.h)
+enum class RaySampling { Uniform, Error };   // train.ray_sampling (train/error_map.h)
+enum class Embedding { Ipe, Grid };  // model.embedding: the paper's IPE or the grid front end (model/grid_embedding.h)
 // data.scene (data/scene_frame.h): where samples lie along a ray and how they are encoded.
 //  * Bounded: depth-linear samples between near and far (Blender's object on a card);
 //  * Unbounded: mip-NeRF 360's scene contraction of the frustum Gaussians, half the samples linear
@@ -47,23 +47,30 @@ using EnumNames = std::vector<std::pair<E, const char*>>;
 template <class E>
 inline const EnumNames<E> kEnumNames;  // specialised for every enum below
 template <>
-inline const EnumNames<AttentionKernel> kEnumNames<AttentionKernel>{{AttentionKernel::Fused, "fused"}, {AttentionKernel::Plain, "plain"}};
+inline const EnumNames<AttentionKernel> kEnumNames<AttentionKernel>{{AttentionKernel::Fused, "fused"},
+                                                                    {AttentionKernel::Plain, "plain"}};
 template <>
 inline const EnumNames<Precision> kEnumNames<Precision>{{Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}};
 template <>
 inline const EnumNames<CpuSplit> kEnumNames<CpuSplit>{{CpuSplit::Rays, "rays"}, {CpuSplit::Ops, "ops"}};
 template <>
-inline const EnumNames<ViewEncoding> kEnumNames<ViewEncoding>{{ViewEncoding::Release, "release"}, {ViewEncoding::Paper, "paper"}};
+inline const EnumNames<ViewEncoding> kEnumNames<ViewEncoding>{{ViewEncoding::Release, "release"},
+                                                              {ViewEncoding::Paper, "paper"}};
 template <>
 inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
 template <>
-inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"}, {RaySampling::Error, "error"}};
+inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"},
+                                                            {RaySampling::Error, "error"}};
 template <>
 inline const EnumNames<Embedding> kEnumNames<Embedding>{{Embedding::Ipe, "ipe"}, {Embedding::Grid, "grid"}};
 template <>
-inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"}, {SceneKind::Bounded, "bounded"}, {SceneKind::Unbounded, "unbounded"}, {SceneKind::ForwardFacing, "forward"}};
+inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"},
+                                                        {SceneKind::Bounded, "bounded"},
+                                                        {SceneKind::Unbounded, "unbounded"},
+                                                        {SceneKind::ForwardFacing, "forward"}};
 template <>
-inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"}, {SsimVariant::Release, "release"}};
+inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"},
+                                                            {SsimVariant::Release, "release"}};
 
 template <class E>
 const EnumNames<E>& enum_names() {
@@ -84,16 +91,16 @@ std::optional<E> enum_from_name(const std::string& name) {
 }
 
 struct ModelConfig {
-  int width = 192;           // token width d
-  int heads = 3;             // attention heads (head dim = width / heads)
-  int ff_ratio = 3;          // feed-forward width = width * ff_ratio
-  int coarse_layers = 2;     // AB transformer blocks, coarse pass
-  int fine_layers = 6;       // AB transformer blocks, fine pass
-  int samples = 96;          // intervals per ray (coarse and fine)
+  int width = 192;        // token width d
+  int heads = 3;          // attention heads (head dim = width / heads)
+  int ff_ratio = 3;       // feed-forward width = width * ff_ratio
+  int coarse_layers = 2;  // AB transformer blocks, coarse pass
+  int fine_layers = 6;    // AB transformer blocks, fine pass
+  int samples = 96;       // intervals per ray (coarse and fine)
   // What turns a frustum Gaussian into the features of its token: "ipe", the paper's integrated
   // positional encoding (stage 2), or "grid", a multiresolution hash grid (model/grid_embedding.h).
   Embedding embedding = Embedding::Ipe;
-  int ipe_degrees = 16;      // IPE frequencies 2^0 .. 2^(ipe_degrees-1)
+  int ipe_degrees = 16;  // IPE frequencies 2^0 .. 2^(ipe_degrees-1)
   // The grid front end (model.embedding = "grid"): levels of 2^grid_log2_table rows of
   // grid_features floats, from grid_base_resolution to grid_max_resolution cells per side.
   int grid_levels = 16;
@@ -107,16 +114,16 @@ struct ModelConfig {
   int grid_ipe_degrees = 4;
   double grid_lr_scale = 20;  // the table's learning rate over the run's (instant-ngp's 1e-2 at lr 5e-4)
   double grid_bound = 1.5;    // bounded scenes: the grid spans [-grid_bound, grid_bound]^3 of the world
-  int le_count = 32;         // learnable embeddings; 0 = the paper's "no LE" ablation
-  int le_layers = 2;         // LE self-attention blocks
-  bool mask = true;          // causal volume mask (docs/MODEL.md, section 4) (false = bidirectional ablation)
-  bool randomized = false;   // stratified jitter of coarse samples and resampling (released: off)
+  int le_count = 32;          // learnable embeddings; 0 = the paper's "no LE" ablation
+  int le_layers = 2;          // LE self-attention blocks
+  bool mask = true;           // causal volume mask (docs/MODEL.md, section 4) (false = bidirectional ablation)
+  bool randomized = false;    // stratified jitter of coarse samples and resampling (released: off)
   ViewEncoding view_encoding = ViewEncoding::Release;  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
-  double resample_padding = 0.01;         // added to every blurred weight before inverse-CDF sampling
+  double resample_padding = 0.01;                      // added to every blurred weight before inverse-CDF sampling
 };
 
 struct DataConfig {
-  int downscale = 1;                  // integer box-downscale factor
+  int downscale = 1;  // integer box-downscale factor
   Background background = Background::White;
   // Near/far of Blender scenes (their convention: 2/6). A real capture's bounds come from the
   // capture itself (sparse points, LLFF bounds or the camera layout; data/scene_frame.h) unless
@@ -150,11 +157,11 @@ struct TrainConfig {
   // levels of each level's mean squared feature), weighted by this. 0 = off.
   double grid_decay = 0.0;
   int64_t seed = 4;
-  int64_t log_every = 100;       // steps between log.jsonl lines
-  int64_t eval_every = 5000;     // steps between held-out PSNR checks (0 = never)
-  int64_t eval_views = 4;        // held-out views used for that check, spread evenly over the split
-  int64_t ckpt_every = 5000;     // steps between checkpoints (0 = only at the end)
-  int64_t max_bad_steps = 5;     // consecutive non-finite losses before the run stops
+  int64_t log_every = 100;    // steps between log.jsonl lines
+  int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
+  int64_t eval_views = 4;     // held-out views used for that check, spread evenly over the split
+  int64_t ckpt_every = 5000;  // steps between checkpoints (0 = only at the end)
+  int64_t max_bad_steps = 5;  // consecutive non-finite losses before the run stops
   // Wall-clock budget in seconds (0 = none). With one, the learning-rate schedule advances by
   // whichever is further along, steps or time, and training ends when either runs out, so a run
   // finishes in its budget on a slow machine with its schedule complete. With several processes
@@ -172,7 +179,7 @@ struct TrainConfig {
 };
 
 struct EvalConfig {
-  int64_t chunk = 4096;          // rays per forward when rendering
+  int64_t chunk = 4096;                      // rays per forward when rendering
   SsimVariant ssim = SsimVariant::Standard;  // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
 };
 

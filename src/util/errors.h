@@ -21,8 +21,7 @@ class InputError : public std::runtime_error {
   const std::string& field() const { return field_; }
 
  private:
-  static std::string compose(const std::string& file, const std::string& field,
-                             const std::string& what) {
+  static std::string compose(const std::string& file, const std::string& field, const std::string& what) {
     std::string s = file.empty() ? std::string("<input>") : file;
     if (!field.empty()) s += ": " + field;
     return s + ": " + what;

@@ -56,20 +56,15 @@ int write_and_close(int fd, std::string_view bytes) {
 std::string fix_for(int err, const std::string& dir) {
   switch (err) {
     case ENOSPC:
-    case EDQUOT:
-      return "disk full? free space in " + dir;
+    case EDQUOT: return "disk full? free space in " + dir;
     case EFBIG:
       return "file too large for the file system or the file-size limit (ulimit -f): free space in " + dir +
              " or raise the limit";
     case EACCES:
-    case EPERM:
-      return "no permission? make " + dir + " writable or write elsewhere";
-    case EROFS:
-      return "read-only file system: write elsewhere";
-    case ENOENT:
-      return "the folder " + dir + " does not exist";
-    default:
-      return "";
+    case EPERM: return "no permission? make " + dir + " writable or write elsewhere";
+    case EROFS: return "read-only file system: write elsewhere";
+    case ENOENT: return "the folder " + dir + " does not exist";
+    default: return "";
   }
 }
 

@@ -46,12 +46,13 @@ std::pair<int, int> image_size(const std::string& path) {
 
 std::vector<std::string> image_files(const std::string& dir, std::vector<std::string>* others) {
   static const std::vector<std::string> kOther{".heic", ".heif", ".tif", ".tiff", ".webp", ".bmp", ".dng",
-                                               ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2"};
+                                               ".cr2",  ".cr3",  ".nef", ".arw",  ".raf",  ".orf", ".rw2"};
   std::vector<std::string> out;
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
     if (!e.is_regular_file()) continue;
     std::string ext = e.path().extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
     if (ext == ".jpg" || ext == ".jpeg" || ext == ".png")
       out.push_back(e.path().string());
     else if (others && std::find(kOther.begin(), kOther.end(), ext) != kOther.end())

@@ -26,8 +26,7 @@ void write_png(const std::string& path, const torch::Tensor& image) {
   const int c = static_cast<int>(im.size(2));
   TORCH_CHECK(c == 1 || c == 3 || c == 4, "write_png expects 1, 3 or 4 channels");
   const torch::Tensor bytes = to_uint8(im.cpu());
-  encode_png_file(path, static_cast<int>(bytes.size(1)), static_cast<int>(bytes.size(0)), c,
-                  bytes.data_ptr<uint8_t>());
+  encode_png_file(path, static_cast<int>(bytes.size(1)), static_cast<int>(bytes.size(0)), c, bytes.data_ptr<uint8_t>());
 }
 
 torch::Tensor box_downscale(const torch::Tensor& image, int factor) {

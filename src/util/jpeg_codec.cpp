@@ -111,11 +111,9 @@ void read_jpeg_header(JpegSession& s, bool save_app1) {
   switch (c.jpeg_color_space) {
     case JCS_GRAYSCALE:
     case JCS_YCbCr:
-    case JCS_RGB:
-      break;
+    case JCS_RGB: break;
     case JCS_CMYK:
-    case JCS_YCCK:
-      throw InputError(s.path, "colour space", "CMYK/YCCK JPEG is not supported (convert it to RGB)");
+    case JCS_YCCK: throw InputError(s.path, "colour space", "CMYK/YCCK JPEG is not supported (convert it to RGB)");
     default:
       throw InputError(s.path, "colour space",
                        "JPEG with " + std::to_string(c.num_components) +
@@ -143,8 +141,7 @@ uint32_t exif_u16(const uint8_t* p, bool little) {
 }
 
 uint32_t exif_u32(const uint8_t* p, bool little) {
-  return little ? exif_u16(p, true) | exif_u16(p + 2, true) << 16
-                : exif_u16(p, false) << 16 | exif_u16(p + 2, false);
+  return little ? exif_u16(p, true) | exif_u16(p + 2, true) << 16 : exif_u16(p, false) << 16 | exif_u16(p + 2, false);
 }
 
 }  // namespace
@@ -244,8 +241,7 @@ void apply_exif_orientation(Image8& im, int orientation) {
   uint8_t* dst = out.data();
   for (int64_t r = 0; r < out_h; ++r) {
     int64_t s = origin + r * dr;
-    for (int64_t c = 0; c < out_w; ++c, s += dc, dst += ch)
-      std::memcpy(dst, src + s * ch, static_cast<size_t>(ch));
+    for (int64_t c = 0; c < out_w; ++c, s += dc, dst += ch) std::memcpy(dst, src + s * ch, static_cast<size_t>(ch));
   }
   im.pixels.swap(out);
   im.height = static_cast<int>(out_h);

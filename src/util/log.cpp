@@ -45,8 +45,10 @@ void emit(LogLevel level, const std::string& text, bool redraw) {
   const std::lock_guard<std::mutex> lock(log_mutex());
   LogState& s = state();
   if (level < s.level) return;
-  if (s.sink) s.sink(level, text, redraw);
-  else stderr_sink(level, text, redraw);
+  if (s.sink)
+    s.sink(level, text, redraw);
+  else
+    stderr_sink(level, text, redraw);
 }
 
 const char* level_name(LogLevel level) {

@@ -60,8 +60,10 @@ void Progress::report(int64_t done, const std::string& fields, bool force, doubl
                 static_cast<long long>(total_), pct);
   const std::string text = head + fields + " elapsed " + format_duration(el) + " ETA " + format_duration(eta);
   // The last report stays on screen as an ordinary line; the others redraw in place on a terminal.
-  if (last) log_info(text);
-  else log_progress(text);
+  if (last)
+    log_info(text);
+  else
+    log_progress(text);
 }
 
 void Progress::finish(const std::string& fields) { report(total_, fields, true, -1, /*last=*/true); }

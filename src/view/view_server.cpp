@@ -29,8 +29,9 @@ int side_param(const httplib::Request& req, const char* name) {
   if (!req.has_param(name)) throw InputError("request", name, "missing");
   const double v = number_param(req.get_param_value(name), name);
   if (v != std::floor(v) || v < kViewMinSide || v > kViewMaxSide)
-    throw InputError("request", name, "must be a whole number of pixels from " + std::to_string(kViewMinSide) + " to " +
-                                          std::to_string(kViewMaxSide));
+    throw InputError("request", name,
+                     "must be a whole number of pixels from " + std::to_string(kViewMinSide) + " to " +
+                         std::to_string(kViewMaxSide));
   return static_cast<int>(v);
 }
 
@@ -56,10 +57,15 @@ void bad_request(httplib::Response& res, const std::string& message) {
 }  // namespace
 
 ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveControl* control)
-    : session_(session), control_(control), host_(std::move(host)), port_(port), server_(std::make_unique<httplib::Server>()) {
+    : session_(session),
+      control_(control),
+      host_(std::move(host)),
+      port_(port),
+      server_(std::make_unique<httplib::Server>()) {
   auto& s = *server_;
   s.Get("/api/state", [this](const httplib::Request&, httplib::Response& res) {
-    const nlohmann::json j{{"step", session_.weights_step()}, {"live", session_.live()},
+    const nlohmann::json j{{"step", session_.weights_step()},
+                           {"live", session_.live()},
                            {"paused", control_ ? control_->paused() : false}};
     res.set_content(j.dump(), "application/json");
   });
@@ -83,10 +89,14 @@ ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveCon
   s.Get("/api/control", [this](const httplib::Request& req, httplib::Response& res) {
     if (!control_) return bad_request(res, "request: action: the run is not being trained here (train --view)");
     const std::string a = req.get_param_value("action");
-    if (a == "pause") control_->pause();
-    else if (a == "resume") control_->resume();
-    else if (a == "save") control_->request_save();
-    else return bad_request(res, "request: action: must be pause, resume or save");
+    if (a == "pause")
+      control_->pause();
+    else if (a == "resume")
+      control_->resume();
+    else if (a == "save")
+      control_->request_save();
+    else
+      return bad_request(res, "request: action: must be pause, resume or save");
     res.set_content("{\"ok\": true}", "application/json");
   });
   s.Get("/", [](const httplib::Request&, httplib::Response& res) { res.set_content(viewer_page_html(), "text/html"); });
@@ -100,9 +110,12 @@ ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveCon
       ViewMode mode = ViewMode::Rgb;
       if (req.has_param("mode")) {
         const std::string m = req.get_param_value("mode");
-        if (m == "depth") mode = ViewMode::Depth;
-        else if (m == "error") mode = ViewMode::Error;
-        else if (m != "rgb") throw InputError("request", "mode", "must be rgb, depth or error");
+        if (m == "depth")
+          mode = ViewMode::Depth;
+        else if (m == "error")
+          mode = ViewMode::Error;
+        else if (m != "rgb")
+          throw InputError("request", "mode", "must be rgb, depth or error");
       }
       int camera = -1;
       res.set_content(session_.render_png(pose, w, h, mode, &camera), "image/png");

@@ -60,7 +60,8 @@ void view_between_steps(Trainer& trainer, ViewSession& session, LiveControl& con
 ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device, bool live)
     : run_(RunFolder::open(run_dir)), device_(device), live_(live) {
   scene_ = run_.scene();
-  if (run_.data_dir.empty()) throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
+  if (run_.data_dir.empty())
+    throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
   Capture capture = read_capture(run_.data_dir, {}, run_.config.data.downscale);
   cams_ = capture_cameras(capture, scene_, run_.config.data.downscale);
   capture_h_ = capture.height;
@@ -149,9 +150,10 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
     // The photo as the loader reads it (upright, at the run's downscale), straight RGBA averaged
     // over areas to the asked size (as the loader's box downscale), then composited.
     auto rgba = frame_photo_rgba(f, capture_h_, capture_w_, run_.config.data.downscale);
-    rgba = torch::nn::functional::interpolate(
-               rgba.permute({2, 0, 1}).unsqueeze(0),
-               torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{height, width}).mode(torch::kArea))
+    rgba = torch::nn::functional::interpolate(rgba.permute({2, 0, 1}).unsqueeze(0),
+                                              torch::nn::functional::InterpolateFuncOptions()
+                                                  .size(std::vector<int64_t>{height, width})
+                                                  .mode(torch::kArea))
                .squeeze(0)
                .permute({1, 2, 0});
     const float bg = run_.config.data.background == Background::White ? 1.0f : 0.0f;
@@ -165,8 +167,8 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
   {
     const std::lock_guard<std::mutex> lock(mu_);
     const torch::NoGradGuard no_grad;
-    const RenderResult r =
-        render_image(model_, pose.to(device_), k, scene_.near, scene_.far, run_.config.eval.chunk, ForwardOptions{}, device_);
+    const RenderResult r = render_image(model_, pose.to(device_), k, scene_.near, scene_.far, run_.config.eval.chunk,
+                                        ForwardOptions{}, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
     } else if (mode == ViewMode::Error) {

@@ -81,8 +81,7 @@ class ViewSession {
   // The PNG of the view from `c2w` (row-major 3x4, scene frame, OpenGL axes) through a pinhole
   // with the dataset's focal length scaled to `width` (principal point at the centre).
   // With ViewMode::Error, `camera` (when not null) receives the index of the camera compared.
-  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode,
-                         int* camera = nullptr);
+  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode, int* camera = nullptr);
   // The dataset camera nearest `c2w` (centre distance plus the angle between viewing directions,
   // in scene units / radians), as an index of cameras_json()'s list.
   int nearest_camera(const std::array<float, 12>& c2w) const;
@@ -91,7 +90,7 @@ class ViewSession {
   RunFolder run_;
   SceneFrame scene_;
   CameraList cams_;
-  std::vector<CaptureFrame> frames_;  // every split's frames, in cameras_json()'s order
+  std::vector<CaptureFrame> frames_;   // every split's frames, in cameras_json()'s order
   int capture_h_ = 0, capture_w_ = 0;  // the capture's full image size
   torch::Device device_;
   AbleNerf model_{nullptr};

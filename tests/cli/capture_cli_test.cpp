@@ -16,11 +16,13 @@ using nlohmann::json;
 
 TEST(CliCapture, RenderWithTheCapturesOwnPoseEqualsEvalsView) {
   test::TempDir t;
-  auto r = test::run_cli("synth --out " + t / "cap" + " --res 16 --train-views 6 --test-views 2 --layout nerfstudio --threads 1");
+  auto r = test::run_cli("synth --out " + t / "cap" +
+                         " --res 16 --train-views 6 --test-views 2 --layout nerfstudio --threads 1");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = test::run_cli("train --data " + t / "cap" + " --config " + test::source_dir() +
                     "/configs/demo.toml --set train.steps=4 --set train.time_budget_s=0 --set train.eval_every=0"
-                    " --set data.scene=bounded --out " + t / "run");
+                    " --set data.scene=bounded --out " +
+                    t / "run");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const json scene = json::parse(read_file(t / "run/scene.json"));
   EXPECT_EQ(scene.at("scene"), "bounded");
@@ -33,15 +35,20 @@ TEST(CliCapture, RenderWithTheCapturesOwnPoseEqualsEvalsView) {
   for (const auto& f : cap.at("frames"))
     if (f.at("file_path") == cap.at("test_filenames")[0]) frame = f;
   ASSERT_FALSE(frame.is_null());
-  json cams{{"fl_x", cap.at("fl_x")}, {"fl_y", cap.at("fl_y")}, {"cx", cap.at("cx")}, {"cy", cap.at("cy")},
-            {"w", cap.at("w")}, {"h", cap.at("h")}, {"frames", json::array({{{"file_path", "x"}, {"transform_matrix", frame.at("transform_matrix")}}})}};
+  json cams{{"fl_x", cap.at("fl_x")},
+            {"fl_y", cap.at("fl_y")},
+            {"cx", cap.at("cx")},
+            {"cy", cap.at("cy")},
+            {"w", cap.at("w")},
+            {"h", cap.at("h")},
+            {"frames", json::array({{{"file_path", "x"}, {"transform_matrix", frame.at("transform_matrix")}}})}};
   test::write_file(t / "cams.json", cams.dump());
   r = test::run_cli("render --run " + t / "run" + " --cameras " + t / "cams.json" + " --out " + t / "out");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto a = read_png(t / "out/frame_0000.png").to(torch::kInt);
   const auto b = read_png(t / "run/eval/test/r_0.png").to(torch::kInt);
   ASSERT_EQ(a.sizes(), b.sizes());
-  EXPECT_LE((a - b).abs().max().item<int>(), 1);  // float32 poses through the scene frame and back
+  EXPECT_LE((a - b).abs().max().item<int>(), 1);             // float32 poses through the scene frame and back
   EXPECT_GT(b.to(torch::kFloat).std().item<double>(), 1.0);  // not a blank image
 
   // The same pose moved into the scene frame by hand (x_scene = scale R (x - centre), axes R c),
@@ -55,7 +62,8 @@ TEST(CliCapture, RenderWithTheCapturesOwnPoseEqualsEvalsView) {
     for (int c = 0; c < 4; ++c) {
       double v = 0;
       for (int k = 0; k < 3; ++k)
-        v += R[static_cast<size_t>(3 * r + k)] * (m[k][c].get<double>() - (c == 3 ? centre[static_cast<size_t>(k)] : 0.0));
+        v += R[static_cast<size_t>(3 * r + k)] *
+             (m[k][c].get<double>() - (c == 3 ? centre[static_cast<size_t>(k)] : 0.0));
       p[static_cast<size_t>(4 * r + c)] = c == 3 ? scale * v : v;
     }
   test::write_file(t / "path.json", json{{"ablenerf_path", 1}, {"coordinates", "scene"}, {"poses", {p, p}}}.dump());

@@ -41,13 +41,15 @@ std::string bin() { return std::getenv("ABLENERF_BIN"); }
 void expect_two_processes_equal_one(const std::string& extra) {
   test::TempDir t;
   ASSERT_EQ(test::run_cli("synth --out " + t.path() + "/data --res 16 --train-views 4 --test-views 1").exit_code, 0);
-  const std::string common = std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=20" + extra;
+  const std::string common =
+      std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=20" + extra;
   auto one = test::run_cli(common + " --out " + t.path() + "/one");
   ASSERT_EQ(one.exit_code, 0) << one.output;
   const int port = free_port();
   // Two ranks in the background, through the shell; each writes its own log.
-  const std::string cmd = "cd " + t.path() + " && (" + env(1, 2, port) + bin() + common + " --out two > r1.log 2>&1 &) && " +
-                          env(0, 2, port) + bin() + common + " --out two > r0.log 2>&1; echo $? > r0.rc; sleep 1";
+  const std::string cmd = "cd " + t.path() + " && (" + env(1, 2, port) + bin() + common +
+                          " --out two > r1.log 2>&1 &) && " + env(0, 2, port) + bin() + common +
+                          " --out two > r0.log 2>&1; echo $? > r0.rc; sleep 1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);
   std::ifstream rc(t.path() + "/r0.rc");
   int code = -1;
@@ -92,12 +94,14 @@ TEST(Distributed, OneProcessGroupEqualsNoGroup) {
   // Both single-threaded (env() sets OMP_NUM_THREADS=1), so BLAS sums in the same order.
   const std::string plain = "cd " + t.path() + " && OMP_NUM_THREADS=1 " + bin() + common + " --out plain > p.log 2>&1";
   ASSERT_EQ(std::system(plain.c_str()), 0);
-  const std::string cmd = "cd " + t.path() + " && " + env(0, 1, free_port()) + bin() + common + " --out group > g.log 2>&1";
+  const std::string cmd =
+      "cd " + t.path() + " && " + env(0, 1, free_port()) + bin() + common + " --out group > g.log 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);
   auto a = read_weights_dict(t.path() + "/plain/weights.pt"), b = read_weights_dict(t.path() + "/group/weights.pt");
   ASSERT_EQ(a.size(), b.size());
   ASSERT_GT(a.size(), 0u);
-  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+  for (const auto& kv : a)
+    EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
   // The launched run really went through the group.
   std::ifstream lg(t.path() + "/g.log");
   const std::string log((std::istreambuf_iterator<char>(lg)), std::istreambuf_iterator<char>());
@@ -135,8 +139,8 @@ TEST(Distributed, TwoProcessesShareATimeBudget) {
 TEST(Distributed, DeadRankFailsTheOthersWithAMessage) {
   test::TempDir t;
   ASSERT_EQ(test::run_cli("synth --out " + t.path() + "/data --res 16 --train-views 2 --test-views 1").exit_code, 0);
-  const std::string common = std::string(" train --data ") + t.path() + "/data" + kTiny +
-                             " --set train.steps=1000000 --dist-timeout 20";
+  const std::string common =
+      std::string(" train --data ") + t.path() + "/data" + kTiny + " --set train.steps=1000000 --dist-timeout 20";
   const int port = free_port();
   // Rank 1 is killed with SIGKILL after a few seconds; rank 0 must fail on its own, well before
   // the test's limit.

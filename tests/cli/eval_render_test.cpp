@@ -77,7 +77,8 @@ TEST(CliRender, RawTensorsMatchThePngsAndExtrasAreWritten) {
   test::make_tiny_run(t / "run", t / "scene");
   const auto r = test::run_cli("render --run " + t / "run" +
                                " --path spiral --frames 2 --width 10 --height 6 --raw --depth --branches"
-                               " --le-noise 0.5 --seed 3 --out " + t / "frames");
+                               " --le-noise 0.5 --seed 3 --out " +
+                               t / "frames");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   for (const char* f : {"frame_0000.png", "frame_0001.png", "frame_0000_depth.png", "frame_0000_depth_argmax.png",
                         "frame_0000_ray.png", "frame_0000_le.png", "frame_0001.pt", "frame_0001_ray.pt"})
@@ -125,8 +126,8 @@ TEST(CliRender, VideoWithoutFfmpegExitsTwoWithOneLine) {
   EXPECT_EQ(count_lines(r.output), 1) << r.output;
   EXPECT_NE(r.output.find("ffmpeg not found"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(t / "v.mp4"));
-  const auto fb = test::run_cli("render --run " + t / "run" + " --path orbit --frames 2 --fallback-frames --out " +
-                                t / "v.mp4");
+  const auto fb =
+      test::run_cli("render --run " + t / "run" + " --path orbit --frames 2 --fallback-frames --out " + t / "v.mp4");
   EXPECT_EQ(fb.exit_code, 0) << fb.output;
   EXPECT_TRUE(fs::exists(t / "v_frames/frame_0001.png"));
 }
@@ -136,8 +137,8 @@ TEST(CliRender, VideoThroughFfmpeg) {
   test::TempDir t;
   test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
   test::make_tiny_run(t / "run", t / "scene");
-  const auto r = test::run_cli("render --run " + t / "run" + " --path orbit --frames 3 --width 16 --height 16 --fps 10 --out " +
-                               t / "v.mp4");
+  const auto r = test::run_cli("render --run " + t / "run" +
+                               " --path orbit --frames 3 --width 16 --height 16 --fps 10 --out " + t / "v.mp4");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   ASSERT_TRUE(fs::exists(t / "v.mp4"));
   EXPECT_GT(fs::file_size(t / "v.mp4"), 0u);
@@ -148,7 +149,8 @@ TEST(CliDevice, EvalAndRenderTakeDeviceAndRefuseMissingGpusInOneLine) {
   test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
   test::make_tiny_run(t / "run", t / "scene");
   const std::string eval = "eval --run " + t / "run" + " --max-images 1";
-  const std::string render = "render --run " + t / "run" + " --path orbit --frames 1 --width 4 --height 4 --out " + t / "f";
+  const std::string render =
+      "render --run " + t / "run" + " --path orbit --frames 1 --width 4 --height 4 --out " + t / "f";
   const std::string train = "train --data " + t / "scene" + " --out " + t / "new_run";
   auto e = test::run_cli(eval + " --device cpu");
   EXPECT_EQ(e.exit_code, 0) << e.output;

@@ -34,11 +34,13 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   const auto ours = shape_model->named_parameters();
   c10::impl::GenericDict dict(c10::StringType::get(), c10::TensorType::get());
   torch::manual_seed(3);
-  for (const auto& [rel, name] : release_name_map(c.model)) dict.insert("model." + rel, torch::randn(ours[name].sizes()));
+  for (const auto& [rel, name] : release_name_map(c.model))
+    dict.insert("model." + rel, torch::randn(ours[name].sizes()));
   const auto bytes = torch::pickle_save(c10::IValue(dict));
   std::ofstream(dir / "rel.pt", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 
-  auto r = test::run_cli("import --weights " + (dir / "rel.pt") + " --config " + demo_config() + " --out " + (dir / "run"));
+  auto r =
+      test::run_cli("import --weights " + (dir / "rel.pt") + " --config " + demo_config() + " --out " + (dir / "run"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = test::run_cli("export --run " + (dir / "run") + " --out " + (dir / "out.pt"));
   ASSERT_EQ(r.exit_code, 0) << r.output;

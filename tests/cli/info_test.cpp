@@ -15,7 +15,8 @@
 using namespace ablenerf;
 
 TEST(Cli, HelpForEverySubcommand) {
-  for (const char* sub : {"synth", "process", "train", "eval", "render", "view", "bench", "export", "import", "info", "metrics"}) {
+  for (const char* sub :
+       {"synth", "process", "train", "eval", "render", "view", "bench", "export", "import", "info", "metrics"}) {
     auto r = test::run_cli(std::string(sub) + " --help");
     EXPECT_EQ(r.exit_code, 0) << sub << ": " << r.output;
     EXPECT_NE(r.output.find("Usage"), std::string::npos) << sub;
@@ -64,7 +65,8 @@ TEST(Cli, InfoReportsTheCamerasCoverage) {
     const test::V3 eye{4 * std::cos(el) * std::cos(az), 4 * std::cos(el) * std::sin(az), 4 * std::sin(el)};
     const test::Frame3 f = test::look_at(eye, {0, 0, 0}, {0, 0, 1});
     js << (i ? "," : "") << "{\"file_path\": \"./train/r_" << i << "\", \"transform_matrix\": [";
-    for (size_t r = 0; r < 3; ++r) js << "[" << f.right[r] << "," << f.up[r] << "," << f.back[r] << "," << f.eye[r] << "],";
+    for (size_t r = 0; r < 3; ++r)
+      js << "[" << f.right[r] << "," << f.up[r] << "," << f.back[r] << "," << f.eye[r] << "],";
     js << "[0,0,0,1]]}";
     write_png(t / ("train/r_" + std::to_string(i) + ".png"), torch::full({4, 4, 4}, 0.5f));
   }
@@ -91,8 +93,9 @@ TEST(Cli, QuietAndVerboseSetHowMuchOfTheLogShows) {
   ASSERT_EQ(verbose.exit_code, 0) << verbose.output;
   EXPECT_EQ(plain.output.find("load: "), std::string::npos) << plain.output;
   EXPECT_NE(verbose.output.find("load: "), std::string::npos) << verbose.output;
-  const std::string train = "train --data " + t / "d" + " --config " + test::source_dir() +
-                            "/configs/demo.toml --set train.steps=3 --set train.eval_every=0 --set train.log_every=1 --out ";
+  const std::string train =
+      "train --data " + t / "d" + " --config " + test::source_dir() +
+      "/configs/demo.toml --set train.steps=3 --set train.eval_every=0 --set train.log_every=1 --out ";
   const auto loud = test::run_cli(train + t / "r1");
   const auto quiet = test::run_cli(train + t / "r2 --quiet");
   ASSERT_EQ(loud.exit_code, 0) << loud.output;

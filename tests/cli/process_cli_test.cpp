@@ -138,7 +138,8 @@ TEST(Process, RefusesBadInputWithOneLine) {
       {"--images " + t / "photos" + " --out " + t / "o1" + " --camera-model FOV", "--camera-model", 2},
       {"--images " + t / "photos" + " --out " + t / "o1" + " --matcher vocab", "--matcher", 2},
       {"--images " + t / "photos" + " --out " + t / "taken", "exists and is not an empty folder", 2},
-      {"--images " + t / "mixed" + " --out " + t / "o1" + " --colmap " + fake, "b.png: size: 6x8 but 2 of the 3 photos are 8x6", 2},
+      {"--images " + t / "mixed" + " --out " + t / "o1" + " --colmap " + fake,
+       "b.png: size: 6x8 but 2 of the 3 photos are 8x6", 2},
       {"--images " + t / "broken" + " --out " + t / "o1" + " --colmap " + fake, "b.jpg", 2},
       {"--images " + t / "iphone" + " --out " + t / "o1" + " --colmap " + fake,
        "no JPEG or PNG photos in this folder; 2 other images (IMG_0001.HEIC, ...) are not read: convert to JPEG", 2},
@@ -151,7 +152,7 @@ TEST(Process, RefusesBadInputWithOneLine) {
     EXPECT_EQ(lines(r.output), 1) << c.args << "\n" << r.output;
   }
   EXPECT_EQ(read_file(t / "taken/keep.txt"), "a user's file");  // nothing already there is touched
-  EXPECT_FALSE(fs::exists(t / "o1"));  // no capture folder is left behind by a refusal
+  EXPECT_FALSE(fs::exists(t / "o1"));                           // no capture folder is left behind by a refusal
 }
 
 TEST(Process, ColmapFailuresNameTheLog) {

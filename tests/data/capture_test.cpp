@@ -43,8 +43,10 @@ std::vector<Frame3> ring(int n, const V3& target, const V3& up) {
     const double th = 2 * M_PI * i / n;
     V3 eye;
     for (int c = 0; c < 3; ++c)
-      eye[static_cast<size_t>(c)] = target[static_cast<size_t>(c)] + 4 * (std::cos(th) * a[static_cast<size_t>(c)] + std::sin(th) * b[static_cast<size_t>(c)]) +
-                                    1.5 * unit3(up)[static_cast<size_t>(c)];
+      eye[static_cast<size_t>(c)] =
+          target[static_cast<size_t>(c)] +
+          4 * (std::cos(th) * a[static_cast<size_t>(c)] + std::sin(th) * b[static_cast<size_t>(c)]) +
+          1.5 * unit3(up)[static_cast<size_t>(c)];
     out.push_back(look_at(eye, target, up));
   }
   return out;
@@ -139,12 +141,12 @@ TEST(Captures, ColmapPosesAndLensesMatchAHandProjection) {
   for (int i = 8; i >= 0; --i) {
     const Frame3& f = frames[static_cast<size_t>(i)];
     // World-to-camera: rows are the OpenCV axes (right, down = -up, forward = -back); t = -R eye.
-    const double R[3][3] = {{f.right[0], f.right[1], f.right[2]},
-                            {-f.up[0], -f.up[1], -f.up[2]},
-                            {-f.back[0], -f.back[1], -f.back[2]}};
+    const double R[3][3] = {
+        {f.right[0], f.right[1], f.right[2]}, {-f.up[0], -f.up[1], -f.up[2]}, {-f.back[0], -f.back[1], -f.back[2]}};
     const auto q = quaternion_of(R);
     V3 tv;
-    for (int r = 0; r < 3; ++r) tv[static_cast<size_t>(r)] = -(R[r][0] * f.eye[0] + R[r][1] * f.eye[1] + R[r][2] * f.eye[2]);
+    for (int r = 0; r < 3; ++r)
+      tv[static_cast<size_t>(r)] = -(R[r][0] * f.eye[0] + R[r][1] * f.eye[1] + R[r][2] * f.eye[2]);
     const int cam = i % 2 ? 2 : 1;
     const std::string name = "v" + std::to_string((i * 5) % 9) + ".png";  // v0, v5, v1, v6, ...
     // COLMAP does not require a normalised quaternion: write it scaled by 2.
@@ -323,7 +325,8 @@ TEST(Captures, NerfstudioFisheyeOwnSplitAndPrescaledCopies) {
   {
     std::string ply = "ply\nformat ascii 1.0\nelement vertex " + std::to_string(kPoints.size()) +
                       "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
-    for (const V3& X : kPoints) ply += std::to_string(X[0]) + " " + std::to_string(X[1]) + " " + std::to_string(X[2]) + "\n";
+    for (const V3& X : kPoints)
+      ply += std::to_string(X[0]) + " " + std::to_string(X[1]) + " " + std::to_string(X[2]) + "\n";
     test::write_file(t / "sparse_pc.ply", ply);
     auto with_ply = js.str();
     with_ply.replace(with_ply.find("\"camera_model\""), 0, "\"ply_file_path\": \"sparse_pc.ply\", ");
@@ -350,7 +353,9 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
   for (int y = 0; y < sh; ++y)
     for (int x = 0; x < sw; ++x)
       for (int ch = 0; ch < 3; ++ch)
-        px[static_cast<size_t>((y * sw + x) * 3 + ch)] = static_cast<uint8_t>(ch == 0 ? 20 + 12 * x : ch == 1 ? 30 + 25 * y : 90);
+        px[static_cast<size_t>((y * sw + x) * 3 + ch)] = static_cast<uint8_t>(ch == 0   ? 20 + 12 * x
+                                                                              : ch == 1 ? 30 + 25 * y
+                                                                                        : 90);
   test::JpegOptions jo;
   jo.app1 = test::exif_payload(true, 6);
   const std::string jpeg = test::encode_jpeg(px, sw, sh, jo);
@@ -358,7 +363,8 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
   for (int i = 0; i < 2; ++i) test::write_file(t / ("images/p" + std::to_string(i) + ".jpg"), jpeg);
   const auto json_with = [&](int w, int h) {
     return "{\"fl_x\": 10, \"w\": " + std::to_string(w) + ", \"h\": " + std::to_string(h) +
-           ", \"frames\": [{\"file_path\": \"images/p0.jpg\", \"transform_matrix\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+           ", \"frames\": [{\"file_path\": \"images/p0.jpg\", \"transform_matrix\": "
+           "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
            "{\"file_path\": \"images/p1.jpg\", \"transform_matrix\": [[1,0,0,1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}";
   };
   // The capture says 8x16: its poses were made on the upright image, which the loader produces.
@@ -370,7 +376,8 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
   for (int r = 0; r < 16; ++r)
     for (int c = 0; c < 8; ++c)
       for (int ch = 0; ch < 3; ++ch)
-        worst = std::max(worst, std::abs(im[r][c][ch].item<double>() * 255 - px[static_cast<size_t>(((7 - c) * sw + r) * 3 + ch)]));
+        worst = std::max(
+            worst, std::abs(im[r][c][ch].item<double>() * 255 - px[static_cast<size_t>(((7 - c) * sw + r) * 3 + ch)]));
   EXPECT_LT(worst, 6);  // JPEG at quality 100 with 4:4:4 sampling: a few levels of rounding
   // One frame read on its own (the viewer's error mode): the loader's upright pixels, alpha 1.
   {

@@ -141,7 +141,7 @@ TEST(Dataset, InstantNgpTransformsJson) {
   EXPECT_DOUBLE_EQ(ds.intrinsics.fy, 6.0);
   EXPECT_DOUBLE_EQ(ds.intrinsics.cx, 3.1);
   EXPECT_EQ(ds.intrinsics.model, LensModel::Pinhole);
-  EXPECT_EQ(ds.split("test").size(), 2);   // frames 0 and 8 held out
+  EXPECT_EQ(ds.split("test").size(), 2);  // frames 0 and 8 held out
   EXPECT_EQ(ds.split("train").size(), 7);
   // The scene frame: centred on the mean camera (parallel axes have no focus point), farthest
   // camera at distance 1, up (+y of the cameras) turned to +z.
@@ -151,21 +151,26 @@ TEST(Dataset, InstantNgpTransformsJson) {
   EXPECT_NEAR(centres.norm(2, 1).max().item<double>(), 1.0, 1e-6);
   EXPECT_NEAR(ds.split("train").c2w[0][2][1].item<double>(), 1.0, 1e-6);  // camera up is world +z
   // Lens distortion and per-frame intrinsics are read.
-  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"k1\": 0.1, \"p2\": 0.01, \"w\": 6, \"h\": 4, \"frames\": [") +
-                                              frames_with("\"fl_x\": 7.0, ") + "]}");
+  test::write_file(t / "transforms.json",
+                   std::string("{\"fl_x\": 5.0, \"k1\": 0.1, \"p2\": 0.01, \"w\": 6, \"h\": 4, \"frames\": [") +
+                       frames_with("\"fl_x\": 7.0, ") + "]}");
   ds = Dataset::load(t.path());
   EXPECT_EQ(ds.intrinsics.model, LensModel::RadialTangential);
   EXPECT_DOUBLE_EQ(ds.intrinsics.dist[kK1], 0.1);
   EXPECT_DOUBLE_EQ(ds.intrinsics.dist[kP2], 0.01);
   EXPECT_DOUBLE_EQ(ds.intrinsics.fx, 7.0);
   // A camera model it cannot cast rays through, and every camera at one point, are refused.
-  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"camera_model\": \"EQUIRECTANGULAR\", \"w\": 6, \"h\": 4, \"frames\": [") +
-                                              frames + "]}");
+  test::write_file(
+      t / "transforms.json",
+      std::string("{\"fl_x\": 5.0, \"camera_model\": \"EQUIRECTANGULAR\", \"w\": 6, \"h\": 4, \"frames\": [") + frames +
+          "]}");
   expect_bad(t.path(), "transforms.json", "camera_model");
   std::string same;
   for (int i = 0; i < 9; ++i)
-    same += std::string(i ? "," : "") + "{\"file_path\": \"train/r_" + std::to_string(i) + ".png\", \"transform_matrix\": " + kIdentityPose + "}";
-  test::write_file(t / "transforms.json", std::string("{\"fl_x\": 5.0, \"w\": 6, \"h\": 4, \"frames\": [") + same + "]}");
+    same += std::string(i ? "," : "") + "{\"file_path\": \"train/r_" + std::to_string(i) +
+            ".png\", \"transform_matrix\": " + kIdentityPose + "}";
+  test::write_file(t / "transforms.json",
+                   std::string("{\"fl_x\": 5.0, \"w\": 6, \"h\": 4, \"frames\": [") + same + "]}");
   expect_bad(t.path(), "", "poses");
 }
 
@@ -279,7 +284,8 @@ TEST(BadInput, PathOutsideDataset) {
   make_blender(t.path(), 1, 4, 4);
   test::write_file(t / "transforms_train.json",
                    std::string("{\"camera_angle_x\": 0.69, \"frames\": [{\"file_path\": \"../../etc/passwd\", "
-                               "\"transform_matrix\": ") + kIdentityPose + "}]}");
+                               "\"transform_matrix\": ") +
+                       kIdentityPose + "}]}");
   expect_bad(t.path(), "transforms_train.json", "outside");
 }
 
@@ -303,9 +309,9 @@ TEST(CaptureRegistry, DetectsEachFormatByItsFilesInTableOrder) {
   }
   // Each format's file added in turn; an earlier row of the table wins over a later one.
   const std::vector<std::pair<std::string, std::string>> files{{"poses_bounds.npy", "llff"},
-                                                              {"sparse/0/cameras.txt", "colmap"},
-                                                              {"transforms.json", "transforms"},
-                                                              {"transforms_test.json", "blender"}};
+                                                               {"sparse/0/cameras.txt", "colmap"},
+                                                               {"transforms.json", "transforms"},
+                                                               {"transforms_test.json", "blender"}};
   for (const auto& [file, format] : files) {
     test::write_file(d + "/" + file, "");
     EXPECT_EQ(capture_format(d), format) << file;

@@ -72,8 +72,9 @@ TEST(Lens, FisheyeWithoutCoefficientsIsEquidistant) {
 
 TEST(Lens, RoundTripsOverTheWholeImage) {
   // distort(undistort(p)) == p for every pixel centre, to 1e-6 pixels; and the other way round.
-  for (const auto& k : {camera(LensModel::RadialTangential, kPhone, 640, 480), camera(LensModel::Fisheye, kFisheye, 640, 480),
-                        camera(LensModel::Pinhole, {0, 0, 0, 0, 0, 0}, 640, 480)}) {
+  for (const auto& k :
+       {camera(LensModel::RadialTangential, kPhone, 640, 480), camera(LensModel::Fisheye, kFisheye, 640, 480),
+        camera(LensModel::Pinhole, {0, 0, 0, 0, 0, 0}, 640, 480)}) {
     Intrinsics big = k;
     big.fx = big.fy = 420, big.cx = 319.5, big.cy = 239.5;
     const auto p = pixel_grid(big);
@@ -96,7 +97,9 @@ TEST(Lens, MixedTableGivesEachRowItsOwnModel) {
   const auto table = CameraTable::of({a, b, c}).index(torch::tensor({0, 1, 2, 1}, torch::kLong));
   const auto xy = f64({0.3, 0.2, 0.3, 0.2, 0.3, 0.2, -0.5, 0.1}).reshape({4, 2});
   const auto out = undistort_points(table, xy);
-  const auto one = [&](const Intrinsics& k, int row) { return undistort_points(table_for(k, 1), xy.slice(0, row, row + 1))[0]; };
+  const auto one = [&](const Intrinsics& k, int row) {
+    return undistort_points(table_for(k, 1), xy.slice(0, row, row + 1))[0];
+  };
   EXPECT_TRUE(torch::allclose(out[0], one(a, 0), 0, 1e-15));
   EXPECT_TRUE(torch::allclose(out[1], one(b, 1), 0, 1e-15));
   EXPECT_TRUE(torch::equal(out[2], xy[2]));
@@ -139,13 +142,18 @@ TEST(Lens, RayThroughTheProjectionOfAPointHitsIt) {
     const double xd = x * rad + 2 * kPhone[4] * x * y + kPhone[5] * (r2 + 2 * x * x);
     const double yd = y * rad + kPhone[4] * (r2 + 2 * y * y) + 2 * kPhone[5] * x * y;
     const double u = k.fx * xd + k.cx, v = k.fy * yd + k.cy;
-    const Rays r = rays_for_pixels(c2w, torch::tensor({u - 0.5}, torch::kDouble), torch::tensor({v - 0.5}, torch::kDouble), k);
+    const Rays r =
+        rays_for_pixels(c2w, torch::tensor({u - 0.5}, torch::kDouble), torch::tensor({v - 0.5}, torch::kDouble), k);
     const auto d = r.directions[0].to(torch::kDouble);
     const auto want = torch::tensor({X[0] - T[0], X[1] - T[1], X[2] - T[2]}, torch::kDouble);
     const double cosang = (d.dot(want) / (d.norm() * want.norm())).item<double>();
     EXPECT_GT(cosang, 1 - 1e-10);
     // Depth along the optical axis is the ray parameter: origin + (-pc_z) d == X.
-    EXPECT_LT((r.origins[0].to(torch::kDouble) + d * -pc[2] - torch::tensor({X[0], X[1], X[2]}, torch::kDouble)).abs().max().item<double>(), 1e-5);
+    EXPECT_LT((r.origins[0].to(torch::kDouble) + d * -pc[2] - torch::tensor({X[0], X[1], X[2]}, torch::kDouble))
+                  .abs()
+                  .max()
+                  .item<double>(),
+              1e-5);
   }
 }
 

@@ -170,30 +170,33 @@ TEST(Npy, Refusals) {
   expect_npy_refused(parse(good.substr(0, 40)), "header", "runs past the end");
 
   expect_npy_refused(parse(npy_file("{'descr': '<i8', 'fortran_order': False, 'shape': (2, 3), }", six)), "descr",
-                 "dtype '<i8' not supported (need float32 or float64)");
-  expect_npy_refused(parse(npy_file("{'descr': [('a', '<f8')], 'fortran_order': False, 'shape': (6,), }", six)), "descr",
-                 "structured");
+                     "dtype '<i8' not supported (need float32 or float64)");
+  expect_npy_refused(parse(npy_file("{'descr': [('a', '<f8')], 'fortran_order': False, 'shape': (6,), }", six)),
+                     "descr", "structured");
   expect_npy_refused(parse(npy_file("{'fortran_order': False, 'shape': (2, 3), }", six)), "header", "no 'descr'");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'shape': (2, 3), }", six)), "header", "no 'fortran_order'");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, }", six)), "header", "no 'shape'");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': 0, 'shape': (2, 3), }", six)), "fortran_order",
-                 "True or False");
+                     "True or False");
   expect_npy_refused(parse(npy_file("['descr', '<f8']", six)), "header", "not a dict");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3)} x", six)), "header",
-                 "after the dict");
+                     "after the dict");
 
   // Shape against data: one value short, one value too many, and products that overflow.
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (7,), }", six)), "data",
-                 "expected 56 bytes, file has 48");
+                     "expected 56 bytes, file has 48");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (5,), }", six)), "data",
-                 "expected 40 bytes, file has 48");
+                     "expected 40 bytes, file has 48");
   expect_npy_refused(parse(npy_file("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", six)), "data",
-                 "expected 24 bytes, file has 48");
-  expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296), }", six)),
-                 "shape", "overflows");
-  expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (99999999999999999999,), }", six)),
-                 "shape", "too large");
+                     "expected 24 bytes, file has 48");
+  expect_npy_refused(
+      parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296), }", six)), "shape",
+      "overflows");
+  expect_npy_refused(
+      parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (99999999999999999999,), }", six)), "shape",
+      "too large");
   expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (-6,), }", six)), "shape",
-                 "whole numbers");
-  expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': [6], }", six)), "shape", "tuple");
+                     "whole numbers");
+  expect_npy_refused(parse(npy_file("{'descr': '<f8', 'fortran_order': False, 'shape': [6], }", six)), "shape",
+                     "tuple");
 }

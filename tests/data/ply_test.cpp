@@ -35,7 +35,8 @@ void expect_refused(const std::string& bytes, const std::string& field, const st
 }  // namespace
 
 TEST(Ply, AsciiReadsTheCoordinates) {
-  const auto p = parse_ply_points(kAsciiHeader + "0.5 1 -2 255 0 0\n1e-3 -4 7 1 2 3\r\n-0.25 0 8.5 9 9 9\n", "cloud.ply");
+  const auto p =
+      parse_ply_points(kAsciiHeader + "0.5 1 -2 255 0 0\n1e-3 -4 7 1 2 3\r\n-0.25 0 8.5 9 9 9\n", "cloud.ply");
   ASSERT_EQ(p.size(), 3u);
   EXPECT_DOUBLE_EQ(p[0][0], 0.5);
   EXPECT_DOUBLE_EQ(p[0][2], -2);
@@ -65,22 +66,32 @@ TEST(Ply, BinaryEveryScalarTypeAndTrailingElements) {
 TEST(Ply, Refusals) {
   expect_refused("PLY\nformat ascii 1.0\nend_header\n", "header", "not a PLY");
   expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", "header", "end_header");
-  expect_refused("ply\nformat binary_big_endian 1.0\nelement vertex 1\nproperty float x\nend_header\n", "header", "big_endian");
-  expect_refused("ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int i\nend_header\n", "vertex", "first element");
-  expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n", "vertex", "x, y and z");
-  expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar float x\nend_header\n", "vertex", "list");
+  expect_refused("ply\nformat binary_big_endian 1.0\nelement vertex 1\nproperty float x\nend_header\n", "header",
+                 "big_endian");
+  expect_refused("ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int i\nend_header\n", "vertex",
+                 "first element");
+  expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n",
+                 "vertex", "x, y and z");
+  expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar float x\nend_header\n", "vertex",
+                 "list");
   expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty half x\nend_header\n", "vertex", "bad property");
-  expect_refused("ply\nformat ascii 1.0\nelement vertex 99999999999\nproperty float x\nend_header\n", "vertex", "count");
-  expect_refused("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n", "data",
-                 "truncated");
+  expect_refused("ply\nformat ascii 1.0\nelement vertex 99999999999\nproperty float x\nend_header\n", "vertex",
+                 "count");
+  expect_refused(
+      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+      "data", "truncated");
   expect_refused(kAsciiHeader + "1 2 3 0 0 0\n4 5\n", "data", "expected 6 numbers");
   expect_refused("ply\nformat ascii 1.0\nbogus line\nend_header\n", "header", "unknown header line");
   // A binary file claiming more vertices than it holds fails before allocating them.
-  expect_refused("ply\nformat binary_little_endian 1.0\nelement vertex 40000000\nproperty double x\nproperty double y\n"
-                 "property double z\nend_header\n" + le<double>(1) + le<double>(2) + le<double>(3),
-                 "data", "truncated");
+  expect_refused(
+      "ply\nformat binary_little_endian 1.0\nelement vertex 40000000\nproperty double x\nproperty double y\n"
+      "property double z\nend_header\n" +
+          le<double>(1) + le<double>(2) + le<double>(3),
+      "data", "truncated");
   const double inf = std::numeric_limits<double>::infinity();
-  expect_refused("ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\nproperty double y\n"
-                 "property double z\nend_header\n" + le<double>(1) + le<double>(inf) + le<double>(3),
-                 "data", "not finite");
+  expect_refused(
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\nproperty double y\n"
+      "property double z\nend_header\n" +
+          le<double>(1) + le<double>(inf) + le<double>(3),
+      "data", "not finite");
 }

@@ -55,7 +55,8 @@ std::vector<Pose34> ring_poses(int n, const V3& target, const V3& up, double rad
   for (int i = 0; i < n; ++i) {
     const double th = 2 * M_PI * i / n + 0.3;
     V3 eye;
-    for (size_t c = 0; c < 3; ++c) eye[c] = target[c] + radius * (std::cos(th) * a[c] + std::sin(th) * b[c]) + height * u[c];
+    for (size_t c = 0; c < 3; ++c)
+      eye[c] = target[c] + radius * (std::cos(th) * a[c] + std::sin(th) * b[c]) + height * u[c];
     out.push_back(look_at_pose(eye, target, up));
   }
   return out;
@@ -110,8 +111,8 @@ TEST(SceneFrame, BoundsFromPointsLlffBoundsOrConfig) {
   // Points behind every camera only: refused, naming the points.
   Capture behind = capture_of(poses);
   behind.points = {{0, 0, 1000}};
-  test::expect_input_error([&] { fit_scene_frame(behind, "cap", SceneKind::Bounded, 2, 6, false); }, "cap", "points", "",
-                           true);
+  test::expect_input_error([&] { fit_scene_frame(behind, "cap", SceneKind::Bounded, 2, 6, false); }, "cap", "points",
+                           "", true);
   // LLFF bounds (capture units) scaled with margins 0.9 / 1.1.
   Capture llff = capture_of(poses);
   llff.bounds = {{2.5, 7.0}, {3.0, 9.0}};
@@ -163,8 +164,8 @@ TEST(SceneFrame, JsonRoundTripAndRefusals) {
   EXPECT_EQ(g.near, f.near);
   EXPECT_EQ(g.far, f.far);
   EXPECT_EQ(g.bounds_source, f.bounds_source);
-  test::expect_input_error([] { SceneFrame::from_json("{\"scale\": 1}", "scene.json"); }, "scene.json", "", "not a scene frame",
-                           true);
+  test::expect_input_error([] { SceneFrame::from_json("{\"scale\": 1}", "scene.json"); }, "scene.json", "",
+                           "not a scene frame", true);
   std::string bad = f.to_json();
   bad.replace(bad.find("\"scale\""), 7, "\"scale\": -1, \"x\"");
   test::expect_input_error([&] { SceneFrame::from_json(bad, "scene.json"); }, "scene.json", "scale", "positive", true);
@@ -175,7 +176,8 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   // (within 10 degrees of each other), world up +z: LLFF's layout.
   std::vector<Pose34> poses;
   for (int i = -1; i <= 1; ++i)
-    for (int j = -1; j <= 1; ++j) poses.push_back(look_at_pose({0.3 * i, -2, 1 + 0.2 * j}, {0.3 * i * 0.5, 5, 1}, {0, 0, 1}));
+    for (int j = -1; j <= 1; ++j)
+      poses.push_back(look_at_pose({0.3 * i, -2, 1 + 0.2 * j}, {0.3 * i * 0.5, 5, 1}, {0, 0, 1}));
   Capture cap = capture_of(poses);
   for (auto& f : cap.splits[0].frames) f.camera.width = 40, f.camera.height = 30, f.camera.fx = 35, f.camera.fy = 33;
   cap.points = {{0, 3, 1}, {0.5, 5, 1.2}, {-0.4, 7, 0.8}};  // depths 5..9 from the grid

@@ -94,11 +94,11 @@ TEST(CameraRigTest, MeanDistanceAndElevationOfKnownCameras) {
   const auto up = torch::tensor({0.0, 0.0, 1.0});
   std::vector<torch::Tensor> poses;
   // Two cameras at distance 3 (elevation 0.2, 0.6) and one at distance 6 (elevation 0.4).
-  for (auto [d, el, az] : std::initializer_list<std::tuple<double, double, double>>{
-           {3.0, 0.2, 0.0}, {3.0, 0.6, 1.0}, {6.0, 0.4, 2.0}})
-    poses.push_back(look_at(torch::tensor({d * std::cos(el) * std::cos(az), d * std::cos(el) * std::sin(az),
-                                           d * std::sin(el)}),
-                            torch::zeros({3}), up));
+  for (auto [d, el, az] :
+       std::initializer_list<std::tuple<double, double, double>>{{3.0, 0.2, 0.0}, {3.0, 0.6, 1.0}, {6.0, 0.4, 2.0}})
+    poses.push_back(
+        look_at(torch::tensor({d * std::cos(el) * std::cos(az), d * std::cos(el) * std::sin(az), d * std::sin(el)}),
+                torch::zeros({3}), up));
   const CameraRig rig = camera_rig(torch::stack(poses));
   EXPECT_NEAR(rig.distance, 4.0, 1e-5);
   EXPECT_NEAR(rig.elevation, 0.4, 1e-5);
@@ -110,8 +110,9 @@ TEST(CameraPath, StaysInsideTheArcAndElevationsTheCamerasCover) {
     std::vector<torch::Tensor> poses;
     for (size_t i = 0; i < azimuths_deg.size(); ++i) {
       const double az = azimuths_deg[i] * M_PI / 180, el = elevations[i % elevations.size()];
-      poses.push_back(look_at(torch::tensor({2 * std::cos(el) * std::cos(az), 2 * std::cos(el) * std::sin(az), 2 * std::sin(el)}),
-                              torch::zeros({3}), up));
+      poses.push_back(
+          look_at(torch::tensor({2 * std::cos(el) * std::cos(az), 2 * std::cos(el) * std::sin(az), 2 * std::sin(el)}),
+                  torch::zeros({3}), up));
     }
     return torch::stack(poses);
   };
@@ -129,8 +130,8 @@ TEST(CameraPath, StaysInsideTheArcAndElevationsTheCamerasCover) {
     const auto el = torch::asin(centres.select(1, 2) / centres.norm(2, 1));
     EXPECT_GE(az.min().item<double>(), -60 - 1e-4);
     EXPECT_LE(az.max().item<double>(), 80 + 1e-4);
-    EXPECT_NEAR(az[0].item<double>(), -60, 1e-4);      // starts at one end,
-    EXPECT_NEAR(az[n / 2].item<double>(), 80, 1e-4);   // reaches the other at mid-video,
+    EXPECT_NEAR(az[0].item<double>(), -60, 1e-4);                       // starts at one end,
+    EXPECT_NEAR(az[n / 2].item<double>(), 80, 1e-4);                    // reaches the other at mid-video,
     EXPECT_NEAR(az[n - 1].item<double>(), az[1].item<double>(), 1e-4);  // and comes back: the video loops
     EXPECT_GE(el.min().item<double>(), 0.1 - 1e-6);
     EXPECT_LE(el.max().item<double>(), 0.3 + 1e-6);
@@ -147,8 +148,9 @@ TEST(CameraPath, StaysInsideTheArcAndElevationsTheCamerasCover) {
 
 TEST(CameraPath, RecordedPathFiles) {
   test::TempDir t;
-  const std::string ok = "{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": "
-                         "[[1,0,0,0.5, 0,1,0,-1, 0,0,1,2], [0,-1,0,0, 1,0,0,0, 0,0,1,3]]}";
+  const std::string ok =
+      "{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": "
+      "[[1,0,0,0.5, 0,1,0,-1, 0,0,1,2], [0,-1,0,0, 1,0,0,0, 0,0,1,3]]}";
   test::write_file(t / "p.json", ok);
   EXPECT_TRUE(is_path_file(t / "p.json"));
   EXPECT_FALSE(is_path_file("orbit"));

@@ -36,7 +36,8 @@ void write_split(const std::string& dir, const std::string& split, int n, int w,
     const auto eye = torch::tensor({kCameraDistance * std::cos(el) * std::cos(az),
                                     kCameraDistance * std::cos(el) * std::sin(az), kCameraDistance * std::sin(el)},
                                    torch::kDouble);
-    const auto pose = ablenerf::look_at(eye, torch::zeros({3}, torch::kDouble), torch::tensor({0.0, 0.0, 1.0}, torch::kDouble));
+    const auto pose =
+        ablenerf::look_at(eye, torch::zeros({3}, torch::kDouble), torch::tensor({0.0, 0.0, 1.0}, torch::kDouble));
     // Smooth colour ramps in the opaque left half, transparent right half.
     auto ys = torch::linspace(0, 1, h).view({h, 1}).expand({h, w});
     auto xs = torch::linspace(0, 1, w).view({1, w}).expand({h, w});
@@ -49,11 +50,12 @@ void write_split(const std::string& dir, const std::string& split, int n, int w,
       auto depth = torch::zeros({h, w});
       depth.slice(0, 0, h / 2).fill_(4.0f);
       const auto bytes = torch::pickle_save(depth);
-      std::ofstream(dir + "/" + name + "_depth.pt", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+      std::ofstream(dir + "/" + name + "_depth.pt", std::ios::binary)
+          .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
       extra = ", \"depth_file_path\": \"./" + name + "_depth.pt\"";
     }
-    frames += std::string(i ? "," : "") + "{\"file_path\": \"./" + name + "\", \"transform_matrix\": " +
-              pose_json(pose) + extra + "}";
+    frames += std::string(i ? "," : "") + "{\"file_path\": \"./" + name +
+              "\", \"transform_matrix\": " + pose_json(pose) + extra + "}";
   }
   write_file(dir + "/transforms_" + split + ".json",
              "{\"camera_angle_x\": " + std::to_string(kCameraAngleX) + ", \"frames\": [" + frames + "]}");
@@ -74,8 +76,8 @@ RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir)
   std::string log;
   for (int step = 100; step <= 500; step += 100)
     log += "{\"type\":\"train\",\"step\":" + std::to_string(step) + ",\"loss\":" + std::to_string(0.1 / step * 100) +
-           ",\"psnr\":" + std::to_string(10 + step / 100.0) + ",\"lr\":0.0005,\"rays_per_s\":1000,\"elapsed_s\":" +
-           std::to_string(step / 10.0) + "}\n";
+           ",\"psnr\":" + std::to_string(10 + step / 100.0) +
+           ",\"lr\":0.0005,\"rays_per_s\":1000,\"elapsed_s\":" + std::to_string(step / 10.0) + "}\n";
   log += "{\"type\":\"eval\",\"step\":500,\"psnr\":13.5,\"views\":4,\"split\":\"val\"}\n";
   write_file(run.log_path(), log);
   return run;

@@ -47,7 +47,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   const auto on_disk = nlohmann::json::parse(read_file(dir + "/metrics.json"));
   EXPECT_EQ(on_disk, m);
   EXPECT_EQ(m["split"], "test");
-  EXPECT_EQ(m["step"], 500);  // last step in the fixture's log.jsonl
+  EXPECT_EQ(m["step"], 500);                                 // last step in the fixture's log.jsonl
   EXPECT_DOUBLE_EQ(m["train_seconds"].get<double>(), 50.0);  // its elapsed_s: step / 10
   EXPECT_EQ(m["ssim_variant"], "standard");
   ASSERT_EQ(m["images"].size(), 2u);
@@ -74,8 +74,9 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
     psnr_sum += im["psnr"].get<double>();
     EXPECT_NEAR(im["ssim"].get<double>(), ssim(r.rgb, gt), 1e-4);
     // The saved render is the 8-bit version of that image.
-    EXPECT_LE((read_png(dir + "/r_" + std::to_string(i) + ".png").to(torch::kFloat) / 255 - r.rgb).abs().max().item<double>(),
-              0.5 / 255 + 1e-6);
+    EXPECT_LE(
+        (read_png(dir + "/r_" + std::to_string(i) + ".png").to(torch::kFloat) / 255 - r.rgb).abs().max().item<double>(),
+        0.5 / 255 + 1e-6);
     // Depth error over depth > 0 (top half) and alpha > 0.5 (left half): the top-left quarter.
     const auto pred = r.depth_mean.slice(0, 0, kSide / 2).slice(1, 0, kSide / 2);
     EXPECT_NEAR(im["depth_mae"].get<double>(), (pred - 4.0).abs().mean().item<double>(), 1e-4);
@@ -99,7 +100,7 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   ASSERT_NE(time_chart, std::string::npos);
   EXPECT_NE(html.find(">minutes<", time_chart), std::string::npos);
   EXPECT_NE(html.find("data:image/png;base64,iVBORw0KGgo"), std::string::npos);  // an embedded PNG
-  EXPECT_NE(html.find("model.width"), std::string::npos);                         // config table
+  EXPECT_NE(html.find("model.width"), std::string::npos);                        // config table
   // Self-contained: no scripts, no external images or stylesheets.
   EXPECT_EQ(html.find("<script"), std::string::npos);
   EXPECT_EQ(html.find("src=\"http"), std::string::npos);

@@ -18,9 +18,7 @@ namespace {
 constexpr double kC1 = 0.01 * 0.01;
 constexpr double kC2 = 0.03 * 0.03;
 
-torch::Tensor constant_image(int64_t h, int64_t w, double v) {
-  return torch::full({h, w, 3}, v, torch::kDouble);
-}
+torch::Tensor constant_image(int64_t h, int64_t w, double v) { return torch::full({h, w, 3}, v, torch::kDouble); }
 
 // ---- PSNR -----------------------------------------------------------------------------------
 
@@ -28,8 +26,8 @@ TEST(Psnr, ConstantOffsetOfOneTenthIsTwentyDecibels) {
   // MSE = 0.01 -> -10 log10(0.01) = 20 exactly.
   EXPECT_NEAR(psnr(constant_image(8, 9, 0.6), constant_image(8, 9, 0.5)), 20.0, 1e-9);
   // float32 inputs: 0.6f - 0.5f is 0.1 only to ~1e-8, so ~1e-6 dB.
-  EXPECT_NEAR(psnr(constant_image(8, 9, 0.6).to(torch::kFloat), constant_image(8, 9, 0.5).to(torch::kFloat)),
-              20.0, 1e-5);
+  EXPECT_NEAR(psnr(constant_image(8, 9, 0.6).to(torch::kFloat), constant_image(8, 9, 0.5).to(torch::kFloat)), 20.0,
+              1e-5);
 }
 
 TEST(Psnr, HalfThePixelsInOneChannel) {
@@ -111,8 +109,7 @@ TEST(Ssim, ConstantImagesMatchClosedForm) {
   // Variances and covariance are zero, so SSIM = (2 c1 c2 + C1) / (c1^2 + c2^2 + C1).
   const double u = 0.3, v = 0.7;
   const double expected = (2 * u * v + kC1) / (u * u + v * v + kC1);
-  EXPECT_NEAR(ssim(constant_image(13, 12, u), constant_image(13, 12, v), SsimVariant::Standard), expected,
-              1e-12);
+  EXPECT_NEAR(ssim(constant_image(13, 12, u), constant_image(13, 12, v), SsimVariant::Standard), expected, 1e-12);
 }
 
 TEST(Ssim, StandardMatchesLoopReference) {
@@ -158,7 +155,7 @@ TEST(ReadRgbForMetrics, CompositesRgbaOnWhite) {
   auto rgba = torch::zeros({2, 2, 4}, torch::kUInt8);
   rgba.index_put_({0, 0}, torch::tensor({255, 0, 0, 255}, torch::kUInt8));  // opaque red
   rgba.index_put_({0, 1}, torch::tensor({0, 0, 0, 0}, torch::kUInt8));      // transparent -> white
-  rgba.index_put_({1, 0}, torch::tensor({0, 0, 0, 51}, torch::kUInt8));      // 20% black -> 0.8
+  rgba.index_put_({1, 0}, torch::tensor({0, 0, 0, 51}, torch::kUInt8));     // 20% black -> 0.8
   write_png(dir / "a.png", rgba);
   auto im = read_rgb_for_metrics(dir / "a.png");
   ASSERT_EQ(im.sizes(), (std::vector<int64_t>{2, 2, 3}));

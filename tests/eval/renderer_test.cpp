@@ -96,13 +96,13 @@ TEST(RenderImage, ChunkSizeDoesNotChangeTheImage) {
   AbleNerf model = tiny_model();
   const Intrinsics k = tiny_intrinsics();
   int64_t calls = 0, last_done = 0;
-  const RenderResult a = render_image(model, test_pose(), k, kNear, kFar, 7, {}, torch::kCPU,
-                                      [&](int64_t done, int64_t total) {
-                                        ++calls;
-                                        EXPECT_GT(done, last_done);
-                                        EXPECT_EQ(total, kTinySide * kTinySide);
-                                        last_done = done;
-                                      });
+  const RenderResult a =
+      render_image(model, test_pose(), k, kNear, kFar, 7, {}, torch::kCPU, [&](int64_t done, int64_t total) {
+        ++calls;
+        EXPECT_GT(done, last_done);
+        EXPECT_EQ(total, kTinySide * kTinySide);
+        last_done = done;
+      });
   const RenderResult b = render_image(model, test_pose(), k, kNear, kFar, 64, {}, torch::kCPU);
   EXPECT_EQ(calls, (kTinySide * kTinySide + 6) / 7);  // one report per chunk: ceil(64 / 7) = 10
   EXPECT_EQ(last_done, kTinySide * kTinySide);

@@ -26,7 +26,9 @@ const std::array<double, 3> kCentre{0.1, -0.05, 0.2};
 // A pinhole camera at `eye` looking at kCentre (OpenGL axes: the camera looks down its -z), world
 // up +z unless looking along it. (3,4) camera-to-world.
 torch::Tensor look_at_sphere(const std::array<double, 3>& eye) {
-  auto sub = [](std::array<double, 3> a, std::array<double, 3> b) { return std::array<double, 3>{a[0] - b[0], a[1] - b[1], a[2] - b[2]}; };
+  auto sub = [](std::array<double, 3> a, std::array<double, 3> b) {
+    return std::array<double, 3>{a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+  };
   auto norm = [](std::array<double, 3> a) {
     const double n = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
     return std::array<double, 3>{a[0] / n, a[1] / n, a[2] / n};
@@ -35,7 +37,8 @@ torch::Tensor look_at_sphere(const std::array<double, 3>& eye) {
     return std::array<double, 3>{a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
   };
   const auto back = norm(sub(eye, kCentre));  // camera +z points away from what it sees
-  const std::array<double, 3> up0 = std::abs(back[2]) > 0.99 ? std::array<double, 3>{0, 1, 0} : std::array<double, 3>{0, 0, 1};
+  const std::array<double, 3> up0 =
+      std::abs(back[2]) > 0.99 ? std::array<double, 3>{0, 1, 0} : std::array<double, 3>{0, 0, 1};
   const auto right = norm(cross(up0, back));
   const auto up = cross(back, right);
   auto m = torch::zeros({3, 4}, torch::kDouble);
@@ -149,7 +152,8 @@ TEST(Geometry, PointsComeBackInTheCapturesFrame) {
   }
   const auto back = points_to_capture(torch::tensor(flat, torch::kDouble).reshape({3, 3}), f);
   for (size_t i = 0; i < pts.size(); ++i)
-    for (size_t j = 0; j < 3; ++j) EXPECT_NEAR(back[static_cast<int64_t>(i)][static_cast<int64_t>(j)].item<double>(), pts[i][j], 1e-12);
+    for (size_t j = 0; j < 3; ++j)
+      EXPECT_NEAR(back[static_cast<int64_t>(i)][static_cast<int64_t>(j)].item<double>(), pts[i][j], 1e-12);
 }
 
 TEST(Geometry, CropBoxParsing) {
@@ -182,8 +186,8 @@ TEST(Geometry, TsdfOfSphereDepthMapsIsTheSphere) {
   const Mesh m = fuse_tsdf(views, o);
   ASSERT_GT(m.triangle_count(), 1000);
   // The vertices on the surface to a fraction of a voxel (the depth maps' pixels, ~0.03 wide at the
-  // sphere, are coarser than the voxels: the worst, at grazing views, within 1.5 voxels); and the surface covered all round (vertices in every octant
-  // around the centre).
+  // sphere, are coarser than the voxels: the worst, at grazing views, within 1.5 voxels); and the surface covered all
+  // round (vertices in every octant around the centre).
   const auto off = off_sphere(m.vertices);
   std::cout << "TSDF vertices off the sphere: median " << off.median().item<double>() << ", 99% "
             << off.quantile(0.99).item<double>() << ", max " << off.max().item<double>() << " (voxel " << o.voxel << ")"
@@ -275,8 +279,8 @@ TEST(Geometry, FilesAreWrittenWholeOrNotAtAll) {
 TEST(SurfaceScore, PrecisionRecallAndVisibilityOnKnownSpheres) {
   const std::vector<SphereTruth> spheres{{"a", "diffuse", {0, 0, 0}, 0.5}, {"b", "glass", {3, 0, 0}, 0.5}};
   // Cameras all round, far away: every sample is seen.
-  const auto eyes = torch::tensor({10.0, 0.0, 0.0, -10.0, 0.0, 0.0, 0.0, 10.0, 0.0, 0.0, -10.0, 0.0, 0.0, 0.0, 10.0,
-                                   0.0, 0.0, -10.0, 1.5, 0.0, 10.0, 1.5, 0.0, -10.0},
+  const auto eyes = torch::tensor({10.0, 0.0, 0.0,  -10.0, 0.0, 0.0,   0.0, 10.0, 0.0,  0.0, -10.0, 0.0,
+                                   0.0,  0.0, 10.0, 0.0,   0.0, -10.0, 1.5, 0.0,  10.0, 1.5, 0.0,   -10.0},
                                   torch::kDouble)
                         .reshape({8, 3});
   const auto [truth, owner] = visible_sphere_samples(spheres, eyes, 4000);
@@ -287,8 +291,9 @@ TEST(SurfaceScore, PrecisionRecallAndVisibilityOnKnownSpheres) {
   EXPECT_NEAR(exact["all"]["accuracy_mean"].get<double>(), 0.0, 1e-12);
   EXPECT_EQ(exact["b"]["material"], "glass");
   // Pushed 2 tau outwards: nothing is within tau either way.
-  const auto centre = torch::stack({torch::tensor({0.0, 0.0, 0.0}, torch::kDouble), torch::tensor({3.0, 0.0, 0.0}, torch::kDouble)})
-                          .index_select(0, owner);
+  const auto centre =
+      torch::stack({torch::tensor({0.0, 0.0, 0.0}, torch::kDouble), torch::tensor({3.0, 0.0, 0.0}, torch::kDouble)})
+          .index_select(0, owner);
   const auto out = centre + (truth - centre) * ((0.5 + 2 * tau) / 0.5);
   auto off = score_against_spheres(out, spheres, eyes, tau, 4000);
   EXPECT_EQ(off["all"]["precision"].get<double>(), 0.0);

@@ -16,7 +16,6 @@ namespace {
 using test::max_abs;
 using test::seeded_randn;
 
-
 // f(x[i][j] + b[j]) for every element, in double.
 template <class F>
 torch::Tensor elementwise(const torch::Tensor& x, const torch::Tensor& b, const F& f) {

@@ -51,7 +51,7 @@ TEST(CpuParallel, SlicesCoverTheRangeOnceInOrder) {
     }
     EXPECT_EQ(next, 37);
     EXPECT_EQ(static_cast<int64_t>(threads.size()), workers);  // one thread per slice
-    EXPECT_EQ(seen[0].thread, std::this_thread::get_id());    // the caller takes slice 0
+    EXPECT_EQ(seen[0].thread, std::this_thread::get_id());     // the caller takes slice 0
   }
 }
 

@@ -35,7 +35,8 @@ TEST(HashGrid, ResolutionsGrowGeometrically) {
   const HashGridShape s = hash_grid_shape(16, 2, 19, 16, 2048);
   EXPECT_EQ(s.table_size, 1 << 19);
   const double b = std::exp((std::log(2048.0) - std::log(16.0)) / 15);  // instant-ngp eq. 3: 2^(7/15)
-  for (int l = 0; l < 16; ++l) EXPECT_EQ(s.resolution[l], static_cast<int>(std::floor(16 * std::pow(b, l) + 1e-9))) << l;
+  for (int l = 0; l < 16; ++l)
+    EXPECT_EQ(s.resolution[l], static_cast<int>(std::floor(16 * std::pow(b, l) + 1e-9))) << l;
   EXPECT_EQ(s.resolution[0], 16);
   EXPECT_EQ(s.resolution[15], 2048);
   EXPECT_EQ(hash_grid_shape(1, 1, 4, 8, 8).resolution[0], 8);
@@ -144,7 +145,8 @@ TEST(HashGrid, BadInputsAreRefusedNamingTheArgument) {
   test::expect_error_naming([&] { hash_grid_encode(p.to(torch::kDouble), table, s); }, "positions");
   test::expect_error_naming([&] { hash_grid_encode(p.view({-1}), table, s); }, "positions");
   test::expect_error_naming([&] { hash_grid_encode(p, table.slice(1, 0, 64), s); }, "table");
-  test::expect_error_naming([&] { hash_grid_encode(p, table.transpose(0, 1).contiguous().transpose(0, 1), s); }, "table");
+  test::expect_error_naming([&] { hash_grid_encode(p, table.transpose(0, 1).contiguous().transpose(0, 1), s); },
+                            "table");
 }
 
 }  // namespace

@@ -92,9 +92,9 @@ TEST(PackedAttention, LongerRaysMatchReference) {
     const auto mask = ray_mask(tokens, torch::kDouble);
     compare({rnd({4, tokens, 3 * kWidth}, torch::kDouble, 20 + tokens), {}, mask}, 1e-10);
     compare({rnd({4, tokens, 3 * kWidth}, torch::kFloat, 21 + tokens), {}, mask.to(torch::kFloat)}, 1e-4);
-    compare({rnd({4, 3, kWidth}, torch::kFloat, 22 + tokens), rnd({4, tokens, 2 * kWidth}, torch::kFloat, 23 + tokens),
-             {}},
-            1e-4);
+    compare(
+        {rnd({4, 3, kWidth}, torch::kFloat, 22 + tokens), rnd({4, tokens, 2 * kWidth}, torch::kFloat, 23 + tokens), {}},
+        1e-4);
   }
 }
 

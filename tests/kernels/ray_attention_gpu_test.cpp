@@ -108,7 +108,7 @@ TEST(RayAttentionGpu, SaturatedScoresStayFinite) {
   REQUIRE_CUDA();
   uint64_t seed = 200;
   for (const auto dtype : {torch::kFloat, torch::kBFloat16})
-    for (const bool masked : {true, false}) 
+    for (const bool masked : {true, false})
       check_against_reference({dtype, masked, 64, 97, 6.0, dtype == torch::kFloat ? 50.0 : 2.5}, seed++);
 }
 
@@ -177,10 +177,8 @@ TEST(RayAttentionGpu, RefusesUnsupportedArguments) {
   const auto cuda = torch::TensorOptions().device(torch::kCUDA);
   EXPECT_THROW(ray_attention(torch::zeros({2, 129, 3 * kWidth}, cuda), kHeads, true), c10::Error);  // L > 128
   EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * 96}, cuda), kHeads, true), c10::Error);       // dh = 32
-  EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}, cuda.dtype(torch::kDouble)), kHeads, true),
-               c10::Error);
-  EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}, cuda.dtype(torch::kHalf)), kHeads, true),
-               c10::Error);
+  EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}, cuda.dtype(torch::kDouble)), kHeads, true), c10::Error);
+  EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}, cuda.dtype(torch::kHalf)), kHeads, true), c10::Error);
   EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}), kHeads, true), c10::Error);  // CPU
   EXPECT_THROW(ray_attention(torch::zeros({97, 3 * kWidth}, cuda), kHeads, true), c10::Error);
   EXPECT_THROW(ray_attention(torch::zeros({2, 97, 3 * kWidth}, cuda), 5, true), c10::Error);

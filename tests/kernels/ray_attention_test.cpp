@@ -153,16 +153,14 @@ TEST(RayAttentionReference, GradientMatchesFiniteDifferences) {
 TEST(RayAttentionReference, RejectsMalformedInput) {
   const auto qkv = torch::zeros({2, 5, 24});
   EXPECT_THROW(ray_attention_reference(torch::zeros({5, 24}), 2, true), c10::Error);
-  EXPECT_THROW(ray_attention_reference(qkv, 5, true), c10::Error);   // 24 is not 3 * 5 * dh
+  EXPECT_THROW(ray_attention_reference(qkv, 5, true), c10::Error);  // 24 is not 3 * 5 * dh
   EXPECT_THROW(ray_attention_reference(qkv, 0, true), c10::Error);
   EXPECT_THROW(ray_attention_reference(torch::zeros({2, 5, 24}, torch::kLong), 2, true), c10::Error);
   EXPECT_THROW(ray_attention_reference(torch::Tensor(), 2, true), c10::Error);
 }
 
 // The fused kernels take CUDA tensors only; builds without them refuse every call.
-TEST(RayAttention, RefusesCpuTensors) {
-  EXPECT_THROW(ray_attention(torch::zeros({1, 97, 576}), 3, true), c10::Error);
-}
+TEST(RayAttention, RefusesCpuTensors) { EXPECT_THROW(ray_attention(torch::zeros({1, 97, 576}), 3, true), c10::Error); }
 
 }  // namespace
 }  // namespace ablenerf

@@ -18,7 +18,6 @@ using test::seeded_randn;
 
 constexpr double kEps = 1e-5;
 
-
 // Row by row from the definition, in double: s = x + r, mean and biased variance of the row,
 // y = (s - mean) / sqrt(var + eps) * gamma + beta.
 torch::Tensor by_hand(const torch::Tensor& x, const torch::Tensor& r, const torch::Tensor& gamma,
@@ -41,9 +40,9 @@ torch::Tensor by_hand(const torch::Tensor& x, const torch::Tensor& r, const torc
   return y;
 }
 
-
 TEST(ResidualLayerNormReference, MatchesTheDefinitionInFloat64) {
-  const auto x = seeded_randn({6, 12}, 1, 3, 0.5), r = seeded_randn({6, 12}, 2), gamma = seeded_randn({12}, 3, 0.3, 1), beta = seeded_randn({12}, 4);
+  const auto x = seeded_randn({6, 12}, 1, 3, 0.5), r = seeded_randn({6, 12}, 2), gamma = seeded_randn({12}, 3, 0.3, 1),
+             beta = seeded_randn({12}, 4);
   // Row 2 constant after the residual add: zero variance, so y = beta there (eps keeps it finite).
   x[2].fill_(2.5);
   r[2].fill_(-1);
@@ -57,7 +56,8 @@ TEST(ResidualLayerNormReference, MatchesTheDefinitionInFloat64) {
 }
 
 TEST(ResidualLayerNormReference, LowerPrecisionInputsAreComputedInFloatAndReturnedInTheirDtype) {
-  const auto x = seeded_randn({7, 64}, 5, 2), r = seeded_randn({7, 64}, 6), gamma = seeded_randn({64}, 7, 0.3, 1), beta = seeded_randn({64}, 8);
+  const auto x = seeded_randn({7, 64}, 5, 2), r = seeded_randn({7, 64}, 6), gamma = seeded_randn({64}, 7, 0.3, 1),
+             beta = seeded_randn({64}, 8);
   const auto g = gamma.to(torch::kFloat), b = beta.to(torch::kFloat);
   const auto xf = x.to(torch::kFloat), rf = r.to(torch::kFloat);
   const auto yf = residual_layer_norm_reference(xf, rf, g, b, kEps);
@@ -73,7 +73,8 @@ TEST(ResidualLayerNormReference, LowerPrecisionInputsAreComputedInFloatAndReturn
 }
 
 TEST(ResidualLayerNormReference, GradientsMatchFiniteDifferences) {
-  const std::vector<torch::Tensor> inputs = {seeded_randn({3, 8}, 9, 2), seeded_randn({3, 8}, 10), seeded_randn({8}, 11, 0.3, 1), seeded_randn({8}, 12)};
+  const std::vector<torch::Tensor> inputs = {seeded_randn({3, 8}, 9, 2), seeded_randn({3, 8}, 10),
+                                             seeded_randn({8}, 11, 0.3, 1), seeded_randn({8}, 12)};
   const auto weights = seeded_randn({3, 8}, 13);  // a loss that weighs every output differently
   const test::ScalarFunction loss = [&](const std::vector<torch::Tensor>& in) {
     return (residual_layer_norm_reference(in[0], in[1], in[2], in[3], kEps) * weights).sum();

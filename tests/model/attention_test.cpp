@@ -27,8 +27,10 @@ torch::Tensor ref_mha(const MultiHeadAttentionImpl& a, const torch::Tensor& q_in
   const auto& bias = a.in_proj_bias;
   std::vector<torch::Tensor> heads;
   for (int64_t h = 0; h < kHeads; ++h) {
-    auto rows = [&](int64_t block) { return std::make_pair(w.slice(0, block * e + h * dh, block * e + (h + 1) * dh),
-                                                           bias.slice(0, block * e + h * dh, block * e + (h + 1) * dh)); };
+    auto rows = [&](int64_t block) {
+      return std::make_pair(w.slice(0, block * e + h * dh, block * e + (h + 1) * dh),
+                            bias.slice(0, block * e + h * dh, block * e + (h + 1) * dh));
+    };
     const auto [wq, bq] = rows(0);
     const auto [wk, bk] = rows(1);
     const auto [wv, bv] = rows(2);
@@ -56,8 +58,10 @@ TEST(Attention, MaskPattern) {
     for (int j = 0; j < 5; ++j) {
       const bool allowed = i == 0 || j <= i;
       const double v = m[i][j].item<double>();
-      if (allowed) EXPECT_EQ(v, 0.0) << i << j;
-      else EXPECT_TRUE(std::isinf(v) && v < 0) << i << j;
+      if (allowed)
+        EXPECT_EQ(v, 0.0) << i << j;
+      else
+        EXPECT_TRUE(std::isinf(v) && v < 0) << i << j;
     }
 }
 
@@ -89,7 +93,7 @@ TEST(Attention, CrossBlockWithSharedQueriesMatchesReference) {
   torch::manual_seed(2);
   TransformerBlock blk(kWidth, kHeads, kFF);
   blk->to(torch::kDouble);
-  const auto le = torch::randn({1, 5, kWidth}, torch::kDouble);   // shared queries
+  const auto le = torch::randn({1, 5, kWidth}, torch::kDouble);  // shared queries
   const auto kv = torch::randn({2, 7, kWidth}, torch::kDouble);
   const auto out = blk->forward_cross(le, kv);
   ASSERT_EQ(out.sizes(), (std::vector<int64_t>{2, 5, kWidth}));

@@ -48,7 +48,8 @@ TEST(Contraction, CovarianceDiagonalEqualsJacobianSandwichOfTheFullCovariance) {
   // Rays from inside and outside the unit ball, samples on both sides of the sphere.
   torch::manual_seed(3);
   const int64_t B = 4, S = 6;
-  auto origins = torch::tensor({{0.1, 0.2, -0.3}, {0.0, 0.9, 0.1}, {1.5, -0.5, 0.2}, {-0.2, 0.1, 0.0}}, torch::kFloat64);
+  auto origins =
+      torch::tensor({{0.1, 0.2, -0.3}, {0.0, 0.9, 0.1}, {1.5, -0.5, 0.2}, {-0.2, 0.1, 0.0}}, torch::kFloat64);
   auto dirs = torch::tensor({{1.0, 0.3, -0.2}, {0.2, -1.1, 0.4}, {-0.7, 0.6, 0.9}, {0.0, 0.0, -1.0}}, torch::kFloat64);
   auto t = torch::linspace(0.05, 6.0, S + 1, torch::kFloat64).expand({B, S + 1}).contiguous();
   auto radius = torch::full({B, 1}, 0.02, torch::kFloat64);
@@ -111,8 +112,7 @@ TEST(Contraction, UnboundedDepthsLinearThenLinearInDisparity) {
   EXPECT_NEAR(t[5].item<double>(), pivot, 1e-12);
   EXPECT_NEAR(t[10].item<double>(), far, far * 1e-9);
   // First half: equal steps in depth; second half: equal steps in 1/t.
-  for (int i = 1; i < 5; ++i)
-    EXPECT_NEAR(t[i + 1].item<double>() - t[i].item<double>(), (pivot - near) / 5, 1e-12);
+  for (int i = 1; i < 5; ++i) EXPECT_NEAR(t[i + 1].item<double>() - t[i].item<double>(), (pivot - near) / 5, 1e-12);
   for (int i = 5; i < 10; ++i)
     EXPECT_NEAR(1 / t[i].item<double>() - 1 / t[i + 1].item<double>(), (1 / pivot - 1 / far) / 5, 1e-12);
   // Monotone, and a near beyond 0.5 moves the pivot to 2 near.

@@ -81,9 +81,11 @@ torch::Tensor scalar(double v, torch::Dtype dt) { return torch::full({1, 1}, v, 
 
 TEST(Frustum, MomentsMatchQuadratureInDouble) {
   const double r = 0.03;
-  for (auto [t0, t1] : std::vector<std::pair<double, double>>{{2.0, 2.0 + 1e-4}, {2.0, 2.0417}, {2.0, 6.0}, {0.0, 1.0}, {0.5, 10.0}}) {
+  for (auto [t0, t1] :
+       std::vector<std::pair<double, double>>{{2.0, 2.0 + 1e-4}, {2.0, 2.0417}, {2.0, 6.0}, {0.0, 1.0}, {0.5, 10.0}}) {
     const auto ref = reference_moments(t0, t1, r);
-    const auto m = conical_frustum_moments(scalar(t0, torch::kDouble), scalar(t1, torch::kDouble), scalar(r, torch::kDouble));
+    const auto m =
+        conical_frustum_moments(scalar(t0, torch::kDouble), scalar(t1, torch::kDouble), scalar(r, torch::kDouble));
     EXPECT_NEAR(m.t_mean.item<double>(), ref.t_mean, 1e-9 * ref.t_mean) << t0 << " " << t1;
     EXPECT_NEAR(m.t_var.item<double>(), ref.t_var, 1e-6 * ref.t_var) << t0 << " " << t1;
     EXPECT_NEAR(m.r_var.item<double>(), ref.r_var, 1e-9 * ref.r_var) << t0 << " " << t1;
@@ -94,7 +96,8 @@ TEST(Frustum, StableFormKeepsTinyIntervalsAccurateInFloat) {
   // A 1e-4 interval at t = 2: naive (t1^3 - t0^3) forms lose everything in float32.
   const double t0 = 2.0, t1 = 2.0 + 1e-4, r = test::kBlenderPixelRadius;
   const auto ref = reference_moments(t0, t1, r);
-  const auto m = conical_frustum_moments(scalar(t0, torch::kFloat), scalar(t1, torch::kFloat), scalar(r, torch::kFloat));
+  const auto m =
+      conical_frustum_moments(scalar(t0, torch::kFloat), scalar(t1, torch::kFloat), scalar(r, torch::kFloat));
   EXPECT_NEAR(m.t_var.item<double>(), ref.t_var, 1e-2 * ref.t_var);
   EXPECT_NEAR(m.r_var.item<double>(), ref.r_var, 1e-5 * ref.r_var);
 }
@@ -103,8 +106,8 @@ TEST(Frustum, LiftedGaussianMatchesConeIntegration) {
   const std::array<double, 3> o{0.3, -0.2, 0.5}, d{0.4, -0.7, 1.3};  // unnormalised on purpose
   const double r = 0.05;
   const auto opts = torch::TensorOptions(torch::kDouble);
-  const Rays rays{torch::tensor({o[0], o[1], o[2]}, opts).view({1, 3}), torch::tensor({d[0], d[1], d[2]}, opts).view({1, 3}),
-                  torch::full({1, 1}, r, opts)};
+  const Rays rays{torch::tensor({o[0], o[1], o[2]}, opts).view({1, 3}),
+                  torch::tensor({d[0], d[1], d[2]}, opts).view({1, 3}), torch::full({1, 1}, r, opts)};
   for (auto [t0, t1] : std::vector<std::pair<double, double>>{{3.0, 3.001}, {2.0, 2.5}, {2.0, 6.0}}) {
     const auto g = cast_intervals(torch::tensor({t0, t1}, opts).view({1, 2}), rays);
     ASSERT_EQ(g.mean.sizes(), (std::vector<int64_t>{1, 1, 3}));

@@ -66,7 +66,7 @@ TEST(GridEmbedding, FeaturesAreTheGridAtTheMeanTimesTheLevelWeights) {
     for (auto& p : grid->parameters()) p.uniform_(-0.1, 0.1);
   }
   auto gen = at::detail::createCPUGenerator(4);
-  const auto mean = torch::rand({5, 3, 3}, gen) * 2.8 - 1.4;          // inside the cube
+  const auto mean = torch::rand({5, 3, 3}, gen) * 2.8 - 1.4;  // inside the cube
   const auto cov = torch::rand({5, 3, 3}, gen) * 1e-2 + 1e-5;
   const auto got = grid(mean, cov);
   ASSERT_EQ(got.sizes(), (std::vector<int64_t>{5, 3, 8}));

@@ -41,7 +41,8 @@ TEST(Ndc, PointsOfARayLieOnItsNdcRayInOrder) {
       const auto q = ndc_point(x[0].item<double>(), x[1].item<double>(), x[2].item<double>(), p.a, p.b);
       const double s = (q[2] - r.origins[i][2].item<double>()) / r.directions[i][2].item<double>();
       for (int k = 0; k < 2; ++k)
-        EXPECT_NEAR(r.origins[i][k].item<double>() + s * r.directions[i][k].item<double>(), q[static_cast<size_t>(k)], 1e-9);
+        EXPECT_NEAR(r.origins[i][k].item<double>() + s * r.directions[i][k].item<double>(), q[static_cast<size_t>(k)],
+                    1e-9);
       EXPECT_GT(s, last);
       EXPECT_LT(s, 1.0);
       last = s;
@@ -64,9 +65,8 @@ TEST(Ndc, RadiusIsTheNdcOffsetBetweenNeighbouringPixels) {
   c2w[0][3] = 0.1, c2w[1][3] = -0.05, c2w[2][3] = 0.2;
   const NdcProjection p{2 * k.fx / k.width, 2 * k.fy / k.height};
   const Rays rays = rays_for_image(c2w, k);  // row-major, H*W
-  const Rays ndc = rays_to_ndc(Rays{rays.origins.to(torch::kFloat64), rays.directions.to(torch::kFloat64),
-                                    rays.radii.to(torch::kFloat64)},
-                               p);
+  const Rays ndc = rays_to_ndc(
+      Rays{rays.origins.to(torch::kFloat64), rays.directions.to(torch::kFloat64), rays.radii.to(torch::kFloat64)}, p);
   const auto o = ndc.origins.reshape({30, 40, 3});
   const auto dx = (o.slice(1, 1).slice(0, 0, 29) - o.slice(1, 0, 39).slice(0, 0, 29)).norm(2, -1);  // (29, 39)
   const auto dy = (o.slice(0, 1).slice(1, 0, 39) - o.slice(0, 0, 29).slice(1, 0, 39)).norm(2, -1);

@@ -55,14 +55,13 @@ TEST(Resampler, CoarseJitterMovesEachPostBetweenTheGridMidPoints) {
   // [2,2.5], [2.5,3.5], [3.5,4.5], [4.5,5.5], [5.5,6] at lower + u (upper - lower).
   const auto u = torch::stack({torch::zeros({5}), torch::full({5}, 0.5f), torch::full({5}, 0.999f)});
   const auto t = coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat, u);
-  const std::vector<std::vector<double>> expected{{2.0, 2.5, 3.5, 4.5, 5.5},
-                                                  {2.25, 3.0, 4.0, 5.0, 5.75},
-                                                  {2.4995, 3.499, 4.499, 5.499, 5.9995}};
+  const std::vector<std::vector<double>> expected{
+      {2.0, 2.5, 3.5, 4.5, 5.5}, {2.25, 3.0, 4.0, 5.0, 5.75}, {2.4995, 3.499, 4.499, 5.499, 5.9995}};
   for (int r = 0; r < 3; ++r) {
     for (int k = 0; k < 5; ++k) EXPECT_NEAR(t[r][k].item<double>(), expected[r][k], 1e-5) << r << " " << k;
   }
-  EXPECT_TRUE(torch::equal(coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat),
-                           torch::linspace(2.0, 6.0, 5).expand({3, 5})));
+  EXPECT_TRUE(
+      torch::equal(coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat), torch::linspace(2.0, 6.0, 5).expand({3, 5})));
   EXPECT_THROW(coarse_fence_posts(3, 2.0, 6.0, 4, torch::kFloat, torch::zeros({3, 4})), c10::Error);
 }
 
@@ -110,8 +109,12 @@ TEST(Resampler, RayTokenRowFromOneQueryMatchesFullAttention) {
   // Reference: the last block's input, its projections and the full masked attention matrix.
   const auto h = ab->block(0)->forward_self(x, mask);
   const auto& a = *ab->block(1)->attn;
-  const auto q = (h.matmul(a.in_proj_weight.slice(0, 0, e).t()) + a.in_proj_bias.slice(0, 0, e)).view({b, s + 1, heads, dh}).transpose(1, 2);
-  const auto k = (h.matmul(a.in_proj_weight.slice(0, e, 2 * e).t()) + a.in_proj_bias.slice(0, e, 2 * e)).view({b, s + 1, heads, dh}).transpose(1, 2);
+  const auto q = (h.matmul(a.in_proj_weight.slice(0, 0, e).t()) + a.in_proj_bias.slice(0, 0, e))
+                     .view({b, s + 1, heads, dh})
+                     .transpose(1, 2);
+  const auto k = (h.matmul(a.in_proj_weight.slice(0, e, 2 * e).t()) + a.in_proj_bias.slice(0, e, 2 * e))
+                     .view({b, s + 1, heads, dh})
+                     .transpose(1, 2);
   const auto full = torch::softmax(q.matmul(k.transpose(-2, -1)) / std::sqrt(double(dh)) + mask, -1);  // (B,H,L,L)
   const auto expected = full.select(2, 0).mean(1).slice(1, 1);
   EXPECT_TRUE(torch::allclose(w, expected, 1e-5, 1e-6));

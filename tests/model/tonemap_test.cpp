@@ -11,10 +11,10 @@ double srgb(double x) { return linear_to_srgb(torch::tensor({x}, torch::kDouble)
 
 TEST(Tonemap, HandValues) {
   EXPECT_NEAR(srgb(0.0), 0.0, 1e-12);
-  EXPECT_NEAR(srgb(1.0), 1.0, 1e-12);                   // 1.055 - 0.055
-  EXPECT_NEAR(srgb(0.5), 0.7353569830524495, 1e-9);     // 1.055 * 0.5^(1/2.4) - 0.055
-  EXPECT_NEAR(srgb(0.002), 0.02584, 1e-12);             // linear segment 12.92 x
-  EXPECT_NEAR(srgb(0.18), 0.46135612950044164, 1e-9);    // 18% grey
+  EXPECT_NEAR(srgb(1.0), 1.0, 1e-12);                  // 1.055 - 0.055
+  EXPECT_NEAR(srgb(0.5), 0.7353569830524495, 1e-9);    // 1.055 * 0.5^(1/2.4) - 0.055
+  EXPECT_NEAR(srgb(0.002), 0.02584, 1e-12);            // linear segment 12.92 x
+  EXPECT_NEAR(srgb(0.18), 0.46135612950044164, 1e-9);  // 18% grey
 }
 
 TEST(Tonemap, ContinuousAtThreshold) {

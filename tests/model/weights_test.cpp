@@ -118,7 +118,8 @@ TEST(Weights, ReleaseDictionaryLandsInTheRightParameters) {
     EXPECT_TRUE(torch::equal(p["fine.blocks.5.ff_out.weight"], rel("fine.layers.5.ff_layer.3.weight")));
     EXPECT_TRUE(torch::equal(p["coarse.blocks.1.attn.in_proj_weight"], rel("coarse.layers.1.attn.in_proj_weight")));
     EXPECT_TRUE(torch::equal(p["le_fine.self.1.norm2.bias"], rel("f_spec_colour.self_attn.1.norm2.bias")));
-    EXPECT_TRUE(torch::equal(p["le_coarse.decode.attn.out_proj.weight"], rel("c_spec_colour.decode.attn.out_proj.weight")));
+    EXPECT_TRUE(
+        torch::equal(p["le_coarse.decode.attn.out_proj.weight"], rel("c_spec_colour.decode.attn.out_proj.weight")));
     EXPECT_TRUE(torch::equal(p["le_head_fine.hidden.weight"], rel("f_spec_rgb.0.weight")));
     EXPECT_TRUE(torch::equal(p["ray_head_coarse.linear.bias"], rel("rgb_c_diff.0.bias")));
     EXPECT_TRUE(torch::equal(p["view_token.weight"], rel("view_token.0.weight")));

@@ -112,10 +112,14 @@ TEST(CrashSafety, KillNineAnywhereThenResumeEqualsUninterrupted) {
   ASSERT_EQ(reference.wait(), 0) << test::read_text(t / "ref.log");
 
   const std::string run = t / "killed";
-  const std::vector<KillAt> plan{KillAt::Startup,          KillAt::FolderWithoutCheckpoint,
-                                 KillAt::CheckpointLanded, KillAt::CheckpointTmpExists,
-                                 KillAt::CheckpointLanded, KillAt::RandomDelay,
-                                 KillAt::CheckpointTmpExists, KillAt::RandomDelay};
+  const std::vector<KillAt> plan{KillAt::Startup,
+                                 KillAt::FolderWithoutCheckpoint,
+                                 KillAt::CheckpointLanded,
+                                 KillAt::CheckpointTmpExists,
+                                 KillAt::CheckpointLanded,
+                                 KillAt::RandomDelay,
+                                 KillAt::CheckpointTmpExists,
+                                 KillAt::RandomDelay};
   std::mt19937 rng(12345);
   int kills = 0, kills_with_checkpoint = 0, caught_tmp = 0;
   int64_t last_step = 0;

@@ -17,10 +17,10 @@ namespace ablenerf::test {
 
 std::vector<std::string> tiny_train_args() {
   std::vector<std::string> out;
-  for (const char* kv : {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1",
-                         "model.fine_layers=1", "model.samples=8", "model.le_count=2", "model.le_layers=1",
-                         "train.rays_per_step=64", "train.micro_batch=64", "train.eval_every=0",
-                         "train.log_every=1", "train.lr_warmup_steps=2", "train.lr_decay_steps=0"}) {
+  for (const char* kv :
+       {"model.width=16", "model.heads=1", "model.ff_ratio=1", "model.coarse_layers=1", "model.fine_layers=1",
+        "model.samples=8", "model.le_count=2", "model.le_layers=1", "train.rays_per_step=64", "train.micro_batch=64",
+        "train.eval_every=0", "train.log_every=1", "train.lr_warmup_steps=2", "train.lr_decay_steps=0"}) {
     out.push_back("--set");
     out.push_back(kv);
   }

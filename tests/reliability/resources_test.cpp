@@ -99,10 +99,10 @@ std::string expect_write_failure(F&& f, const std::string& path, const SmallDisk
 
 Config model_config(int width) {
   Config c;
-  for (const std::string& kv : {"model.width=" + std::to_string(width), std::string("model.heads=1"),
-                               std::string("model.ff_ratio=1"), std::string("model.coarse_layers=1"),
-                               std::string("model.fine_layers=1"), std::string("model.samples=8"),
-                               std::string("model.le_count=2"), std::string("model.le_layers=1")})
+  for (const std::string& kv :
+       {"model.width=" + std::to_string(width), std::string("model.heads=1"), std::string("model.ff_ratio=1"),
+        std::string("model.coarse_layers=1"), std::string("model.fine_layers=1"), std::string("model.samples=8"),
+        std::string("model.le_count=2"), std::string("model.le_layers=1")})
     c.set(kv);
   c.validate();
   return c;
@@ -161,8 +161,8 @@ TEST(FullDisk, TrainingRunFailsWithOneLineAndALoadableCheckpoint) {
   ASSERT_EQ(s.exit_code, 0) << s.output;
   SmallDisk disk;
   if (!disk.is_tmpfs()) GTEST_SKIP() << "needs a tmpfs mount (root): a per-file limit cannot model a filling disk";
-  std::string args = "train --data " + data_dir.path() + " --out " + (disk / "run") +
-                     " --set train.steps=20 --set train.ckpt_every=1";
+  std::string args =
+      "train --data " + data_dir.path() + " --out " + (disk / "run") + " --set train.steps=20 --set train.ckpt_every=1";
   for (const auto& a : test::tiny_train_args()) args += " " + a;
   const auto r = test::run_cli(args);
   // An environment failure, not bad input: exit 1 and one line naming the file and the fix.

@@ -66,6 +66,6 @@ TEST(RunFolder, RemovesOnlyTheTemporariesOfItsOwnOutputs) {
     test::write_file(run.path(keep), "keep");
   run.remove_stale_temporaries();
   EXPECT_EQ(names_in(run.dir), (std::vector<std::string>{"checkpoint.pt", "config.toml", "frame.png.tmp1_1",
-                                                          "log.jsonl", "notes.tmp", "run.json", "weights.pt"}));
+                                                         "log.jsonl", "notes.tmp", "run.json", "weights.pt"}));
   EXPECT_EQ(read_file(run.weights_path()), "keep");
 }

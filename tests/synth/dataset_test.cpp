@@ -41,7 +41,8 @@ std::vector<SphereRef> spheres_from_scene_json(const std::string& dir) {
   const json scene = read_json(dir + "/scene.json");
   for (const auto& o : scene.at("objects")) {
     const auto& c = o.at("centre");
-    out.push_back({o.at("material").get<std::string>(), {c[0].get<double>(), c[1].get<double>(), c[2].get<double>()},
+    out.push_back({o.at("material").get<std::string>(),
+                   {c[0].get<double>(), c[1].get<double>(), c[2].get<double>()},
                    o.at("radius").get<double>()});
   }
   return out;
@@ -169,7 +170,7 @@ TEST_F(SynthDataset, AlphaIsZeroOnBackgroundAndOneOnObjects) {
           const V3 oc = sub(s.centre, cam.origin());
           const double along = dot3(oc, d) / dn;
           const double dist = std::sqrt(std::max(0.0, dot3(oc, oc) - along * along));  // ray-centre distance
-          const double margin = std::sqrt(dot3(oc, oc)) / cam.focal;  // > half a pixel diagonal there
+          const double margin = std::sqrt(dot3(oc, oc)) / cam.focal;                   // > half a pixel diagonal there
           if (dist < s.radius + margin) clear_miss = false;
           if (dist < s.radius - margin) clear_hit = true;
         }

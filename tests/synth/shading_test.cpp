@@ -13,7 +13,6 @@ namespace st = ablenerf::synth_test;
 
 namespace {
 
-
 int index_of(MaterialKind k) {
   const auto& s = scene_spheres();
   for (size_t i = 0; i < s.size(); ++i)
@@ -137,7 +136,8 @@ TEST(SynthShading, GlassThroughTheCentreFollowsFresnelAndBeerLambert) {
   Vec3 want;
   for (int c = 0; c < 3; ++c) {
     const double A = att[c], series = 1.0 / (1.0 - f * f * A * A);
-    const double v = f * up[c] + (1 - f) * (1 - f) * A * down[c] * series + (1 - f) * (1 - f) * f * A * A * up[c] * series;
+    const double v =
+        f * up[c] + (1 - f) * (1 - f) * A * down[c] * series + (1 - f) * (1 - f) * f * A * A * up[c] * series;
     (c == 0 ? want.x : c == 1 ? want.y : want.z) = v;
   }
   const Vec3 got = trace(r);

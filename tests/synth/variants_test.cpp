@@ -74,7 +74,8 @@ TEST(SynthVariants, LoaderRaysThroughTheLensAreTheRenderersRays) {
   for (int64_t i = 0; i < o.train_views; ++i) {
     synth::Camera cam = cams[static_cast<size_t>(i)];
     cam.lens = synth::kWideLens;
-    for (const auto& [col, row] : std::vector<std::pair<double, double>>{{0, 0}, {23, 0}, {0, 23}, {23, 23}, {11, 12}, {5, 17}}) {
+    for (const auto& [col, row] :
+         std::vector<std::pair<double, double>>{{0, 0}, {23, 0}, {0, 23}, {23, 23}, {11, 12}, {5, 17}}) {
       const Rays r = rays_for_pixels(ds.split("train").c2w[i].unsqueeze(0).to(torch::kFloat64),
                                      torch::tensor({col}, torch::kFloat64), torch::tensor({row}, torch::kFloat64),
                                      CameraTable::of({ds.split("train").cameras[static_cast<size_t>(i)]}));
@@ -83,7 +84,8 @@ TEST(SynthVariants, LoaderRaysThroughTheLensAreTheRenderersRays) {
       const auto o_s = ds.scene.point_to_scene({s.origin.x, s.origin.y, s.origin.z});
       const double d[3] = {s.dir.x, s.dir.y, s.dir.z};
       for (int k = 0; k < 3; ++k) {
-        const double dk = R[static_cast<size_t>(3 * k)] * d[0] + R[static_cast<size_t>(3 * k + 1)] * d[1] + R[static_cast<size_t>(3 * k + 2)] * d[2];
+        const double dk = R[static_cast<size_t>(3 * k)] * d[0] + R[static_cast<size_t>(3 * k + 1)] * d[1] +
+                          R[static_cast<size_t>(3 * k + 2)] * d[2];
         worst_dir = std::max(worst_dir, std::abs(r.directions[0][k].item<double>() - dk));
         worst_origin = std::max(worst_origin, std::abs(r.origins[0][k].item<double>() - o_s[static_cast<size_t>(k)]));
       }
@@ -118,7 +120,8 @@ TEST(SynthVariants, EnvironmentBackgroundIsOpaqueAndShowsTheSky) {
   synth::Vec3 sum;
   for (int sy = 0; sy < synth::kSubsamplesPerAxis; ++sy)
     for (int sx = 0; sx < synth::kSubsamplesPerAxis; ++sx) {
-      const synth::Ray r = synth::camera_ray(cam, (sx + 0.5) / synth::kSubsamplesPerAxis, (sy + 0.5) / synth::kSubsamplesPerAxis);
+      const synth::Ray r =
+          synth::camera_ray(cam, (sx + 0.5) / synth::kSubsamplesPerAxis, (sy + 0.5) / synth::kSubsamplesPerAxis);
       ASSERT_FALSE(synth::intersect_scene(r).hit());
       const synth::Vec3 e = synth::environment(normalize(r.dir));
       sum += synth::Vec3{std::clamp(e.x, 0.0, 1.0), std::clamp(e.y, 0.0, 1.0), std::clamp(e.z, 0.0, 1.0)};

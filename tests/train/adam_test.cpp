@@ -41,7 +41,8 @@ void set_grads(std::vector<torch::Tensor>& ps, int s) {
       continue;
     }
     // Scales over several decades, so that eps and the bias corrections matter.
-    ps[i].mutable_grad() = torch::randn(ps[i].sizes(), gen).to(ps[i].scalar_type()) * std::pow(10.0, -double(i) - s % 3);
+    ps[i].mutable_grad() =
+        torch::randn(ps[i].sizes(), gen).to(ps[i].scalar_type()) * std::pow(10.0, -double(i) - s % 3);
   }
 }
 

@@ -11,9 +11,9 @@ namespace {
 
 ModelConfig hand_config() {
   ModelConfig m;
-  m.width = 4;        // E
+  m.width = 4;  // E
   m.heads = 2;
-  m.ff_ratio = 2;     // F = 8
+  m.ff_ratio = 2;  // F = 8
   m.coarse_layers = 1;
   m.fine_layers = 1;
   m.samples = 2;      // S = 2, L = 3 tokens

@@ -49,10 +49,10 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   test::TempDir t;
   const test::IntraOpThreads threads(2);
   write_forward_capture(t / "data", 32);
-  Config c = test::config_with(
-      test::tiny_config(), {"model.width=32", "model.samples=12", "model.le_count=4", "train.steps=300",
-                            "train.rays_per_step=128", "train.micro_batch=128", "train.lr_init=5e-3", "train.lr_final=5e-4",
-                            "train.lr_warmup_steps=20", "train.ckpt_every=0"});
+  Config c = test::config_with(test::tiny_config(),
+                               {"model.width=32", "model.samples=12", "model.le_count=4", "train.steps=300",
+                                "train.rays_per_step=128", "train.micro_batch=128", "train.lr_init=5e-3",
+                                "train.lr_final=5e-4", "train.lr_warmup_steps=20", "train.ckpt_every=0"});
   ASSERT_EQ(train(c, test::quiet_run(t / "run", t / "data")), TrainResult::Finished);
   const RunFolder run = RunFolder::open(t / "run");
   const SceneFrame scene = run.scene();
@@ -73,7 +73,8 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   const auto c2w = torch::cat({ds.split("train").c2w, ds.split("test").c2w});
   const auto path = forward_facing_path(PathKind::Spiral, 12, c2w);
   const auto eyes = path.select(2, 3);
-  EXPECT_LE(eyes.select(1, 0).abs().max().item<double>(), c2w.select(2, 3).select(1, 0).abs().max().item<double>() + 1e-5);
+  EXPECT_LE(eyes.select(1, 0).abs().max().item<double>(),
+            c2w.select(2, 3).select(1, 0).abs().max().item<double>() + 1e-5);
   EXPECT_GT(eyes.select(1, 2).min().item<double>(), -1.0);  // never past the NDC near plane
   // Each path camera looks at (0, 0, -kForwardFocusDepth): its -z axis points there.
   for (int64_t i = 0; i < 12; ++i) {

@@ -69,8 +69,8 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
       for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
       const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
       EXPECT_NEAR(s.loss.item<double>(), ref_loss, 1e-12) << micro;
-      expect_gradients_equal(model, ref,
-                             "micro-batch " + std::to_string(micro) + ", split " + std::to_string(mode == CpuSplit::Rays));
+      expect_gradients_equal(
+          model, ref, "micro-batch " + std::to_string(micro) + ", split " + std::to_string(mode == CpuSplit::Rays));
     }
   }
   if (blas_thread_control_available()) {

@@ -17,8 +17,9 @@ using namespace ablenerf;
 namespace {
 
 Config tiny_grid_config() {
-  return test::config_with(test::tiny_config(), {"model.embedding=grid", "model.grid_levels=4", "model.grid_log2_table=8",
-                                                 "model.grid_base_resolution=2", "model.grid_max_resolution=32"});
+  return test::config_with(test::tiny_config(),
+                           {"model.embedding=grid", "model.grid_levels=4", "model.grid_log2_table=8",
+                            "model.grid_base_resolution=2", "model.grid_max_resolution=32"});
 }
 
 TrainOptions grid_run_options(const std::string& out) { return test::quiet_run(out); }

@@ -20,10 +20,11 @@ namespace {
 
 // Trains on `data`, then scores the run on the test views of `eval_data`.
 double trained_psnr(const std::string& data, const std::string& run, const std::string& eval_data) {
-  const Config c = test::config_with(
-      test::tiny_config(), {"model.width=32", "model.samples=12", "model.le_count=4", "train.steps=300",
-                            "train.rays_per_step=128", "train.micro_batch=128", "train.lr_init=5e-3", "train.lr_final=5e-4",
-                            "train.lr_warmup_steps=20", "train.ckpt_every=0", "data.scene=bounded"});
+  const Config c =
+      test::config_with(test::tiny_config(), {"model.width=32", "model.samples=12", "model.le_count=4",
+                                              "train.steps=300", "train.rays_per_step=128", "train.micro_batch=128",
+                                              "train.lr_init=5e-3", "train.lr_final=5e-4", "train.lr_warmup_steps=20",
+                                              "train.ckpt_every=0", "data.scene=bounded"});
   EXPECT_EQ(train(c, test::quiet_run(run, data)), TrainResult::Finished);
   return test::held_out_psnr(run, eval_data);
 }

@@ -20,8 +20,9 @@ namespace ablenerf::test {
 // with it) and a 12-step schedule of 32-ray steps (seconds on 2 cores).
 inline Config tiny_config() {
   Config c = tiny_model_config();
-  for (const char* kv : {"model.ipe_degrees=16", "train.steps=12", "train.rays_per_step=32", "train.micro_batch=16", "train.lr_warmup_steps=2",
-                         "train.lr_decay_steps=0", "train.log_every=2", "train.eval_every=0", "train.ckpt_every=5"})
+  for (const char* kv : {"model.ipe_degrees=16", "train.steps=12", "train.rays_per_step=32", "train.micro_batch=16",
+                         "train.lr_warmup_steps=2", "train.lr_decay_steps=0", "train.log_every=2", "train.eval_every=0",
+                         "train.ckpt_every=5"})
     c.set(kv);
   c.validate();
   return c;
@@ -80,7 +81,8 @@ inline TrainOptions quiet_run(const std::string& out, const std::string& data = 
 // Trains `c` to the end in DIR/straight, and in DIR/pieces as two invocations: the first stops
 // after `first_piece` steps, then `between` runs, then a resume (data folder from run.json)
 // finishes the run. `options(out)` gives the options of a run folder. The caller compares the two.
-inline void train_straight_and_in_pieces(const Config& c, const std::function<TrainOptions(const std::string&)>& options,
+inline void train_straight_and_in_pieces(const Config& c,
+                                         const std::function<TrainOptions(const std::string&)>& options,
                                          const std::string& dir, int64_t first_piece,
                                          const std::function<void()>& between = {}) {
   ASSERT_EQ(train(c, options(dir + "/straight")), TrainResult::Finished);

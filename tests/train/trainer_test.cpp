@@ -28,8 +28,11 @@ void expect_same_weights(const std::string& run_a, const std::string& run_b, dou
   ASSERT_EQ(a.size(), b.size());
   for (const auto& kv : a) {
     auto ta = kv.value().toTensor(), tb = b.at(kv.key()).toTensor();
-    if (tol == 0) EXPECT_TRUE(torch::equal(ta, tb)) << kv.key().toStringRef();
-    else EXPECT_TRUE(torch::allclose(ta, tb, 0, tol)) << kv.key().toStringRef() << " max diff " << (ta - tb).abs().max().item<double>();
+    if (tol == 0)
+      EXPECT_TRUE(torch::equal(ta, tb)) << kv.key().toStringRef();
+    else
+      EXPECT_TRUE(torch::allclose(ta, tb, 0, tol))
+          << kv.key().toStringRef() << " max diff " << (ta - tb).abs().max().item<double>();
   }
 }
 

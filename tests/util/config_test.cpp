@@ -84,7 +84,10 @@ TEST(Config, NameTablesAreOneToOne) {
 TEST(Config, AnUnknownNameListsTheAllowedOnes) {
   EXPECT_EQ(input_error([] { Config::parse("[data]\nbackground = \"grey\"\n", "a.toml"); }),
             "a.toml: data.background: must be \"white\" or \"black\"");
-  EXPECT_EQ(input_error([] { Config c; c.set("model.view_encoding=octaves"); }),
+  EXPECT_EQ(input_error([] {
+              Config c;
+              c.set("model.view_encoding=octaves");
+            }),
             "--set: model.view_encoding: must be \"release\" or \"paper\"");
   EXPECT_EQ(input_error([] { Config::parse("[eval]\nssim = 3\n", "b.toml"); }),
             "b.toml: eval.ssim: must be \"standard\" or \"release\"");
@@ -96,8 +99,16 @@ TEST(Config, BadInputNamesFileAndKey) {
   EXPECT_EQ(input_error([] { Config::parse("[model]\nwidht = 4\n", "c.toml"); }).rfind("c.toml: model.widht", 0), 0u);
   EXPECT_EQ(input_error([] { Config::parse("[model]\nwidth = 5000000000\n", "c.toml"); }),
             "c.toml: model.width: out of range");
-  EXPECT_EQ(input_error([] { Config c; c.set("train.steps"); }).rfind("--set: train.steps", 0), 0u);
-  EXPECT_EQ(input_error([] { Config c; c.set("train.stepz=3"); }), "--set: train.stepz: unknown key");
+  EXPECT_EQ(input_error([] {
+              Config c;
+              c.set("train.steps");
+            }).rfind("--set: train.steps", 0),
+            0u);
+  EXPECT_EQ(input_error([] {
+              Config c;
+              c.set("train.stepz=3");
+            }),
+            "--set: train.stepz: unknown key");
   EXPECT_EQ(input_error([] { Config::parse("[train]\nlr_init = nan\n", "d.toml"); }),
             "d.toml: train.lr_init: must be finite");
   EXPECT_EQ(input_error([] { Config::parse("[train]\nadam_beta2 = 1.0\n", "e.toml").validate(); }),

@@ -2,7 +2,6 @@
 // leftovers, failures that keep the earlier file and name the file and the fix.
 #include <gtest/gtest.h>
 
-
 #include <cerrno>
 #include <cstring>
 #include <filesystem>

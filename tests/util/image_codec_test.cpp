@@ -194,8 +194,8 @@ TEST(JpegExif, MalformedExifReportsOneAndStillDecodes) {
   bad_order[6] = 'X';
   std::string bad_value = exif_payload(false, 9);  // not 1..8
   std::string too_many = exif_payload(true, 6);
-  too_many.resize(6 + 8 + 2 + 12);                 // Orientation's entry is cut off ...
-  too_many[6 + 8] = '\x50';                        // ... and 80 entries are claimed
+  too_many.resize(6 + 8 + 2 + 12);  // Orientation's entry is cut off ...
+  too_many[6 + 8] = '\x50';         // ... and 80 entries are claimed
   for (const std::string& app1 : {past_end, bad_order, bad_value, too_many, std::string("Exif\0\0MM", 8)}) {
     JpegOptions o;
     o.app1 = app1;
@@ -410,8 +410,7 @@ TEST(ImageCodec, FourThreadsDecodeTheSameAsOne) {
   encode_png_file(dir / "d.png", kW, kH, 3, rgb.data());
   const std::string cut = encode_jpeg(rgb, kW, kH, o420);
   write_bytes(dir / "e.jpg", cut.substr(0, cut.size() / 2));
-  const std::vector<std::string> files = {dir / "a.jpg", dir / "b.jpg", dir / "c.jpg", dir / "d.png",
-                                          dir / "e.jpg"};
+  const std::vector<std::string> files = {dir / "a.jpg", dir / "b.jpg", dir / "c.jpg", dir / "d.png", dir / "e.jpg"};
 
   // One thread's results: pixels and orientation, or the error message.
   using Results = std::vector<std::pair<std::vector<uint8_t>, std::string>>;

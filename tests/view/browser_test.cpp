@@ -28,10 +28,13 @@ bool have_chromium() { return program_available("chromium"); }
 // without waiting; network fetches (the renders) still complete.
 // A fresh profile per call (next to `out`): nothing carried over between runs or tests.
 int chromium(const std::string& args, const std::string& url, const std::string& out) {
-  const std::string cmd = "timeout 120 chromium --headless=new --no-sandbox --disable-gpu --no-first-run "
-                          "--disable-dev-shm-usage --user-data-dir='" + out + ".profile' --window-size=420,360 "
-                          "--virtual-time-budget=15000 " +
-                          args + " '" + url + "' > '" + out + "' 2> '" + out + ".log'";
+  const std::string cmd =
+      "timeout 120 chromium --headless=new --no-sandbox --disable-gpu --no-first-run "
+      "--disable-dev-shm-usage --user-data-dir='" +
+      out +
+      ".profile' --window-size=420,360 "
+      "--virtual-time-budget=15000 " +
+      args + " '" + url + "' > '" + out + "' 2> '" + out + ".log'";
   return std::system(cmd.c_str());
 }
 
@@ -93,7 +96,8 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   EXPECT_EQ(half.drawn, "8x8 16x16 32x32");
   // A finished run: the training bar stays hidden (it was once shown by a CSS display that
   // overrode the hidden attribute).
-  EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"), std::string::npos);
+  EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"),
+            std::string::npos);
   // The drag moved the camera, and a view was drawn (the first camera's quarter-size answer may be
   // dropped as stale once the drag asked for the moved view).
   EXPECT_FALSE(dragged.pose.empty());
