@@ -43,7 +43,9 @@ constexpr double kSpiralAmplitudeRad = 0.2617993877991494;
 // Full elevation oscillations of the spiral over one turn of azimuth.
 constexpr int kSpiralCycles = 2;
 
-// A camera at `eye` looking at `target` with the world `up` direction (float (3,4)).
+// A camera at `eye` looking at `target` with the world `up` direction (float (3,4)): the one
+// look-at of the tensor code (render paths, the viewer, `bench`'s views). The demo scene's ray
+// tracer keeps its own on its plain vectors (synth/camera.h), as synth stands apart from LibTorch.
 // Throws std::invalid_argument when eye == target or the view direction is parallel to `up`.
 torch::Tensor look_at(const torch::Tensor& eye, const torch::Tensor& target, const torch::Tensor& up);
 

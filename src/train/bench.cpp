@@ -17,6 +17,7 @@
 #include <string>
 #include <stdexcept>
 
+#include "eval/camera_path.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
 #include "model/ipe.h"
@@ -171,16 +172,6 @@ Timing time_it(const torch::Device& d, int64_t warmup, int64_t reps, Fn&& fn) {
   return t;
 }
 
-// A camera-to-world pose (3,4) at `eye` looking at the origin, +y up (OpenGL axes).
-torch::Tensor look_at_origin(const torch::Tensor& eye) {
-  const auto f = torch::nn::functional::normalize(-eye, torch::nn::functional::NormalizeFuncOptions().dim(0));
-  auto up = torch::tensor({0.0f, 1.0f, 0.0f});
-  const auto r =
-      torch::nn::functional::normalize(torch::cross(f, up, 0), torch::nn::functional::NormalizeFuncOptions().dim(0));
-  const auto u = torch::cross(r, f, 0);
-  return torch::stack({r, u, -f, eye}, 1);  // columns: right, up, back (-forward), position
-}
-
 // Blender-like training views: cameras on a radius-4 shell looking at the origin.
 Split bench_split(int64_t side, uint64_t seed) {
   auto gen = at::detail::createCPUGenerator(seed);
@@ -190,7 +181,7 @@ Split bench_split(int64_t side, uint64_t seed) {
   for (int64_t i = 0; i < kBenchViews; ++i) {
     auto eye =
         torch::nn::functional::normalize(torch::randn({3}, gen), torch::nn::functional::NormalizeFuncOptions().dim(0));
-    poses.push_back(look_at_origin(eye * kCameraDistance));
+    poses.push_back(look_at(eye * kCameraDistance, torch::zeros({3}), torch::tensor({0.0f, 1.0f, 0.0f})));
   }
   s.c2w = torch::stack(poses);
   s.images = torch::rand({kBenchViews, side, side, kRgb}, gen);
