@@ -1,6 +1,6 @@
 #pragma once
 // Device helpers shared by the CUDA kernels of this folder: loads and stores that convert between
-// the storage type (float or bfloat16) and float arithmetic, a warp sum, and the deterministic
+// the storage type (float or bfloat16) and float arithmetic, a warp sum and maximum, and the deterministic
 // column sums that turn per-block partial results into parameter gradients. CUDA headers only.
 #include <cuda_bf16.h>
 #include <cuda_runtime.h>
@@ -22,6 +22,13 @@ __device__ __forceinline__ void store(__nv_bfloat16* p, int64_t i, float v) { p[
 __device__ __forceinline__ float warp_sum(float v) {
 #pragma unroll
   for (int offset = kWarp / 2; offset > 0; offset /= 2) v += __shfl_xor_sync(0xffffffffu, v, offset);
+  return v;
+}
+
+// The maximum of v over the 32 lanes of a warp, returned to every lane.
+__device__ __forceinline__ float warp_max(float v) {
+#pragma unroll
+  for (int offset = kWarp / 2; offset > 0; offset /= 2) v = fmaxf(v, __shfl_xor_sync(0xffffffffu, v, offset));
   return v;
 }
 

@@ -16,7 +16,8 @@
 #include <math_constants.h>
 #include <mma.h>
 
-#include "ray_attention_launch.h"
+#include "kernels/cuda_common.cuh"
+#include "kernels/ray_attention_launch.h"
 
 namespace ablenerf::kernels {
 
@@ -28,15 +29,8 @@ constexpr unsigned kFullMask = 0xffffffffu;
 // The last column row i may attend to.
 __device__ __forceinline__ int last_column(int i, int tokens, bool masked) { return masked && i > 0 ? i : tokens - 1; }
 
-__device__ __forceinline__ float warp_max(float x) {
-  for (int offset = 16; offset > 0; offset >>= 1) x = fmaxf(x, __shfl_xor_sync(kFullMask, x, offset));
-  return x;
-}
-
-__device__ __forceinline__ float warp_sum(float x) {
-  for (int offset = 16; offset > 0; offset >>= 1) x += __shfl_xor_sync(kFullMask, x, offset);
-  return x;
-}
+using cuda_detail::warp_max;
+using cuda_detail::warp_sum;
 
 // Asynchronous copy of N (4 or 16) bytes from global to shared memory (cp.async, sm_80+), or of N
 // zero bytes when !valid (src is then not read, but must still be a mapped address). Every thread
