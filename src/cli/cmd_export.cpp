@@ -31,7 +31,28 @@ struct ExportArgs {
   std::string mask = "alpha";
 };
 
-void run_export_weights(const ExportArgs& a);
+void run_export_weights(const ExportArgs& a) {
+  if (a.run.empty() == a.cfg.config_path.empty())
+    throw InputError("export", "--run", "give exactly one of --run RUN or --config FILE");
+  if (!a.run.empty() && !a.cfg.sets.empty())
+    throw InputError("export", "--set", "--set applies to --config only (a run's config is fixed)");
+  Config c;
+  if (!a.run.empty()) {
+    c = Config::load(a.run + "/config.toml");
+    c.validate();
+  } else {
+    c = resolve_config(a.cfg);
+  }
+  torch::manual_seed(static_cast<uint64_t>(a.seed));
+  AbleNerf model(c.model);
+  if (!a.run.empty()) load_weights(model, a.run + "/weights.pt");
+  save_weights(model, a.out);
+  nlohmann::json j;
+  j["out"] = a.out;
+  j["parameters"] = model->parameter_count();
+  j["source"] = a.run.empty() ? "init(seed=" + std::to_string(a.seed) + ")" : a.run;
+  std::cout << j.dump() << std::endl;
+}
 
 void run_geometry(const ExportArgs& a) {
   if (a.run.empty()) throw InputError("export", "--run", "--points and --mesh export a trained run: give --run RUN");
@@ -73,29 +94,6 @@ void run_export(const ExportArgs& a) {
   if (a.out.empty())
     throw InputError("export", "--out", "give --out FILE.pt (weights), --points FILE.ply or --mesh FILE");
   run_export_weights(a);
-}
-
-void run_export_weights(const ExportArgs& a) {
-  if (a.run.empty() == a.cfg.config_path.empty())
-    throw InputError("export", "--run", "give exactly one of --run RUN or --config FILE");
-  if (!a.run.empty() && !a.cfg.sets.empty())
-    throw InputError("export", "--set", "--set applies to --config only (a run's config is fixed)");
-  Config c;
-  if (!a.run.empty()) {
-    c = Config::load(a.run + "/config.toml");
-    c.validate();
-  } else {
-    c = resolve_config(a.cfg);
-  }
-  torch::manual_seed(static_cast<uint64_t>(a.seed));
-  AbleNerf model(c.model);
-  if (!a.run.empty()) load_weights(model, a.run + "/weights.pt");
-  save_weights(model, a.out);
-  nlohmann::json j;
-  j["out"] = a.out;
-  j["parameters"] = model->parameter_count();
-  j["source"] = a.run.empty() ? "init(seed=" + std::to_string(a.seed) + ")" : a.run;
-  std::cout << j.dump() << std::endl;
 }
 
 void setup(CLI::App& app) {

@@ -26,10 +26,18 @@ const std::vector<CaptureFormat>& capture_formats() {
   return formats;
 }
 
-std::string capture_format(const std::string& root) {
+namespace {
+// The first row of the registry whose detect claims `root`, or nullptr.
+const CaptureFormat* detected_format(const std::string& root) {
   for (const auto& f : capture_formats())
-    if (f.detect(root)) return f.name;
-  return "";
+    if (f.detect(root)) return &f;
+  return nullptr;
+}
+}  // namespace
+
+std::string capture_format(const std::string& root) {
+  const CaptureFormat* f = detected_format(root);
+  return f ? f->name : "";
 }
 
 std::vector<std::string> Capture::split_names() const {
@@ -41,10 +49,8 @@ std::vector<std::string> Capture::split_names() const {
 Capture read_capture(const std::string& root, const std::vector<std::string>& splits, int downscale) {
   if (!fs::is_directory(root)) throw InputError(root, "", "dataset folder not found");
   if (downscale < 1) throw InputError(root, "downscale", "must be >= 1");
-  const auto& formats = capture_formats();
-  const auto format =
-      std::find_if(formats.begin(), formats.end(), [&](const CaptureFormat& f) { return f.detect(root); });
-  if (format == formats.end())
+  const CaptureFormat* format = detected_format(root);
+  if (!format)
     throw InputError(root, "transforms_train.json",
                      "no capture found: expected transforms_{train,val,test}.json (Blender), transforms.json "
                      "(instant-ngp / nerfstudio), sparse/0/cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)");

@@ -16,6 +16,12 @@ bool CropBox::contains(const std::array<double, 3>& p) const {
   return true;
 }
 
+torch::Tensor CropBox::inside(const torch::Tensor& xyz) const {
+  const auto l = torch::tensor({lo[0], lo[1], lo[2]}, xyz.options());
+  const auto h = torch::tensor({hi[0], hi[1], hi[2]}, xyz.options());
+  return (xyz >= l).all(-1) & (xyz <= h).all(-1);
+}
+
 double CropBox::diagonal() const {
   double s = 0;
   for (size_t i = 0; i < 3; ++i) s += (hi[i] - lo[i]) * (hi[i] - lo[i]);
@@ -55,9 +61,7 @@ PointSet points_from_depth(const torch::Tensor& c2w, const Intrinsics& k, const 
   auto ok = (d > near) & (d < far) & torch::isfinite(d);
   if (keep.defined()) ok = ok & keep.reshape({-1});
   const auto xyz = rays.origins + rays.directions * d.unsqueeze(-1);
-  const auto lo = torch::tensor({crop.lo[0], crop.lo[1], crop.lo[2]}, torch::kFloat);
-  const auto hi = torch::tensor({crop.hi[0], crop.hi[1], crop.hi[2]}, torch::kFloat);
-  ok = ok & (xyz >= lo).all(-1) & (xyz <= hi).all(-1);
+  ok = ok & crop.inside(xyz);
   const auto idx = ok.nonzero().squeeze(-1);
   PointSet out;
   out.xyz = xyz.index_select(0, idx).contiguous();
@@ -65,12 +69,22 @@ PointSet points_from_depth(const torch::Tensor& c2w, const Intrinsics& k, const 
   return out;
 }
 
+namespace {
+// The scene frame's rotation R (row-major) as a (3,3) float64 tensor.
+torch::Tensor rotation_of(const SceneFrame& scene) {
+  return torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble)
+      .reshape({3, 3});
+}
+}  // namespace
+
 torch::Tensor points_to_capture(const torch::Tensor& xyz, const SceneFrame& scene) {
   // point_to_scene: p_s = scale * R (p - centre), so p = R^T p_s / scale + centre.
-  const auto r =
-      torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble).reshape({3, 3});
   const auto c = torch::tensor(std::vector<double>(scene.centre.begin(), scene.centre.end()), torch::kDouble);
-  return (torch::matmul(xyz.to(torch::kDouble), r) / scene.scale + c).to(xyz.scalar_type());
+  return (torch::matmul(xyz.to(torch::kDouble), rotation_of(scene)) / scene.scale + c).to(xyz.scalar_type());
+}
+
+torch::Tensor normals_to_capture(const torch::Tensor& normals, const SceneFrame& scene) {
+  return torch::matmul(normals.to(torch::kDouble), rotation_of(scene)).to(normals.scalar_type());
 }
 
 PointSet concat_points(const std::vector<PointSet>& sets) {

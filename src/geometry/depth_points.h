@@ -16,6 +16,8 @@ namespace ablenerf {
 struct CropBox {
   std::array<double, 3> lo{-1, -1, -1}, hi{1, 1, 1};
   bool contains(const std::array<double, 3>& p) const;
+  // Which rows of xyz (N,3) lie inside the box: (N) bool.
+  torch::Tensor inside(const torch::Tensor& xyz) const;
   double diagonal() const;
   // "xmin,ymin,zmin,xmax,ymax,zmax"; InputError naming `option` on anything else (or an empty box).
   static CropBox parse(const std::string& text, const std::string& option);
@@ -37,6 +39,10 @@ PointSet points_from_depth(const torch::Tensor& c2w, const Intrinsics& k, const 
 // Points (N,3) of the scene frame in the capture's own coordinates (SceneFrame::to_capture's
 // inverse of point_to_scene).
 torch::Tensor points_to_capture(const torch::Tensor& xyz, const SceneFrame& scene);
+
+// Unit normals (N,3) of the scene frame turned into the capture's coordinates (the frame's rotation
+// only: no scale or shift).
+torch::Tensor normals_to_capture(const torch::Tensor& normals, const SceneFrame& scene);
 
 // Concatenation of point sets (normals kept only when every set has them).
 PointSet concat_points(const std::vector<PointSet>& sets);

@@ -52,9 +52,7 @@ CropBox scene_box_of(const CropBox& out_box, const SceneFrame& scene, bool scene
 // Keeps the rows of `xyz` (and their colours/normals) inside `box`.
 PointSet crop_points(const PointSet& p, const CropBox& box) {
   if (p.size() == 0) return p;
-  const auto lo = torch::tensor({box.lo[0], box.lo[1], box.lo[2]}, p.xyz.options());
-  const auto hi = torch::tensor({box.hi[0], box.hi[1], box.hi[2]}, p.xyz.options());
-  const auto idx = ((p.xyz >= lo).all(-1) & (p.xyz <= hi).all(-1)).nonzero().squeeze(-1);
+  const auto idx = box.inside(p.xyz).nonzero().squeeze(-1);
   PointSet out{p.xyz.index_select(0, idx), p.rgb.index_select(0, idx), {}};
   if (p.normals.defined()) out.normals = p.normals.index_select(0, idx);
   return out;
@@ -176,11 +174,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   out["frame"] = opts.scene_frame ? "scene" : "capture";
   const auto to_output = [&](torch::Tensor xyz) { return opts.scene_frame ? xyz : points_to_capture(xyz, scene); };
   const auto to_output_normals = [&](const torch::Tensor& nrm) {
-    if (opts.scene_frame || !nrm.defined()) return nrm;
-    // Normals turn with the frame's rotation (R^T), without its scale or shift.
-    const auto r = torch::tensor(std::vector<double>(scene.rotation.begin(), scene.rotation.end()), torch::kDouble)
-                       .reshape({3, 3});
-    return torch::matmul(nrm.to(torch::kDouble), r).to(nrm.scalar_type());
+    return opts.scene_frame || !nrm.defined() ? nrm : normals_to_capture(nrm, scene);
   };
   PointSet all = concat_points(sets);
   const auto eye = eyes.empty() ? torch::zeros({0, 3}) : torch::cat(eyes);
@@ -220,10 +214,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     m.vertices = to_output(m.vertices);
     if (opts.crop) {
       // Triangles with a vertex outside the output frame's box go.
-      const auto lo = torch::tensor({opts.crop->lo[0], opts.crop->lo[1], opts.crop->lo[2]}, torch::kDouble);
-      const auto hi = torch::tensor({opts.crop->hi[0], opts.crop->hi[1], opts.crop->hi[2]}, torch::kDouble);
-      const auto inside = (m.vertices >= lo).all(-1) & (m.vertices <= hi).all(-1);
-      const auto keep = inside.index({m.triangles}).all(-1).nonzero().squeeze(-1);
+      const auto keep = opts.crop->inside(m.vertices).index({m.triangles}).all(-1).nonzero().squeeze(-1);
       m.triangles = m.triangles.index_select(0, keep);
     }
     if (m.triangle_count() == 0) throw InputError("export", "--crop", "the mesh is empty inside the crop box");

@@ -12,12 +12,17 @@
 #include <open3d/pipelines/integration/ScalableTSDFVolume.h>
 #include <open3d/utility/Logging.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 
 #include "util/errors.h"
+#include "util/fs.h"
 
 namespace fs = std::filesystem;
 
@@ -160,24 +165,23 @@ void trim_mesh(open3d::geometry::TriangleMesh& m, const CropBox& crop, double mi
   m.RemoveUnreferencedVertices();
 }
 
-// Writes through `write(tmp)` to a temporary name beside `path` (same extension: Open3D picks the
-// format by it), then renames it over `path`.
+// Writes through `write(tmp)` to the project's temporary name for `path` (util/fs.h's
+// atomic_temp_prefix, so a killed export leaves what `RunFolder::remove_stale_temporaries` knows)
+// with `path`'s extension (Open3D picks the format by it), then renames it over `path`. The folder
+// was checked by check_points_path / check_mesh_path.
 template <class Write>
 void write_atomic(const std::string& path, Write write) {
-  const fs::path p(path);
-  const fs::path tmp = p.parent_path() / ("." + p.stem().string() + ".partial" + p.extension().string());
-  if (!p.parent_path().empty() && !fs::is_directory(p.parent_path()))
-    throw EnvironmentError(path, "folder " + p.parent_path().string() + " does not exist", "create it first");
-  if (!write(tmp.string())) {
+  const std::string tmp = atomic_temp_prefix(path) + std::to_string(::getpid()) + fs::path(path).extension().string();
+  if (!write(tmp)) {
     std::error_code ec;
     fs::remove(tmp, ec);
     throw EnvironmentError(path, "could not be written", "check the folder's permissions and free space");
   }
-  std::error_code ec;
-  fs::rename(tmp, p, ec);
-  if (ec) {
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    std::error_code ec;
     fs::remove(tmp, ec);
-    throw EnvironmentError(path, "could not be written: " + ec.message(), "check the folder's permissions");
+    throw write_error(path, err);
   }
 }
 
@@ -230,14 +234,11 @@ PointSet clean_points(const PointSet& points, int64_t max_points, int neighbours
                       const torch::Tensor& towards) {
   quiet_open3d();
   if (points.size() == 0) return points;
-  auto pc = open3d_points(points);
   // Each point's camera rides along as its normal until normals are estimated (Open3D keeps a
   // point's normal with it through outlier removal and thinning).
-  if (towards.defined()) {
-    PointSet carrier = points;
-    carrier.normals = towards;
-    pc = open3d_points(carrier);
-  }
+  PointSet carrier = points;
+  if (towards.defined()) carrier.normals = towards;
+  const auto pc = open3d_points(carrier);
   std::shared_ptr<open3d::geometry::PointCloud> kept;
   if (points.size() > neighbours) {
     kept = std::get<0>(pc.RemoveStatisticalOutliers(static_cast<size_t>(neighbours), std_ratio));

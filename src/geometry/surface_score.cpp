@@ -12,13 +12,15 @@ namespace {
 // Rows of `points` per distance block: bounds the (block x N) distance matrix.
 constexpr int64_t kBlock = 256;
 
+// A sphere's centre as a (3) float64 tensor.
+torch::Tensor centre_of(const SphereTruth& s) {
+  return torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
+}
+
 // Distance from each row of p (N,3) to the surface of every sphere: (N, S).
 torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<SphereTruth>& spheres) {
   std::vector<torch::Tensor> cols;
-  for (const auto& s : spheres) {
-    const auto c = torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
-    cols.push_back(((p - c).norm(2, -1) - s.radius).abs());
-  }
+  for (const auto& s : spheres) cols.push_back(((p - centre_of(s)).norm(2, -1) - s.radius).abs());
   return torch::stack(cols, 1);
 }
 
@@ -88,10 +90,11 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
   const auto r = torch::sqrt(1 - z * z), phi = i * 2.399963229728653;                // the golden angle
   const auto unit = torch::stack({r * torch::cos(phi), r * torch::sin(phi), z}, 1);  // (P,3)
   const auto e = eyes.to(torch::kDouble);
+  std::vector<torch::Tensor> centres;
+  for (const auto& s : spheres) centres.push_back(centre_of(s));
   std::vector<torch::Tensor> kept, owner;
   for (size_t s = 0; s < spheres.size(); ++s) {
-    const auto c = torch::tensor({spheres[s].centre[0], spheres[s].centre[1], spheres[s].centre[2]}, torch::kDouble);
-    const auto p = c + unit * spheres[s].radius;  // (P,3)
+    const auto p = centres[s] + unit * spheres[s].radius;  // (P,3)
     auto seen = torch::zeros({per_sphere}, torch::kBool);
     for (int64_t m = 0; m < e.size(0); ++m) {
       const auto to_eye = e[m] - p;                // (P,3)
@@ -101,9 +104,7 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
       for (size_t o = 0; o < spheres.size(); ++o) {
         if (o == s) continue;
         // Does the segment p -> eye pass through sphere o?
-        const auto co =
-            torch::tensor({spheres[o].centre[0], spheres[o].centre[1], spheres[o].centre[2]}, torch::kDouble);
-        const auto oc = p - co;
+        const auto oc = p - centres[o];
         const auto b = (oc * d).sum(-1), cc = (oc * oc).sum(-1) - spheres[o].radius * spheres[o].radius;
         const auto disc = b * b - cc;
         const auto t = -b - torch::sqrt(disc.clamp_min(0));

@@ -269,8 +269,9 @@ TEST(Geometry, FilesAreWrittenWholeOrNotAtAll) {
   const auto size = std::filesystem::file_size(t / "m.ply");
   EXPECT_THROW(write_mesh(m, t / "m.stl2"), InputError);
   EXPECT_EQ(std::filesystem::file_size(t / "m.ply"), size);
+  // No temporary (util/fs.h's atomic_temp_prefix names) is left behind.
   for (const auto& e : std::filesystem::directory_iterator(t.path()))
-    EXPECT_EQ(e.path().filename().string().find(".partial"), std::string::npos) << e.path();
+    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
 }
 
 // Scoring against known spheres: their own dense samples score F = 1; the same moved off the surface
