@@ -44,27 +44,38 @@ torch::Tensor pose_tensor(const Pose34& pose) {
   return t;
 }
 
-// A frame's image decoded (PNG or JPEG) and turned upright when its EXIF orientation explains a
-// size mismatch: pose tools (COLMAP, nerfstudio, instant-ngp) see the stored pixels, so the
-// rotation is applied only when the capture's size says the poses were made on the upright image.
-// Torch-free, so several frames decode at once without touching LibTorch's thread settings.
-DecodedImage decode_frame(const CaptureFrame& fr, int64_t want_h, int64_t want_w) {
-  DecodedImage decoded = decode_image_file(fr.image);
-  const Image8& im8 = decoded.image;
-  if (!(im8.height == want_h && im8.width == want_w) && decoded.exif_orientation >= 5 && im8.height == want_w &&
-      im8.width == want_h)
-    apply_exif_orientation(decoded.image, decoded.exif_orientation);
-  return decoded;
+// The reduction libjpeg makes while decoding (1/2, 1/4 or 1/8, the largest that divides the
+// downscale `f`): a JPEG loaded at 1/f never exists at full size. The rest of `f` is a box filter.
+int jpeg_reduction(int f) {
+  for (int d : {8, 4, 2})
+    if (f % d == 0) return d;
+  return 1;
+}
+
+// A frame's image decoded (PNG or JPEG; a JPEG reduced `reduce` times inside libjpeg) and turned
+// upright when its EXIF orientation explains a size mismatch: pose tools (COLMAP, nerfstudio,
+// instant-ngp) see the stored pixels, so the rotation is applied only when the capture's size says
+// the poses were made on the upright image. Torch-free, so several frames decode at once without
+// touching LibTorch's thread settings.
+DecodedImage decode_frame(const CaptureFrame& fr, int64_t want_h, int64_t want_w, int reduce) {
+  DecodedImage d = decode_image_file(fr.image, reduce);
+  if (!(d.stored_height == want_h && d.stored_width == want_w) && d.exif_orientation >= 5 &&
+      d.stored_height == want_w && d.stored_width == want_h) {
+    apply_exif_orientation(d.image, d.exif_orientation);
+    std::swap(d.stored_height, d.stored_width);
+  }
+  return d;
 }
 
 // One frame's decoded image as (h, w, 4) float straight RGBA at the loaded size (h, w):
-// box-downscaled, or cropped from the pre-downscaled copy.
-torch::Tensor frame_rgba(const CaptureFrame& fr, const Image8& image, int64_t want_h, int64_t want_w, int f, int64_t h,
-                         int64_t w) {
-  torch::Tensor raw = image_tensor(image);
+// box-downscaled (after libjpeg's reduction, when it made one), or cropped from the
+// pre-downscaled copy.
+torch::Tensor frame_rgba(const CaptureFrame& fr, const DecodedImage& decoded, int64_t want_h, int64_t want_w, int f,
+                         int64_t h, int64_t w) {
+  torch::Tensor raw = image_tensor(decoded.image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
     return InputError(fr.image, fr.field,
-                      "image is " + std::to_string(raw.size(1)) + "x" + std::to_string(raw.size(0)) +
+                      "image is " + std::to_string(decoded.stored_width) + "x" + std::to_string(decoded.stored_height) +
                           " but the capture's images are " + std::to_string(want_w) + "x" + std::to_string(want_h) +
                           (fr.prescaled ? " (pre-downscaled copy)" : ""));
   };
@@ -72,13 +83,16 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const Image8& image, int64_t wa
     // images_N/ copies are W/N rounded or floored: one extra row or column is cropped.
     if (raw.size(0) < h || raw.size(1) < w || raw.size(0) > h + 1 || raw.size(1) > w + 1) throw size_error(h, w);
     raw = raw.slice(0, 0, h).slice(1, 0, w);
-  } else if (raw.size(0) != want_h || raw.size(1) != want_w) {
+  } else if (decoded.stored_height != want_h || decoded.stored_width != want_w) {
     throw size_error(want_h, want_w);
   }
   torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);
   if (im.size(2) == 1) im = im.expand({-1, -1, 3});
   if (im.size(2) == 3) im = torch::cat({im, torch::ones_like(im.slice(2, 0, 1))}, 2);
-  if (!fr.prescaled) im = box_downscale(im, f);  // straight RGBA, before compositing (docs/MODEL.md, section 1)
+  // Straight RGBA, before compositing (docs/MODEL.md, section 1). A reduced decode is
+  // ceil(size / reduced): its last row or column, from a partial block, is cropped like the
+  // remainder of a box filter.
+  if (!fr.prescaled) im = box_downscale(im, f / decoded.reduced).slice(0, 0, h).slice(1, 0, w);
   return im;
 }
 
@@ -92,6 +106,7 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
   const int64_t n = static_cast<int64_t>(spec.frames.size());
   const int f = opts.downscale;
   const int64_t h = expect_h / f, w = expect_w / f;
+  const int reduce = opts.jpeg_reduce ? jpeg_reduction(f) : 1;
   s.images = torch::empty({n, h, w, 3}, torch::kFloat);
   s.alpha = torch::empty({n, h, w}, torch::kFloat);
   std::vector<torch::Tensor> depths(static_cast<size_t>(n));
@@ -104,7 +119,7 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
       const auto& fr = spec.frames[static_cast<size_t>(i)];
       try {
         decoded[static_cast<size_t>(i - start)] =
-            decode_frame(fr, fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w);
+            decode_frame(fr, fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w, fr.prescaled ? 1 : reduce);
       } catch (...) {
         errors[static_cast<size_t>(i - start)] = std::current_exception();
       }
@@ -117,8 +132,8 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
       const auto& e = errors[static_cast<size_t>(i - start)];
       if (e) std::rethrow_exception(e);
       const auto& fr = spec.frames[static_cast<size_t>(i)];
-      const torch::Tensor im = frame_rgba(fr, decoded[static_cast<size_t>(i - start)].image,
-                                          fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w, f, h, w);
+      const torch::Tensor im = frame_rgba(fr, decoded[static_cast<size_t>(i - start)], fr.prescaled ? h : expect_h,
+                                          fr.prescaled ? w : expect_w, f, h, w);
       auto rgb = im.slice(2, 0, 3), a = im.slice(2, 3, 4);
       const float bg = opts.white_background ? 1.0f : 0.0f;
       s.images[i].copy_(rgb * a + bg * (1.0f - a));
@@ -231,7 +246,8 @@ Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& op
 torch::Tensor frame_photo_rgba(const CaptureFrame& frame, int full_h, int full_w, int downscale) {
   const int64_t h = full_h / downscale, w = full_w / downscale;
   const int64_t want_h = frame.prescaled ? h : full_h, want_w = frame.prescaled ? w : full_w;
-  return frame_rgba(frame, decode_frame(frame, want_h, want_w).image, want_h, want_w, downscale, h, w);
+  const int reduce = frame.prescaled ? 1 : jpeg_reduction(downscale);  // as Dataset::load's default
+  return frame_rgba(frame, decode_frame(frame, want_h, want_w, reduce), want_h, want_w, downscale, h, w);
 }
 
 CameraList capture_cameras(const std::string& root, const SceneFrame& scene, int downscale) {

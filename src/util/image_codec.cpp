@@ -30,12 +30,24 @@ ImageFormat sniff_image_format(const std::string& path) {
 
 }  // namespace
 
-DecodedImage decode_image_file(const std::string& path) {
+DecodedImage decode_image_file(const std::string& path, int reduce) {
   DecodedImage out;
   if (sniff_image_format(path) == ImageFormat::kPng) {
     out.image = decode_png_file(path);
+    out.stored_height = out.image.height;
+    out.stored_width = out.image.width;
+    return out;
+  }
+  if (reduce > 1) {
+    const auto [h, w] = jpeg_size(path);
+    out.stored_height = h;
+    out.stored_width = w;
+    out.reduced = reduce;
+    out.image = decode_jpeg_file(path, &out.exif_orientation, reduce);
   } else {
     out.image = decode_jpeg_file(path, &out.exif_orientation);
+    out.stored_height = out.image.height;
+    out.stored_width = out.image.width;
   }
   return out;
 }

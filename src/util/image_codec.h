@@ -19,12 +19,18 @@ struct DecodedImage {
   Image8 image;              // 8-bit, channels 1 (grey), 3 or 4, the stored (raw, unrotated) pixel grid
   int exif_orientation = 1;  // JPEG EXIF orientation 1..8 (1 for PNG, and when absent or malformed);
                              // apply_exif_orientation (jpeg_codec.h) turns the image upright
+  int reduced = 1;           // `image` is the stored image reduced this many times (JPEG only)
+  int stored_height = 0;     // the stored pixel grid's size, before any reduction
+  int stored_width = 0;
 };
 
 // Decodes a PNG (signature 89 50 4E 47 0D 0A 1A 0A) or a JPEG (FF D8 FF). Anything else is
 // InputError(path, "", "not a PNG or JPEG image"); a missing file or a folder InputError(path, "",
 // "cannot read: ...").
-DecodedImage decode_image_file(const std::string& path);
+// `reduce` asks for an image `reduce` times smaller when the codec can make one for less work than
+// the full decode (JPEG: 2, 4 or 8, inside libjpeg; see decode_jpeg_file); PNG ignores it. Which
+// reduction was applied comes back in `reduced`.
+DecodedImage decode_image_file(const std::string& path, int reduce = 1);
 
 // {height, width} of the stored (raw, unrotated) pixels, from the header only. Same errors.
 std::pair<int, int> image_size(const std::string& path);

@@ -181,7 +181,9 @@ std::pair<int, int> jpeg_size(const std::string& path) {
   return {static_cast<int>(s.cinfo.image_height), static_cast<int>(s.cinfo.image_width)};
 }
 
-Image8 decode_jpeg_file(const std::string& path, int* exif_orientation) {
+Image8 decode_jpeg_file(const std::string& path, int* exif_orientation, int reduce) {
+  if (reduce != 1 && reduce != 2 && reduce != 4 && reduce != 8)
+    throw std::invalid_argument("decode_jpeg_file: reduce must be 1, 2, 4 or 8");
   JpegSession s(path);
   read_jpeg_header(s, exif_orientation != nullptr);
   jpeg_decompress_struct& c = s.cinfo;
@@ -189,6 +191,8 @@ Image8 decode_jpeg_file(const std::string& path, int* exif_orientation) {
   // libjpeg converts YCbCr (and RGB) to RGB with upsampled chroma ("fancy" triangle upsampling and
   // the accurate integer IDCT, its defaults).
   c.out_color_space = c.jpeg_color_space == JCS_GRAYSCALE ? JCS_GRAYSCALE : JCS_RGB;
+  c.scale_num = 1;
+  c.scale_denom = static_cast<unsigned int>(reduce);
   jpeg_guarded(s, [&] { jpeg_start_decompress(&c); });
 
   Image8 out;

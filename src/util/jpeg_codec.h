@@ -27,7 +27,13 @@ namespace ablenerf {
 //   field "": unreadable file, not a JPEG, libjpeg error ("not a readable JPEG: ..."), libjpeg
 //   warning ("truncated or corrupt JPEG: ..."), more than kMaxImagePixels pixels (refused before
 //   any pixel memory is allocated).
-Image8 decode_jpeg_file(const std::string& path, int* exif_orientation = nullptr);
+//
+// `reduce` (1, 2, 4 or 8) decodes at 1/reduce of the stored size inside libjpeg (its scaled
+// inverse DCT: 1/8 keeps each 8x8 block's DC term, its mean; 1/2 and 1/4 keep the lowest 4x4 and
+// 2x2 coefficients), which skips most of the IDCT and colour-conversion work and never builds the
+// full-size image. The result is ceil(width / reduce) x ceil(height / reduce). Any other value is
+// std::invalid_argument. The pixel limit applies to the stored size.
+Image8 decode_jpeg_file(const std::string& path, int* exif_orientation = nullptr, int reduce = 1);
 
 // {height, width} of the stored (raw, unrotated) pixels, from the header only (jpeg_read_header:
 // the entropy-coded data is not read). Refuses what the header alone shows decode_jpeg_file would

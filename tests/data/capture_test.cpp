@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -396,6 +397,64 @@ TEST(Captures, JpegExifOrientationIsAppliedWhenTheCaptureSizeIsTheUprightOne) {
   // (frame 1 is the first decoded: the train split comes first, frame 0 is held out for test).
   test::expect_input_error([&] { Dataset::load(t.path()); }, fs::canonical(t / "images/p1.jpg").string(),
                            "frames[1].file_path", "12x8", true);
+}
+
+// JPEGs loaded at 1/f are decoded reduced inside libjpeg (LoadOptions::jpeg_reduce, on by
+// default); the reference is the full decode box-filtered (jpeg_reduce off). A 4:2:0 photo-like
+// image (ramps, a soft blob, a fine stripe of 10 px period) whose sides (131 x 93) are not multiples
+// of 8, so the last partial block is cropped: a reduced decode off by one pixel in place or size
+// would differ by tens of levels at the ramps' and stripes' edges, far above the bounds.
+TEST(Captures, JpegLoadedReducedMatchesTheBoxFilterOfTheFullDecode) {
+  test::TempDir t;
+  const int sw = 131, sh = 93;
+  std::vector<uint8_t> px(static_cast<size_t>(sw * sh * 3));
+  for (int y = 0; y < sh; ++y)
+    for (int x = 0; x < sw; ++x) {
+      const double blob = std::exp(-((x - 60.0) * (x - 60.0) + (y - 40.0) * (y - 40.0)) / 300.0);
+      const double stripe = 0.5 + 0.5 * std::sin(2 * M_PI * x / 10.0);
+      const double v[3] = {20 + 1.2 * x + 60 * blob, 200 - 1.5 * y + 30 * stripe, 60 + 150 * blob};
+      for (int ch = 0; ch < 3; ++ch)
+        px[static_cast<size_t>((y * sw + x) * 3 + ch)] = static_cast<uint8_t>(std::clamp(v[ch], 0.0, 255.0));
+    }
+  test::JpegOptions jo;
+  jo.luma_h = 2, jo.luma_v = 2;
+  fs::create_directories(t / "images");
+  for (int i = 0; i < 3; ++i)
+    test::write_file(t / ("images/p" + std::to_string(i) + ".jpg"), test::encode_jpeg(px, sw, sh, jo));
+  test::write_file(
+      t / "transforms.json",
+      "{\"fl_x\": 100, \"w\": 131, \"h\": 93, \"frames\": ["
+      "{\"file_path\": \"images/p0.jpg\", \"transform_matrix\": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+      "{\"file_path\": \"images/p1.jpg\", \"transform_matrix\": [[1,0,0,1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+      "{\"file_path\": \"images/p2.jpg\", \"transform_matrix\": [[1,0,0,0],[0,1,0,1],[0,0,1,0],[0,0,0,1]]}]}");
+  // Bounds in levels of 255. Measured with libjpeg-turbo 2.1, largest / mean difference: 1/2
+  // 3.0 / 0.88, 1/4 2.9 / 0.77, 1/8 2.3 / 0.53, 1/16 (1/8 in libjpeg, then a 2x2 box) 1.1 / 0.39;
+  // the same load with every image shifted by one pixel differs by 16 to 67 / 2.2 to 14. The
+  // reduced IDCT keeps the lowest coefficients of each 8x8 block (4x4 for 1/2, 2x2 for 1/4, the DC,
+  // the block's mean, for 1/8) where the box filter averages pixels, and it works on the 4:2:0
+  // chroma before upsampling: a few levels apart at the stripe and the blob's edges.
+  struct Case {
+    int f;
+    double max_err, max_mean;
+  };
+  for (const Case& k : {Case{2, 5, 1.2}, Case{4, 5, 1.0}, Case{8, 4, 0.75}, Case{16, 3, 0.6}}) {
+    SCOPED_TRACE("downscale " + std::to_string(k.f));
+    LoadOptions fast, full;
+    fast.downscale = full.downscale = k.f;
+    full.jpeg_reduce = false;
+    const auto a = Dataset::load(t.path(), fast).split("train").images;
+    const auto b = Dataset::load(t.path(), full).split("train").images;
+    ASSERT_EQ(a.sizes(), b.sizes());
+    EXPECT_EQ(a.size(1), sh / k.f);
+    EXPECT_EQ(a.size(2), sw / k.f);
+    const auto d = (a - b).abs() * 255;
+    EXPECT_LE(d.max().item<double>(), k.max_err);
+    EXPECT_LE(d.mean().item<double>(), k.max_mean);
+    // The viewer's one-frame read is the loader's image (train's first frame is p1).
+    const Capture js = read_capture(t.path(), {}, k.f);
+    const auto rgba = frame_photo_rgba(js.splits.front().frames.front(), js.height, js.width, k.f);
+    EXPECT_TRUE(torch::equal(rgba.slice(2, 0, 3), a[0]));
+  }
 }
 
 // The real captures of docs/CAPTURES.md, when they sit beside the checkout: each loads, in its
