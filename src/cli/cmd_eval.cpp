@@ -57,6 +57,8 @@ void setup(CLI::App& app) {
     };
     std::cout << "eval " << a->split << ": " << m["images"].size() << " views  PSNR " << show(mean["psnr"]) << "  SSIM "
               << show(mean["ssim"]) << "  LPIPS " << show(mean["lpips"]);
+    if (mean.contains("psnr_unmasked"))
+      std::cout << "  unmasked PSNR " << show(mean["psnr_unmasked"]) << "  SSIM " << show(mean["ssim_unmasked"]);
     if (mean.contains("depth_mae")) std::cout << "  depth MAE " << show(mean["depth_mae"]);
     std::cout << "\nwrote " << eval_dir(run, a->split) << "/metrics.json and " << run.report_path() << std::endl;
   });

@@ -41,6 +41,8 @@ nlohmann::json dataset_summary(const Dataset& ds) {
     sj["camera_distance_max"] = radius.max().item<double>();
     sj["mean_alpha"] = s.alpha.mean().item<double>();
     sj["has_depth"] = s.depth.defined();
+    // The share of pixels that train (data.masks); 1 without masks.
+    sj["unmasked_share"] = s.mask.defined() ? s.mask.to(torch::kFloat).mean().item<double>() : 1.0;
     splits[name] = sj;
   }
   j["splits"] = splits;

@@ -108,6 +108,23 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
   return "";
 }
 
+std::string mask_in_folder(const std::string& root, const std::string& image, const std::string& field) {
+  std::error_code ec;
+  const fs::path canon_root = fs::weakly_canonical(fs::path(root), ec);
+  const fs::path masks = canon_root / "masks";
+  if (!fs::is_directory(masks)) return "";
+  const fs::path rel = fs::path(image).lexically_relative(canon_root / "images");
+  if (rel.empty() || *rel.begin() == "..") return "";
+  const fs::path dir = masks / rel.parent_path();
+  for (const char* ext : {".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".Png", ".Jpg"}) {
+    const fs::path cand = dir / (rel.stem().string() + ext);
+    if (fs::is_regular_file(cand)) return fs::weakly_canonical(cand, ec).string();
+  }
+  throw InputError(
+      masks.string(), field,
+      "no mask for images/" + rel.string() + " (masks/" + (rel.parent_path() / rel.stem()).string() + ".png or .jpg)");
+}
+
 void split_every_eighth(std::vector<CaptureFrame> all, const std::vector<std::string>& splits, const std::string& file,
                         FrameOrder order, Capture& out) {
   if (order == FrameOrder::ByImageName)

@@ -31,6 +31,14 @@ struct CaptureFrame {
   std::string depth;       // canonical path of its depth tensor ("" when the frame has none)
   std::string field;       // the field that names the image, e.g. "frames[3].file_path", for errors
   Pose34 pose{};
+  // Canonical path of the frame's mask image ("" when none), at the capture's full size: which
+  // pixels may train (Dataset::load, data.masks). Its first channel, thresholded at 128, says
+  // "set"; with `mask_keeps_set` the set pixels train and the others are never drawn (nerfstudio's
+  // mask_path, a masks/ folder: white keeps), without it the set pixels are the ones left out
+  // (instant-ngp's dynamic_mask_*.png: anything non-black is a moving object).
+  std::string mask;
+  bool mask_keeps_set = true;
+  std::string mask_field;  // the field or folder that named the mask, for errors
 };
 
 struct CaptureSplit {
@@ -94,6 +102,13 @@ std::string resolve_in_root(const std::string& root, const std::string& rel, con
 // ROOT/images/a/b.jpg, ROOT/images_N/a/b.jpg, or the same stem with another image extension
 // (.png, .jpg, .jpeg, .JPG, .PNG; LLFF writes PNGs there). "" when there is none or downscale is 1.
 std::string resolve_downscaled(const std::string& root, const std::string& image, int downscale);
+
+// The mask of `image` (canonical, full-size, inside `root`, under ROOT/images/) in the capture's
+// masks/ folder, the COLMAP / LLFF layout (also what nerfstudio's processing writes): for
+// ROOT/images/a/b.jpg, ROOT/masks/a/b with any image extension (.png, .jpg, .jpeg, any case).
+// "" when the capture has no masks/ folder; with one, an image without its mask is
+// InputError(ROOT/masks, field, "no mask for ...").
+std::string mask_in_folder(const std::string& root, const std::string& image, const std::string& field);
 
 // The order split_every_eighth counts frames in: the file's (instant-ngp) or by image path (COLMAP,
 // LLFF: the LLFF / mip-NeRF 360 convention).

@@ -110,6 +110,8 @@ void read_colmap_capture(const std::string& root, const std::vector<std::string>
       c2w[r][3] = -(R[0][r] * im.tvec[0] + R[1][r] * im.tvec[1] + R[2][r] * im.tvec[2]);
     }
     f.pose = checked_pose(c2w, img_file, where);
+    f.mask = mask_in_folder(root, f.image, where);
+    f.mask_field = "masks/";
     const std::string small = resolve_downscaled(root, f.image, downscale);
     if (!small.empty()) f.image = small, f.prescaled = true;
     frames.push_back(std::move(f));

@@ -96,6 +96,21 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const DecodedImage& decoded, in
   return im;
 }
 
+// A frame's mask at the loaded size (h, w) as bool "this pixel trains" (Split::mask): the first
+// channel / 255 averaged over each pixel's box (after libjpeg's reduction when it made one), kept
+// at >= 0.5 for masks that keep white, < 0.5 for those that mark what to leave out. The mask must
+// have the capture's full size.
+torch::Tensor frame_mask(const CaptureFrame& fr, const DecodedImage& decoded, int64_t full_h, int64_t full_w, int f,
+                         int64_t h, int64_t w) {
+  if (decoded.stored_height != full_h || decoded.stored_width != full_w)
+    throw InputError(fr.mask, fr.mask_field,
+                     "mask is " + std::to_string(decoded.stored_width) + "x" + std::to_string(decoded.stored_height) +
+                         " but the capture's images are " + std::to_string(full_w) + "x" + std::to_string(full_h));
+  torch::Tensor set = image_tensor(decoded.image).select(2, 0).to(torch::kFloat).div_(255.0f).unsqueeze(-1);
+  set = box_downscale(set, f / decoded.reduced).slice(0, 0, h).slice(1, 0, w).squeeze(-1);
+  return fr.mask_keeps_set ? set.ge(0.5f) : set.lt(0.5f);
+}
+
 // Decodes the frames of a split into tensors. The images are decoded a group at a time, one frame
 // per core (the codecs are torch-free); each group then goes through LibTorch on this thread, in
 // frame order, so the first bad frame in capture order is the one reported.
@@ -107,19 +122,22 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
   const int f = opts.downscale;
   const int64_t h = expect_h / f, w = expect_w / f;
   const int reduce = opts.jpeg_reduce ? jpeg_reduction(f) : 1;
+  const bool use_masks = opts.masks == MaskSource::Auto;
+  std::vector<torch::Tensor> keep(static_cast<size_t>(n));  // per frame, undefined = every pixel
   s.images = torch::empty({n, h, w, 3}, torch::kFloat);
   s.alpha = torch::empty({n, h, w}, torch::kFloat);
   std::vector<torch::Tensor> depths(static_cast<size_t>(n));
   const int64_t group = std::max<int64_t>(1, std::min<int64_t>(n, std::thread::hardware_concurrency()));
   for (int64_t start = 0; start < n; start += group) {
     const int64_t end = std::min(n, start + group);
-    std::vector<DecodedImage> decoded(static_cast<size_t>(end - start));
+    std::vector<DecodedImage> decoded(static_cast<size_t>(end - start)), masks(decoded.size());
     std::vector<std::exception_ptr> errors(decoded.size());
     const auto decode = [&](int64_t i) {
       const auto& fr = spec.frames[static_cast<size_t>(i)];
       try {
         decoded[static_cast<size_t>(i - start)] =
             decode_frame(fr, fr.prescaled ? h : expect_h, fr.prescaled ? w : expect_w, fr.prescaled ? 1 : reduce);
+        if (use_masks && !fr.mask.empty()) masks[static_cast<size_t>(i - start)] = decode_image_file(fr.mask, reduce);
       } catch (...) {
         errors[static_cast<size_t>(i - start)] = std::current_exception();
       }
@@ -138,6 +156,12 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
       const float bg = opts.white_background ? 1.0f : 0.0f;
       s.images[i].copy_(rgb * a + bg * (1.0f - a));
       s.alpha[i].copy_(a.squeeze(-1));
+      if (opts.masks == MaskSource::Alpha) {
+        keep[static_cast<size_t>(i)] = a.squeeze(-1).ge(0.5f);
+      } else if (use_masks && !fr.mask.empty()) {
+        keep[static_cast<size_t>(i)] =
+            frame_mask(fr, masks[static_cast<size_t>(i - start)], expect_h, expect_w, f, h, w);
+      }
       if (!fr.depth.empty()) {
         torch::Tensor d;
         try {
@@ -164,6 +188,11 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
     s.cameras.push_back(fr.camera.scaled(static_cast<double>(w) / expect_w, static_cast<int>(w), static_cast<int>(h)));
   }
   s.c2w = torch::stack(poses);
+  if (std::any_of(keep.begin(), keep.end(), [](const torch::Tensor& k) { return k.defined(); })) {
+    for (auto& k : keep)
+      if (!k.defined()) k = torch::ones({h, w}, torch::kBool);
+    s.mask = torch::stack(keep);
+  }
   if (!spec.frames.empty() && !spec.frames.front().depth.empty()) {
     bool all = true;
     for (const auto& d : depths) all = all && d.defined();

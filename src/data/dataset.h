@@ -29,6 +29,7 @@ struct LoadOptions {
   // inverse DCT) instead of in full and then box-filtered: 4 to 20 times less work, a result within
   // about one 8-bit level of the box filter's (tests/data/dataset_test.cpp).
   bool jpeg_reduce = true;
+  MaskSource masks = MaskSource::Auto;  // data.masks: which pixels train (Split::mask)
   // Print a progress line while decoding (the CLI's loads; tests keep quiet).
   bool progress = false;
   // Splits to decode; empty = all present. Others are still validated for pose/shape errors
@@ -41,8 +42,13 @@ struct LoadOptions {
 
 struct Split {
   std::string name;
-  torch::Tensor images;             // (N,H,W,3) float32 in [0,1], composited on the background
-  torch::Tensor alpha;              // (N,H,W) float32 alpha after downscale
+  torch::Tensor images;  // (N,H,W,3) float32 in [0,1], composited on the background
+  torch::Tensor alpha;   // (N,H,W) float32 alpha after downscale
+  // (N,H,W) bool: the pixels that train and that eval scores as "unmasked" (LoadOptions::masks);
+  // undefined when every pixel does. A loaded pixel stands for a box of full-size pixels: it is
+  // kept when at least half of its box is (its mask's first channel averaged over the box, / 255,
+  // at least 0.5 for masks that keep white, below 0.5 for instant-ngp's, which leave it out).
+  torch::Tensor mask;
   torch::Tensor c2w;                // (N,3,4) float32 camera-to-world, OpenGL axes, in the scene frame
   std::vector<Intrinsics> cameras;  // each image's camera at the loaded resolution
   std::vector<std::string> files;   // image paths

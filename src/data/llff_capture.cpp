@@ -74,6 +74,8 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
     }
     const double near = r[15], far = r[16];
     if (!(near > 0 && far > near)) throw InputError(file, where + ": bounds", "need 0 < near < far");
+    fr.mask = mask_in_folder(root, fr.image, where);
+    fr.mask_field = "masks/";
     const std::string small = resolve_downscaled(root, fr.image, downscale);
     if (!small.empty()) fr.image = small, fr.prescaled = true;
     out.bounds.push_back({near, far});

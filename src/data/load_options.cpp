@@ -10,6 +10,7 @@ LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
   o.far = c.data.far;
   o.scene = c.data.scene;
   o.bounds_from_config = c.data.bounds_from_config;
+  o.masks = c.data.masks;
   o.splits = std::move(splits);
   return o;
 }

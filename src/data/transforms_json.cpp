@@ -174,6 +174,19 @@ std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, c
       f.depth =
           resolve_in_root(root, fr.at("depth_file_path").get<std::string>(), file, where + ".depth_file_path", false);
     }
+    if (fr.contains("mask_path")) {  // nerfstudio: white keeps
+      if (!fr.at("mask_path").is_string()) throw InputError(file, where + ".mask_path", "expected a string");
+      f.mask_field = where + ".mask_path";
+      f.mask = resolve_in_root(root, fr.at("mask_path").get<std::string>(), file, f.mask_field, false);
+    } else {  // instant-ngp: dynamic_mask_<image stem>.png beside the image marks what to leave out
+      const fs::path dyn =
+          fs::path(f.image).parent_path() / ("dynamic_mask_" + fs::path(f.image).stem().string() + ".png");
+      if (fs::is_regular_file(dyn)) {
+        f.mask = dyn.string();
+        f.mask_keeps_set = false;
+        f.mask_field = where + " (dynamic mask)";
+      }
+    }
     out.push_back(std::move(f));
   }
   return out;

@@ -69,6 +69,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const int64_t chunk = opts.chunk.value_or(run.config.eval.chunk);
 
   LoadOptions lo = load_options_for(run.config, {opts.split});
+  // The capture's masks score the "unmasked" part even for a run trained on every pixel
+  // (data.masks = "none"), so that runs with and without masks compare on the same pixels.
+  if (lo.masks == MaskSource::None) lo.masks = MaskSource::Auto;
   if (opts.downscale) lo.downscale = *opts.downscale;
   Capture capture = read_capture(data_dir, {}, lo.downscale);  // parsed once: its splits, then the load
   const auto splits = capture.split_names();
@@ -138,6 +141,12 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     im["psnr"] = finite_or_null(psnr(r.rgb, gt));
     im["ssim"] = ssim_ok ? finite_or_null(ssim(r.rgb, gt, variant)) : nlohmann::json();
     im["lpips"] = lpips ? finite_or_null(lpips->distance(r.rgb, gt)) : nlohmann::json();
+    if (split.mask.defined()) {  // the capture's masks: the scores over the pixels that trained too
+      const auto keep = split.mask[i];
+      im["unmasked_share"] = keep.to(torch::kFloat).mean().item<double>();
+      im["psnr_unmasked"] = finite_or_null(psnr(r.rgb, gt, keep));
+      im["ssim_unmasked"] = ssim_ok ? finite_or_null(ssim(r.rgb, gt, variant, keep)) : nlohmann::json();
+    }
     im["seconds"] = seconds;
     if (has_depth) {
       const auto d = split.depth[i];
@@ -159,6 +168,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["images"] = images;
   nlohmann::json mean;
   for (const char* key : {"psnr", "ssim", "lpips"}) mean[key] = mean_of(images, key);
+  if (split.mask.defined())
+    for (const char* key : {"psnr_unmasked", "ssim_unmasked", "unmasked_share"}) mean[key] = mean_of(images, key);
   if (has_depth)
     for (const char* key : {"depth_mae", "depth_mae_argmax"}) mean[key] = mean_of(images, key);
   m["mean"] = mean;

@@ -41,9 +41,13 @@ torch::Tensor blur(const torch::Tensor& x, const torch::Tensor& taps, int64_t pa
 
 }  // namespace
 
-double mse(const torch::Tensor& img, const torch::Tensor& ref) {
+double mse(const torch::Tensor& img, const torch::Tensor& ref, const torch::Tensor& mask) {
   check_pair(img, ref, "mse");
-  return (img.to(torch::kDouble) - ref.to(torch::kDouble)).pow(2).mean().item<double>();
+  const auto sq = (img.to(torch::kDouble) - ref.to(torch::kDouble).to(img.device())).pow(2);
+  if (!mask.defined()) return sq.mean().item<double>();
+  TORCH_CHECK(mask.dim() == 2 && mask.size(0) == img.size(0) && mask.size(1) == img.size(1),
+              "mse: the mask must be (H,W) of the images, got ", mask.sizes());
+  return sq.mean(-1).masked_select(mask.to(sq.device(), torch::kBool)).mean().item<double>();
 }
 
 double psnr_from_mse(double mse) {
@@ -51,15 +55,19 @@ double psnr_from_mse(double mse) {
   return -10.0 * std::log10(mse);
 }
 
-double psnr(const torch::Tensor& img, const torch::Tensor& ref) { return psnr_from_mse(mse(img, ref)); }
+double psnr(const torch::Tensor& img, const torch::Tensor& ref, const torch::Tensor& mask) {
+  return psnr_from_mse(mse(img, ref, mask));
+}
 
 SsimVariant parse_ssim_variant(const std::string& name, const std::string& source, const std::string& field) {
   if (const auto v = enum_from_name<SsimVariant>(name)) return *v;
   throw InputError(source, field, "unknown SSIM variant '" + name + "' (use standard or release)");
 }
 
-double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant variant) {
+double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant variant, const torch::Tensor& mask) {
   check_pair(img, ref, "ssim");
+  TORCH_CHECK(!mask.defined() || (mask.dim() == 2 && mask.size(0) == img.size(0) && mask.size(1) == img.size(1)),
+              "ssim: the mask must be (H,W) of the images, got ", mask.sizes());
   const bool standard = variant == SsimVariant::Standard;
   TORCH_CHECK(!standard || (img.size(0) >= kSsimWindow && img.size(1) >= kSsimWindow),
               "ssim (standard): images must be at least ", kSsimWindow, "x", kSsimWindow, ", got ", img.sizes());
@@ -80,7 +88,13 @@ double ssim(const torch::Tensor& img, const torch::Tensor& ref, SsimVariant vari
   }
   auto num = (2.0 * mu_x * mu_y + c1) * (2.0 * cov + c2);
   auto den = (mu_x * mu_x + mu_y * mu_y + c1) * (var_x + var_y + c2);
-  return (num / den).mean().item<double>();
+  if (!mask.defined()) return (num / den).mean().item<double>();
+  auto per_pixel = (num / den).mean(1).squeeze(0);  // (H', W'), the channels' mean
+  auto centres = mask.to(per_pixel.device(), torch::kBool);
+  if (standard)
+    centres = centres.slice(0, kSsimWindow / 2, kSsimWindow / 2 + per_pixel.size(0))
+                  .slice(1, kSsimWindow / 2, kSsimWindow / 2 + per_pixel.size(1));
+  return per_pixel.masked_select(centres).mean().item<double>();
 }
 
 torch::Tensor read_rgb_for_metrics(const std::string& path) {

@@ -11,15 +11,38 @@ namespace {
 constexpr double kErrorBlend = 0.5;
 }  // namespace
 
-ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOptions options)
+ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOptions options, const torch::Tensor& keep)
     : images_(images), height_(height), width_(width), opt_(options) {
   if (images < 1 || height < 1 || width < 1) throw std::invalid_argument("ErrorMap: empty image set");
-  if (opt_.tile < 1) throw std::invalid_argument("ErrorMap: tile must be >= 1");
+  if (opt_.tile < 1 || opt_.tile > 256) throw std::invalid_argument("ErrorMap: tile must be in [1, 256]");
   if (!(opt_.uniform_share >= 0 && opt_.uniform_share <= 1))
     throw std::invalid_argument("ErrorMap: uniform_share must be in [0, 1]");
   tiles_x_ = (width + opt_.tile - 1) / opt_.tile;
   tiles_y_ = (height + opt_.tile - 1) / opt_.tile;
   error_.assign(static_cast<size_t>(images * tiles_x_ * tiles_y_), 0.0);
+  if (!keep.defined()) return;
+  if (keep.dim() != 3 || keep.size(0) != images || keep.size(1) != height || keep.size(2) != width)
+    throw std::invalid_argument("ErrorMap: the mask must be (images, height, width)");
+  const auto k = keep.to(torch::kCPU, torch::kBool).contiguous();
+  const bool* kp = k.data_ptr<bool>();
+  kept_start_.assign(error_.size() + 1, 0);
+  for (int64_t t = 0; t < tiles(); ++t) {
+    const TileRect r = tile_rect(t);
+    for (int64_t dr = 0; dr < r.height; ++dr)
+      for (int64_t dc = 0; dc < r.width; ++dc)
+        if (kp[(r.image * height_ + r.row + dr) * width_ + r.col + dc])
+          kept_.push_back(static_cast<uint16_t>(dr * opt_.tile + dc));
+    kept_start_[static_cast<size_t>(t) + 1] = static_cast<int64_t>(kept_.size());
+  }
+  if (kept_.empty()) throw std::invalid_argument("ErrorMap: the mask keeps no pixel");
+}
+
+int64_t ErrorMap::kept_count(int64_t t) const {
+  if (kept_start_.empty()) {
+    const TileRect r = tile_rect(t);
+    return r.height * r.width;
+  }
+  return kept_start_[static_cast<size_t>(t) + 1] - kept_start_[static_cast<size_t>(t)];
 }
 
 ErrorMap::TileRect ErrorMap::tile_rect(int64_t t) const {
@@ -41,14 +64,16 @@ torch::Tensor ErrorMap::probabilities() const {
   auto p = torch::empty({n}, torch::kDouble);
   double* out = p.data_ptr<double>();
   double sum = 0;
-  for (double e : error_) sum += e;
-  const double pixels = static_cast<double>(images_ * height_ * width_);
+  for (int64_t t = 0; t < n; ++t)
+    if (kept_count(t) > 0) sum += error_[static_cast<size_t>(t)];
+  const double pixels =
+      static_cast<double>(kept_start_.empty() ? images_ * height_ * width_ : static_cast<int64_t>(kept_.size()));
   const bool by_error = seeded_ && sum > 0;
   const double share = by_error ? opt_.uniform_share : 1.0;
   for (int64_t t = 0; t < n; ++t) {
-    const TileRect r = tile_rect(t);
-    const double uniform = static_cast<double>(r.height * r.width) / pixels;
-    out[t] = share * uniform + (by_error ? (1.0 - share) * error_[static_cast<size_t>(t)] / sum : 0.0);
+    const int64_t kept = kept_count(t);
+    const double uniform = static_cast<double>(kept) / pixels;
+    out[t] = share * uniform + (by_error && kept > 0 ? (1.0 - share) * error_[static_cast<size_t>(t)] / sum : 0.0);
   }
   return p;
 }
@@ -75,8 +100,21 @@ torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
   };
   for (int64_t i = 0; i < n; ++i) {
     const auto it = std::upper_bound(cdf_.begin(), cdf_.end(), ua[i][0] * total);
-    const TileRect r = tile_rect(std::min<int64_t>(it - cdf_.begin(), tiles() - 1));
-    const int64_t row = r.row + offset(ua[i][1], r.height), col = r.col + offset(ua[i][2], r.width);
+    int64_t t = std::min<int64_t>(it - cdf_.begin(), tiles() - 1);
+    if (!kept_start_.empty()) {
+      // Rounding can land past the last drawable tile: step back to one that has kept pixels.
+      while (kept_count(t) == 0 && t > 0) --t;
+      while (kept_count(t) == 0) ++t;
+    }
+    const TileRect r = tile_rect(t);
+    int64_t row, col;
+    if (kept_start_.empty()) {
+      row = r.row + offset(ua[i][1], r.height), col = r.col + offset(ua[i][2], r.width);
+    } else {
+      const int64_t at = kept_start_[static_cast<size_t>(t)] + offset(ua[i][1], kept_count(t));
+      const int64_t in_tile = kept_[static_cast<size_t>(at)];
+      row = r.row + in_tile / opt_.tile, col = r.col + in_tile % opt_.tile;
+    }
     idx[i] = (r.image * height_ + row) * width_ + col;
   }
   return out;

@@ -22,7 +22,12 @@ struct ErrorMapOptions {
 
 class ErrorMap {
  public:
-  ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOptions options);
+  // `keep`, when defined, is (images, height, width) bool: only its true pixels are ever drawn (a
+  // capture's masks, Split::mask). Tiles then count their kept pixels only: the uniform share is
+  // spread over kept pixels, a tile with none is never drawn, and a ray lands on one of its tile's
+  // kept pixels, uniformly. At least one pixel must be kept.
+  ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOptions options,
+           const torch::Tensor& keep = torch::Tensor());
 
   // Flat pixel indices (image * H * W + row * W + col), int64 on the CPU, of `n` rays: a tile with
   // probability `probabilities()[tile]`, then a pixel uniformly inside it (three uniforms per ray).
@@ -35,7 +40,8 @@ class ErrorMap {
   void observe(const torch::Tensor& pixels, const torch::Tensor& squared_error);
 
   // P(tile) = (1 - share) * e_tile / sum(e) + share * pixels_tile / pixels (uniform until the first
-  // observation or when every error is zero). float64, (tiles,).
+  // observation or when every error is zero), pixels counting kept pixels only and e_tile 0 for a
+  // tile without any. float64, (tiles,).
   torch::Tensor probabilities() const;
   int64_t tiles() const { return static_cast<int64_t>(error_.size()); }
   int64_t tile_of(int64_t pixel) const;
@@ -57,6 +63,11 @@ class ErrorMap {
   int64_t tiles_x_, tiles_y_;
   std::vector<double> error_;
   std::vector<double> cdf_;  // inclusive running sum of the tiles' probabilities
+  // With a mask: tile t's kept pixels are kept_[kept_start_[t] .. kept_start_[t + 1]), each as its
+  // row * opt_.tile + col inside the tile. Empty without a mask.
+  std::vector<int64_t> kept_start_;
+  std::vector<uint16_t> kept_;
+  int64_t kept_count(int64_t tile) const;
   bool seeded_ = false, dirty_ = true;
 };
 

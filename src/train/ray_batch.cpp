@@ -10,11 +10,16 @@ RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Dev
   pixels_ = images_.size(0);
   const auto n = static_cast<size_t>(split.c2w.size(0));
   cams_ = CameraTable::of(split.cameras.size() == n ? split.cameras : std::vector<Intrinsics>(n, k), device);
-  if (error_map) map_.emplace(split.c2w.size(0), k.height, k.width, *error_map);
+  if (error_map) {
+    map_.emplace(split.c2w.size(0), k.height, k.width, *error_map, split.mask);
+  } else if (split.mask.defined()) {
+    kept_.emplace(split.c2w.size(0), k.height, k.width, ErrorMapOptions{4, 1.0}, split.mask);
+  }
 }
 
 torch::Tensor RaySampler::draw(int64_t global_size) {
   if (map_) return map_->draw(global_size, gen_);
+  if (kept_) return kept_->draw(global_size, gen_);
   return torch::randint(pixels_, {global_size}, gen_, torch::TensorOptions().dtype(torch::kLong));
 }
 

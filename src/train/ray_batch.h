@@ -25,6 +25,7 @@ class RaySampler {
   // images (N,H,W,3) and c2w (N,3,4) are moved to `device` once. Each image's camera is
   // split.cameras[i] when the split lists them, else `k`.
   // With `error_map`, pixels are drawn through an ErrorMap fed by observe(); without, uniformly.
+  // Pixels outside split.mask (when it is defined) are never drawn.
   RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed,
              std::optional<ErrorMapOptions> error_map = std::nullopt);
 
@@ -54,6 +55,8 @@ class RaySampler {
   int64_t pixels_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
   std::optional<ErrorMap> map_;
+  // Uniform draws over a mask's kept pixels: an ErrorMap that never observes (uniform share 1).
+  std::optional<ErrorMap> kept_;
 };
 
 }  // namespace ablenerf

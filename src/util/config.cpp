@@ -18,7 +18,7 @@ namespace ablenerf {
 namespace {
 
 using FieldRef = std::variant<int*, int64_t*, double*, bool*, AttentionKernel*, Precision*, CpuSplit*, ViewEncoding*,
-                              Background*, SsimVariant*, RaySampling*, SceneKind*, Embedding*>;
+                              Background*, SsimVariant*, RaySampling*, SceneKind*, Embedding*, MaskSource*>;
 
 // "must be \"a\" or \"b\"" from an enum's name table.
 template <class E>
@@ -61,6 +61,7 @@ void visit_fields(C& c, F&& f) {
   f("data.far", &c.data.far);
   f("data.scene", &c.data.scene);
   f("data.bounds_from_config", &c.data.bounds_from_config);
+  f("data.masks", &c.data.masks);
   f("train.steps", &c.train.steps);
   f("train.rays_per_step", &c.train.rays_per_step);
   f("train.micro_batch", &c.train.micro_batch);

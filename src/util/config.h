@@ -30,6 +30,10 @@ enum class Embedding { Ipe, Grid };  // model.embedding: the paper's IPE or the 
 //    within kForwardFacingMaxAngleDeg of their mean direction and the capture knows how near its
 //    scene comes (sparse points or LLFF bounds), else Unbounded.
 enum class SceneKind { Auto, Bounded, Unbounded, ForwardFacing };
+// data.masks (data/dataset.h): which pixels of the photos train. Auto: the masks the capture comes
+// with (a masks/ folder, nerfstudio's mask_path, instant-ngp's dynamic_mask_*), every pixel when it
+// has none; None: every pixel; Alpha: the pixels whose alpha is at least 0.5 (RGBA photos).
+enum class MaskSource { Auto, None, Alpha };
 // eval.ssim (eval/metrics.h):
 enum class SsimVariant {
   // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
@@ -68,6 +72,9 @@ inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"
                                                         {SceneKind::Bounded, "bounded"},
                                                         {SceneKind::Unbounded, "unbounded"},
                                                         {SceneKind::ForwardFacing, "forward"}};
+template <>
+inline const EnumNames<MaskSource> kEnumNames<MaskSource>{
+    {MaskSource::Auto, "auto"}, {MaskSource::None, "none"}, {MaskSource::Alpha, "alpha"}};
 template <>
 inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"},
                                                             {SsimVariant::Release, "release"}};
@@ -132,6 +139,7 @@ struct DataConfig {
   double far = 6.0;
   SceneKind scene = SceneKind::Auto;
   bool bounds_from_config = false;  // data.bounds_from_config: use near/far for captures too
+  MaskSource masks = MaskSource::Auto;
 };
 
 struct TrainConfig {

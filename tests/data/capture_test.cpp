@@ -457,6 +457,110 @@ TEST(Captures, JpegLoadedReducedMatchesTheBoxFilterOfTheFullDecode) {
   }
 }
 
+// A mask image: white (255) in columns [0, white_cols), black elsewhere.
+void write_mask(const std::string& path, int w, int h, int white_cols) {
+  fs::create_directories(fs::path(path).parent_path());
+  auto m = torch::zeros({h, w, 1}, torch::kUInt8);
+  m.slice(1, 0, white_cols).fill_(255);
+  write_png(path, m);
+}
+
+// The masks of a capture (Split::mask): a masks/ folder beside LLFF (and COLMAP) images keeps
+// white; the loaded mask keeps a pixel when at least half of its box is kept; data.masks none and
+// alpha; a missing, wrongly sized or unreadable mask refused naming the file.
+TEST(Captures, MasksFolderKeepsWhitePixelsAtEveryDownscale) {
+  test::TempDir t;
+  const int W = 16, H = 12;
+  const auto frames = ring(10, kTarget, kUp);
+  std::vector<double> rows;
+  for (const Frame3& f : frames) {
+    const double hwf[3] = {H, W, 20.0};
+    for (int r = 0; r < 3; ++r) {
+      const size_t rr = static_cast<size_t>(r);
+      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
+    }
+    rows.push_back(3.0);
+    rows.push_back(5.0);
+  }
+  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const std::string stem = "IMG_" + std::to_string(100 + i);
+    write_image(t / ("images/" + stem + ".png"), W, H, 100);
+    // 7 white columns; IMG_103 all white.
+    write_mask(t / ("masks/" + stem + ".png"), W, H, i == 3 ? W : 7);
+  }
+  LoadOptions o;
+  o.scene = SceneKind::Bounded;
+  for (const int down : {1, 2}) {
+    SCOPED_TRACE("downscale " + std::to_string(down));
+    o.downscale = down;
+    const Dataset ds = Dataset::load(t.path(), o);
+    const Split& train = ds.split("train");  // IMG_101 ... IMG_107, IMG_109
+    ASSERT_TRUE(train.mask.defined());
+    ASSERT_EQ(train.mask.sizes(), (std::vector<int64_t>{8, H / down, W / down}));
+    // Downscale 2: the box of columns 6-7 is half white, so loaded column 3 is kept, column 4 not.
+    const int keep_cols = down == 1 ? 7 : 4;
+    for (int64_t i = 0; i < train.size(); ++i) {
+      auto want = torch::zeros({H / down, W / down}, torch::kBool);
+      want.slice(1, 0, name_of(train, i) == "IMG_103.png" ? W / down : keep_cols).fill_(true);
+      EXPECT_TRUE(torch::equal(train.mask[i], want)) << name_of(train, i);
+    }
+    EXPECT_TRUE(ds.split("test").mask.defined());  // eval scores the kept part too
+  }
+  o.downscale = 1;
+  o.masks = MaskSource::None;
+  EXPECT_FALSE(Dataset::load(t.path(), o).split("train").mask.defined());
+  o.masks = MaskSource::Alpha;  // opaque photos: every pixel kept
+  const auto alpha_mask = Dataset::load(t.path(), o).split("train").mask;
+  ASSERT_TRUE(alpha_mask.defined());
+  EXPECT_TRUE(alpha_mask.all().item<bool>());
+  o.masks = MaskSource::Auto;
+  const std::string bad = (t / "masks/IMG_103.png");
+  write_mask(bad, W / 2, H / 2, 3);
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, fs::canonical(bad).string(), "masks/", "mask is 8x6",
+                           true);
+  test::write_file(bad, "not an image");
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, fs::canonical(bad).string(), "", "not a PNG or JPEG",
+                           true);
+  fs::remove(bad);
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, fs::canonical(t / "masks").string(),
+                           "row 3 (IMG_103.png)", "no mask for images/IMG_103.png", true);
+}
+
+// transforms.json masks: nerfstudio's per-frame mask_path keeps white; instant-ngp's
+// dynamic_mask_<stem>.png beside the image marks the pixels to leave out; a frame without either
+// keeps every pixel.
+TEST(Captures, MaskPathAndInstantNgpDynamicMasks) {
+  test::TempDir t;
+  const int W = 12, H = 8;
+  for (int i = 0; i < 3; ++i) write_image(t / ("images/p" + std::to_string(i) + ".png"), W, H, 80);
+  write_mask(t / "mask0.png", W, H, 5);                   // frame 0 (test): keeps columns 0-4
+  write_mask(t / "images/dynamic_mask_p1.png", W, H, 3);  // frame 1: columns 0-2 are a moving object
+  const auto json_with = [&](const std::string& mask0) {
+    return "{\"fl_x\": 10, \"w\": 12, \"h\": 8, \"frames\": ["
+           "{\"file_path\": \"images/p0.png\", \"mask_path\": \"" +
+           mask0 +
+           "\", \"transform_matrix\": "
+           "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+           "{\"file_path\": \"images/p1.png\", \"transform_matrix\": [[1,0,0,1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},"
+           "{\"file_path\": \"images/p2.png\", \"transform_matrix\": [[1,0,0,0],[0,1,0,1],[0,0,1,0],[0,0,0,1]]}]}";
+  };
+  test::write_file(t / "transforms.json", json_with("mask0.png"));
+  const Dataset ds = Dataset::load(t.path());
+  const auto& train = ds.split("train").mask;  // p1, p2
+  ASSERT_TRUE(train.defined());
+  EXPECT_FALSE(train[0].slice(1, 0, 3).any().item<bool>());
+  EXPECT_TRUE(train[0].slice(1, 3, W).all().item<bool>());
+  EXPECT_TRUE(train[1].all().item<bool>());
+  const auto& test_mask = ds.split("test").mask;  // p0
+  ASSERT_TRUE(test_mask.defined());
+  EXPECT_TRUE(test_mask[0].slice(1, 0, 5).all().item<bool>());
+  EXPECT_FALSE(test_mask[0].slice(1, 5, W).any().item<bool>());
+  test::write_file(t / "transforms.json", json_with("missing.png"));
+  test::expect_input_error([&] { Dataset::load(t.path()); }, t / "transforms.json", "frames[0].mask_path",
+                           "image not found", true);
+}
+
 // The real captures of docs/CAPTURES.md, when they sit beside the checkout: each loads, in its
 // format, with the frame counts and bounds source the document records.
 TEST(Captures, RealCapturesWhenPresent) {

@@ -166,3 +166,32 @@ TEST(ReadRgbForMetrics, CompositesRgbaOnWhite) {
 
 }  // namespace
 }  // namespace ablenerf
+
+// The "unmasked" scores of eval: PSNR over the kept pixels by hand; SSIM over an all-true mask is
+// the plain mean, and over one pixel it is the SSIM of the 11x11 window centred there (the
+// standard variant of that crop has exactly one valid position).
+TEST(Metrics, MaskedPsnrAndSsim) {
+  torch::manual_seed(4);
+  const auto a = torch::rand({20, 24, 3}, torch::kDouble),
+             b = (a + 0.1 * torch::randn({20, 24, 3}, torch::kDouble)).clamp(0, 1);
+  auto keep = torch::zeros({20, 24}, torch::kBool);
+  keep.slice(0, 3, 9).slice(1, 2, 20).fill_(true);
+  double sq = 0;
+  int64_t count = 0;
+  for (int r = 0; r < 20; ++r)
+    for (int c = 0; c < 24; ++c)
+      if (keep[r][c].item<bool>()) {
+        for (int ch = 0; ch < 3; ++ch) sq += std::pow(a[r][c][ch].item<double>() - b[r][c][ch].item<double>(), 2);
+        ++count;
+      }
+  EXPECT_NEAR(psnr(a, b, keep), -10 * std::log10(sq / (3.0 * static_cast<double>(count))), 1e-9);
+  const auto all = torch::ones({20, 24}, torch::kBool);
+  for (const auto v : {SsimVariant::Standard, SsimVariant::Release})
+    EXPECT_NEAR(ssim(a, b, v, all), ssim(a, b, v), 1e-12);
+  auto one = torch::zeros({20, 24}, torch::kBool);
+  one[9][13] = true;
+  const auto crop = [](const torch::Tensor& x) { return x.slice(0, 4, 15).slice(1, 8, 19); };
+  EXPECT_NEAR(ssim(a, b, SsimVariant::Standard, one), ssim(crop(a), crop(b)), 1e-12);
+  // No kept pixel: NaN, which eval writes as null.
+  EXPECT_TRUE(std::isnan(psnr(a, b, torch::zeros({20, 24}, torch::kBool))));
+}

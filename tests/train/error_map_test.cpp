@@ -120,3 +120,51 @@ TEST(ErrorMap, StateContinuesTheSameDraws) {
   EXPECT_TRUE(torch::equal(a.draw(100, ga), b.draw(100, gb)));
   EXPECT_THROW(ErrorMap(1, 5, 6, {4, 0.25}).set_state(a.state()), std::invalid_argument);
 }
+
+// A mask (a capture's masks, Split::mask): tiles count their kept pixels only, a tile without any
+// is never drawn, and a ray lands on one of its tile's kept pixels, each equally likely.
+TEST(ErrorMap, MaskedPixelsAreNeverDrawnAndTheRestUniformly) {
+  // small_map's layout (2 images of 5 x 6, tiles of 4). Image 0 keeps columns 0-2 of every row
+  // (tile 0: 12 px, tile 1: 0, tile 2: 3, tile 3: 0); image 1 keeps everything but row 0 (tile 4:
+  // 12, tile 5: 6, tile 6: 4, tile 7: 2). 39 kept pixels.
+  auto keep = torch::zeros({2, 5, 6}, torch::kBool);
+  keep[0].slice(1, 0, 3).fill_(true);
+  keep[1].slice(0, 1, 5).fill_(true);
+  ErrorMap map(2, 5, 6, {4, 0.25}, keep);
+  const double kept[8] = {12, 0, 3, 0, 12, 6, 4, 2};
+  auto p = map.probabilities();
+  for (int t = 0; t < 8; ++t) EXPECT_NEAR(p[t].item<double>(), kept[t] / 39.0, 1e-15) << t;
+  // Errors seen (pixels of tiles 0, 0 and 4; the first observation seeds every tile, tiles 1 and 3
+  // included): tiles without kept pixels still get no share of the error part.
+  map.observe(torch::tensor({0L, 3L, 36L}), torch::tensor({0.4, 0.4, 0.2}));
+  p = map.probabilities();
+  EXPECT_EQ(p[1].item<double>(), 0.0);
+  EXPECT_EQ(p[3].item<double>(), 0.0);
+  auto g = gen(5);
+  const int64_t n = 100000;
+  const auto idx = map.draw(n, g);
+  std::vector<int64_t> per_pixel(60, 0);
+  for (int64_t i = 0; i < n; ++i) per_pixel[static_cast<size_t>(idx[i].item<int64_t>())]++;
+  const auto k = keep.reshape({-1});
+  for (int64_t px = 0; px < 60; ++px) {
+    if (!k[px].item<bool>())
+      EXPECT_EQ(per_pixel[static_cast<size_t>(px)], 0) << px;
+    else
+      EXPECT_GT(per_pixel[static_cast<size_t>(px)], 0) << px;
+  }
+  // Tile 0 of image 0 keeps rows 0-3 x cols 0-2: its 12 counts equally likely (chi-square, 11
+  // degrees of freedom, 99.99th percentile 35.7).
+  double in_tile = 0;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 3; ++c) in_tile += static_cast<double>(per_pixel[static_cast<size_t>(r * 6 + c)]);
+  double chi2 = 0;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const double d = static_cast<double>(per_pixel[static_cast<size_t>(r * 6 + c)]) - in_tile / 12;
+      chi2 += d * d / (in_tile / 12);
+    }
+  EXPECT_LT(chi2, 35.7);
+  // A mask that keeps nothing, or of another size, is refused.
+  EXPECT_THROW(ErrorMap(2, 5, 6, {4, 0.25}, torch::zeros({2, 5, 6}, torch::kBool)), std::invalid_argument);
+  EXPECT_THROW(ErrorMap(2, 5, 6, {4, 0.25}, torch::ones({2, 6, 5}, torch::kBool)), std::invalid_argument);
+}

@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <cmath>
+#include <optional>
+
 #include "train/ray_batch.h"
 
 using namespace ablenerf;
@@ -71,4 +74,34 @@ TEST(RaySampler, UniformOverPixelsAndRestorable) {
   auto next1 = sampler.draw(5);
   sampler.set_rng_state(state);
   EXPECT_TRUE(torch::equal(sampler.draw(5), next1));
+}
+
+// With a mask, neither uniform nor error-guided draws ever land on a masked pixel, and uniform
+// draws cover the kept pixels evenly.
+TEST(RaySampler, MaskedPixelsAreNeverDrawn) {
+  const int n = 2, h = 6, w = 9;
+  Split s = make_split(n, h, w);
+  auto g = at::detail::createCPUGenerator(3);
+  s.mask = torch::rand({n, h, w}, g).lt(0.4);
+  const int64_t kept = s.mask.sum().item<int64_t>();
+  ASSERT_GT(kept, 10);
+  const Intrinsics k = intr(h, w);
+  const auto flat_keep = s.mask.reshape({-1});
+  for (const bool guided : {false, true}) {
+    SCOPED_TRACE(guided ? "error map" : "uniform");
+    RaySampler sampler(s, k, torch::kCPU, 9,
+                       guided ? std::optional<ErrorMapOptions>(ErrorMapOptions{4, 0.25}) : std::nullopt);
+    const int64_t draws = 400 * kept;
+    const auto idx = sampler.draw(draws);
+    const auto counts = torch::bincount(idx, {}, n * h * w);
+    EXPECT_EQ(counts.masked_select(flat_keep.logical_not()).sum().item<int64_t>(), 0);
+    EXPECT_GT(counts.masked_select(flat_keep).min().item<int64_t>(), 0);
+    if (!guided) {
+      // 400 expected per kept pixel: chi-square with kept - 1 degrees of freedom, bounded by its
+      // mean plus 5 standard deviations.
+      const auto c = counts.masked_select(flat_keep).to(torch::kDouble);
+      const double chi2 = ((c - 400).pow(2) / 400).sum().item<double>();
+      EXPECT_LT(chi2, (kept - 1) + 5 * std::sqrt(2.0 * (kept - 1)));
+    }
+  }
 }
