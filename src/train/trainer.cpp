@@ -21,6 +21,7 @@
 #include "train/grad_accumulation.h"
 #include "train/lr_schedule.h"
 #include "train/ray_batch.h"
+#include "train/trainer_state.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/log.h"
@@ -36,14 +37,9 @@ std::atomic<bool> g_interrupt{false};
 
 void on_signal(int) { g_interrupt.store(true); }
 
-// Eager steps on the capture stream before the CUDA graph is captured.
-constexpr int64_t kGraphWarmupSteps = 3;
-// Seconds between progress lines when stderr is not a terminal.
-constexpr double kProgressIntervalS = 15.0;
-// Seconds over which the rays/s figure of the progress line is averaged.
-constexpr double kRateWindowS = 0.5;
-
 }  // namespace
+
+using namespace trainer_detail;
 
 bool interrupt_requested() { return g_interrupt.load(); }
 
@@ -51,45 +47,6 @@ void install_interrupt_handlers() {
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
 }
-
-struct Trainer::State {
-  int rank = 0, world = 1;
-  bool leader = true;
-  RunFolder run;  // empty dir: no run folder (bench)
-  std::optional<Dataset> ds;
-  // Where samples lie: the dataset's scene (near/far, bounded or unbounded), else the config's.
-  double near = 2, far = 6;
-  SceneKind scene = SceneKind::Bounded;
-  std::string held_out;  // split for the periodic PSNR ("" = none)
-  AbleNerf model{nullptr};
-  std::unique_ptr<Adam> adam;
-  std::unique_ptr<RaySampler> sampler;
-  std::optional<LrSchedule> schedule;
-  TrainState state;
-  int64_t local_rays = 0, micro = 0;
-  // Device form.
-  std::unique_ptr<CudaStep> cuda;
-  torch::Tensor indices_dev;      // this step's ray indices on the device (the graph's input)
-  torch::Tensor figures_dev;      // [loss, mse_fine, found_inf, ray_se...] of the step (the graph's output)
-  double pending_lr = NAN;        // lr of the step whose figures are in flight
-  torch::Tensor pending_indices;  // its ray indices, until its errors reach the error map
-  StepReport last;
-  // Time: seconds trained before this invocation, the clock of this one, the agreed elapsed.
-  double elapsed_before = 0;
-  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
-  double agreed_elapsed = 0;
-  // Hooks' bookkeeping.
-  int64_t bad_in_a_row = 0, steps_this_run = 0;
-  double loss_acc = 0, mse_fine_acc = 0;
-  int64_t acc_steps = 0, rays_since_log = 0;
-  std::chrono::steady_clock::time_point rate_clock = std::chrono::steady_clock::now();
-  double rays_per_s = 0;
-  std::optional<Progress> progress;
-
-  double local_elapsed() const {
-    return elapsed_before + std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  }
-};
 
 Trainer::Trainer(Config config, TrainOptions opts)
     : config_(std::move(config)), opts_(std::move(opts)), s_(std::make_unique<State>()) {
@@ -106,116 +63,6 @@ AbleNerf& Trainer::model() { return s_->model; }
 int64_t Trainer::steps_done() const { return s_->state.step; }
 bool Trainer::device_form() const { return s_->cuda != nullptr; }
 bool Trainer::graph_captured() const { return s_->cuda && s_->cuda->captured(); }
-
-void Trainer::setup() {
-  auto& s = *s_;
-  // Run folder: new, or the one being resumed (whose config must match).
-  const bool have_ckpt = fs::exists(fs::path(opts_.out_dir) / "checkpoint.pt");
-  if (opts_.resume && have_ckpt) {
-    s.run = RunFolder::open(opts_.out_dir);
-    if (!opts_.data_dir.empty()) s.run.data_dir = opts_.data_dir;
-  } else {
-    if (!opts_.resume && have_ckpt)
-      throw InputError(opts_.out_dir, "checkpoint.pt",
-                       "the run folder already holds a run (use --resume to continue it, or another --out)");
-    if (opts_.data_dir.empty()) throw InputError("train", "--data", "required");
-    if (s.leader) {
-      s.run = RunFolder::create(opts_.out_dir, config_, opts_.data_dir);
-    } else {
-      s.run.dir = opts_.out_dir, s.run.config = config_, s.run.data_dir = opts_.data_dir;
-    }
-  }
-  if (s.run.data_dir.empty()) throw InputError(s.run.path("run.json"), "data", "missing: give --data");
-  if (s.leader) s.run.remove_stale_temporaries();
-
-  // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
-  std::vector<std::string> want{"train"};
-  // The capture's metadata, read once (its splits decide the held-out one, then it is loaded).
-  Capture capture = read_capture(s.run.data_dir, {}, config_.data.downscale);
-  const auto present = capture.split_names();
-  for (const char* name : {"val", "test"})
-    if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
-  if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
-  LoadOptions lo = load_options_for(config_, want);
-  lo.progress = s.leader && !opts_.quiet;
-  s.ds = Dataset::load(std::move(capture), s.run.data_dir, lo);
-  if (!s.ds->has("train")) throw InputError(s.run.data_dir, "transforms_train.json", "the dataset has no train split");
-  if (!s.ds->has(s.held_out)) s.held_out.clear();
-  // data.scene resolved from the capture, recorded in the run's config with the scene frame (so
-  // that eval and render place samples as training did).
-  if (config_.data.scene == SceneKind::Auto) config_.data.scene = s.ds->scene.kind;
-  s.run.config = config_;
-  if (s.leader) {
-    write_file_atomic(s.run.path("config.toml"), config_.to_toml());
-    s.run.write_scene(s.ds->scene);
-    if (!opts_.quiet) {
-      log_info("train: " + s.ds->format + " capture, " + s.ds->scene.describe());
-      for (const auto& note : s.ds->notes) log_info("train: " + note);
-    }
-  }
-
-  build(s.ds->split("train"), s.ds->intrinsics);
-  if (opts_.resume && have_ckpt) {
-    s.state = load_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim());
-    s.adam->from_checkpoint();
-    s.sampler->set_rng_state(s.state.rng_state);
-    try {
-      s.sampler->set_map_state(s.state.error_map);
-    } catch (const std::invalid_argument&) {
-      throw InputError(s.run.checkpoint_path(), "error_map", "made for another training set (image count or size)");
-    }
-    s.elapsed_before = s.state.elapsed_seconds;
-    s.agreed_elapsed = s.elapsed_before;
-    if (s.leader) log_info("train: resumed " + s.run.checkpoint_path() + " at step " + std::to_string(s.state.step));
-  }
-  if (opts_.dist) {
-    opts_.dist->broadcast_parameters(s.model);  // every rank starts from rank 0's weights
-    if (s.leader && !opts_.quiet)
-      log_info("train: data-parallel over a c10d group of " + std::to_string(s.world) + " process(es)");
-  }
-}
-
-void Trainer::setup(const Split& train, const Intrinsics& k) { build(train, k); }
-
-void Trainer::build(const Split& train, const Intrinsics& k) {
-  auto& s = *s_;
-  const TrainConfig& tc = config_.train;
-  torch::manual_seed(static_cast<uint64_t>(tc.seed));
-  if (s.ds) {
-    s.near = s.ds->near, s.far = s.ds->far, s.scene = s.ds->scene.kind;
-  } else {
-    s.scene = config_.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
-    s.near = config_.data.near, s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.data.far;
-  }
-  const NdcProjection ndc = s.ds ? NdcProjection{s.ds->scene.ndc_a, s.ds->scene.ndc_b} : NdcProjection{};
-  s.model = AbleNerf(config_.model, s.scene, ndc);
-  s.model->to(opts_.device);
-  s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
-  s.model->train();
-  const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
-  s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
-                                  AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});
-  std::optional<ErrorMapOptions> map;
-  if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
-  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map);
-  s.schedule.emplace(tc);
-  s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
-  s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
-  if (s.leader && log_enabled(LogLevel::Debug)) {
-    std::ostringstream line;
-    line << "train: " << s.model->parameter_count() << " parameters on " << opts_.device << ", " << s.local_rays
-         << " rays per step in micro-batches of " << s.micro << ", " << train.size() << " training images, "
-         << (device_form ? "device-side Adam" : "host Adam");
-    log_debug(line.str());
-  }
-  if (device_form) {
-    s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
-    const auto dev = torch::TensorOptions().device(opts_.device);
-    s.indices_dev = torch::zeros({s.local_rays}, dev.dtype(torch::kLong));
-    s.figures_dev = torch::zeros({3 + (map ? s.local_rays : 0)}, dev.dtype(torch::kFloat));
-  }
-  s.start = std::chrono::steady_clock::now();
-}
 
 // Where the schedule stands in [0, 1]: the share of steps done or, with a time budget, the share
 // of it already spent if that is further along (elapsed time counts across resumes).

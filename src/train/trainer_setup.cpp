@@ -1,0 +1,132 @@
+// Trainer's set-up (train/trainer.h): the run folder (new or resumed), the dataset and its
+// held-out split, the checkpoint, and the model, optimiser and ray sampler built for the training
+// split. The steps and run()'s hooks are in trainer.cpp.
+#include <algorithm>
+#include <filesystem>
+#include <sstream>
+
+#include "data/load_options.h"
+#include "model/compute.h"
+#include "train/distributed.h"
+#include "train/trainer_state.h"
+#include "util/errors.h"
+#include "util/fs.h"
+#include "util/log.h"
+
+namespace fs = std::filesystem;
+
+namespace ablenerf {
+
+using namespace trainer_detail;
+
+void Trainer::setup() {
+  auto& s = *s_;
+  // Run folder: new, or the one being resumed (whose config must match).
+  const bool have_ckpt = fs::exists(fs::path(opts_.out_dir) / "checkpoint.pt");
+  if (opts_.resume && have_ckpt) {
+    s.run = RunFolder::open(opts_.out_dir);
+    if (!opts_.data_dir.empty()) s.run.data_dir = opts_.data_dir;
+  } else {
+    if (!opts_.resume && have_ckpt)
+      throw InputError(opts_.out_dir, "checkpoint.pt",
+                       "the run folder already holds a run (use --resume to continue it, or another --out)");
+    if (opts_.data_dir.empty()) throw InputError("train", "--data", "required");
+    if (s.leader) {
+      s.run = RunFolder::create(opts_.out_dir, config_, opts_.data_dir);
+    } else {
+      s.run.dir = opts_.out_dir, s.run.config = config_, s.run.data_dir = opts_.data_dir;
+    }
+  }
+  if (s.run.data_dir.empty()) throw InputError(s.run.path("run.json"), "data", "missing: give --data");
+  if (s.leader) s.run.remove_stale_temporaries();
+
+  // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
+  std::vector<std::string> want{"train"};
+  // The capture's metadata, read once (its splits decide the held-out one, then it is loaded).
+  Capture capture = read_capture(s.run.data_dir, {}, config_.data.downscale);
+  const auto present = capture.split_names();
+  for (const char* name : {"val", "test"})
+    if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
+  if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
+  LoadOptions lo = load_options_for(config_, want);
+  lo.progress = s.leader && !opts_.quiet;
+  s.ds = Dataset::load(std::move(capture), s.run.data_dir, lo);
+  if (!s.ds->has("train")) throw InputError(s.run.data_dir, "transforms_train.json", "the dataset has no train split");
+  if (!s.ds->has(s.held_out)) s.held_out.clear();
+  // data.scene resolved from the capture, recorded in the run's config with the scene frame (so
+  // that eval and render place samples as training did).
+  if (config_.data.scene == SceneKind::Auto) config_.data.scene = s.ds->scene.kind;
+  s.run.config = config_;
+  if (s.leader) {
+    write_file_atomic(s.run.path("config.toml"), config_.to_toml());
+    s.run.write_scene(s.ds->scene);
+    if (!opts_.quiet) {
+      log_info("train: " + s.ds->format + " capture, " + s.ds->scene.describe());
+      for (const auto& note : s.ds->notes) log_info("train: " + note);
+    }
+  }
+
+  build(s.ds->split("train"), s.ds->intrinsics);
+  if (opts_.resume && have_ckpt) {
+    s.state = load_checkpoint(s.run.checkpoint_path(), config_, s.model, s.adam->optim());
+    s.adam->from_checkpoint();
+    s.sampler->set_rng_state(s.state.rng_state);
+    try {
+      s.sampler->set_map_state(s.state.error_map);
+    } catch (const std::invalid_argument&) {
+      throw InputError(s.run.checkpoint_path(), "error_map", "made for another training set (image count or size)");
+    }
+    s.elapsed_before = s.state.elapsed_seconds;
+    s.agreed_elapsed = s.elapsed_before;
+    if (s.leader) log_info("train: resumed " + s.run.checkpoint_path() + " at step " + std::to_string(s.state.step));
+  }
+  if (opts_.dist) {
+    opts_.dist->broadcast_parameters(s.model);  // every rank starts from rank 0's weights
+    if (s.leader && !opts_.quiet)
+      log_info("train: data-parallel over a c10d group of " + std::to_string(s.world) + " process(es)");
+  }
+}
+
+void Trainer::setup(const Split& train, const Intrinsics& k) { build(train, k); }
+
+void Trainer::build(const Split& train, const Intrinsics& k) {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.train;
+  torch::manual_seed(static_cast<uint64_t>(tc.seed));
+  if (s.ds) {
+    s.near = s.ds->near, s.far = s.ds->far, s.scene = s.ds->scene.kind;
+  } else {
+    s.scene = config_.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+    s.near = config_.data.near, s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.data.far;
+  }
+  const NdcProjection ndc = s.ds ? NdcProjection{s.ds->scene.ndc_a, s.ds->scene.ndc_b} : NdcProjection{};
+  s.model = AbleNerf(config_.model, s.scene, ndc);
+  s.model->to(opts_.device);
+  s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
+  s.model->train();
+  const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
+  s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
+                                  AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});
+  std::optional<ErrorMapOptions> map;
+  if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
+  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map);
+  s.schedule.emplace(tc);
+  s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
+  s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
+  if (s.leader && log_enabled(LogLevel::Debug)) {
+    std::ostringstream line;
+    line << "train: " << s.model->parameter_count() << " parameters on " << opts_.device << ", " << s.local_rays
+         << " rays per step in micro-batches of " << s.micro << ", " << train.size() << " training images, "
+         << (device_form ? "device-side Adam" : "host Adam");
+    log_debug(line.str());
+  }
+  if (device_form) {
+    s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
+    const auto dev = torch::TensorOptions().device(opts_.device);
+    s.indices_dev = torch::zeros({s.local_rays}, dev.dtype(torch::kLong));
+    s.figures_dev = torch::zeros({3 + (map ? s.local_rays : 0)}, dev.dtype(torch::kFloat));
+  }
+  s.start = std::chrono::steady_clock::now();
+}
+
+}  // namespace ablenerf
