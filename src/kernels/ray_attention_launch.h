@@ -1,7 +1,7 @@
 #pragma once
-// Launches of the fused ray self-attention kernels (ray_attention_cuda.cu), on raw device
-// pointers and a stream, so that plain nvcc compiles the kernels without LibTorch. The checked
-// ATen-level entry points are in kernels/ray_attention.h.
+// Launches of the fused ray self-attention kernels (ray_attention_fp32_cuda.cu, ray_attention_bf16_cuda.cu), on raw
+// device pointers and a stream, so that plain nvcc compiles the kernels without LibTorch. The checked ATen-level entry
+// points are in kernels/ray_attention.h.
 //
 // Layout (B rays, L tokens, H heads of kRayAttentionHeadDim = 64, E = 64 H), all contiguous:
 //   qkv       (B, L, 3E): per token [Q | K | V], head h of Q at columns [64h, 64h + 64),
