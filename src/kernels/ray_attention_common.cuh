@@ -36,7 +36,6 @@ __device__ __forceinline__ void copy_async(void* dst, const void* src, bool vali
 // Waits for this thread's copies; a barrier must follow before other threads read them.
 __device__ __forceinline__ void copy_async_wait() { asm volatile("cp.async.wait_all;\n" ::: "memory"); }
 
-
 // Shared memory beyond 48 KB must be granted per kernel before launch.
 template <class Kernel>
 cudaError_t grant_smem(Kernel kernel, size_t bytes) {

@@ -1,7 +1,7 @@
 // Fused self-attention over the tokens of one ray (forward and backward), read straight from the
-// packed projection: fp32 here, bf16 in ray_attention_bf16_cuda.cu. One thread block per (ray, head): the head's Q, K and V (at most 128 x 64)
-// sit in shared memory, the scores and the softmax never leave the chip, and the ray mask skips
-// the blocked half of every product. See ray_attention_launch.h for the layouts.
+// packed projection: fp32 here, bf16 in ray_attention_bf16_cuda.cu. One thread block per (ray, head): the head's Q, K
+// and V (at most 128 x 64) sit in shared memory, the scores and the softmax never leave the chip, and the ray mask
+// skips the blocked half of every product. See ray_attention_launch.h for the layouts.
 //
 // Two implementations, one per input type:
 //  * fp32: CUDA cores, every thread computing 4 x 4 blocks of each product from shared memory;

@@ -20,8 +20,6 @@
 #include "eval/camera_path.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
-#include "model/ipe.h"
-#include "model/view_encoding.h"
 #include "train/trainer.h"
 #include "util/fs.h"
 
@@ -39,16 +37,6 @@ namespace ablenerf {
 
 namespace {
 
-constexpr double kFlopPerMac = 2.0;
-constexpr size_t kMaxOpName = 200;  // kernel names are whole template signatures
-// The backward of a product whose two operands both need gradients is two products of the same
-// size (one per operand); a product with one constant operand (input features, no-grad probes)
-// needs only the other operand's gradient.
-constexpr double kBackwardBothOperands = 2.0;
-constexpr double kBackwardOneOperand = 1.0;
-constexpr int64_t kRgb = kRgbChannels;
-constexpr int64_t kQkv = 3, kKv = 2;
-constexpr int64_t kVolumeEmbeddingHiddenLayers = 3;  // 4 Linear layers: in->E, then 3 x E->E
 constexpr double kCameraDistance = 4.0;
 constexpr double kDirectionJitter = 0.1;
 // The in-memory training split of the benchmark: a few Blender-like views (800x800, focal of
@@ -57,74 +45,7 @@ constexpr int64_t kBenchViews = 4;
 constexpr double kBlenderFocal = 1111.111;
 constexpr int64_t kBytesPerKiB = 1024;
 
-// Accumulates products with their backward multiplier.
-struct Tally {
-  FlopCount c;
-  // m x k times k x n.
-  void product(double m, double k, double n, double backward_factor) {
-    const double f = kFlopPerMac * m * k * n;
-    c.forward += f;
-    c.backward += backward_factor * f;
-  }
-};
-
-// One post-norm transformer block per ray: lq queries attending to lk keys. `q_per_ray` is
-// false when the queries are shared by the whole batch (the LE cross-attention), so their
-// projection is a per-call cost, not a per-ray one.
-void transformer_block(Tally& t, double lq, double lk, double e, double ff, bool self, bool q_per_ray) {
-  if (self) {
-    t.product(lq, e, kQkv * e, kBackwardBothOperands);  // packed Q/K/V
-  } else {
-    if (q_per_ray) t.product(lq, e, e, kBackwardBothOperands);
-    t.product(lk, e, kKv * e, kBackwardBothOperands);  // packed K/V
-  }
-  // Scores and weighted values, summed over heads (heads x dh = E).
-  t.product(lq, e, lk, kBackwardBothOperands);
-  t.product(lq, lk, e, kBackwardBothOperands);
-  t.product(lq, e, e, kBackwardBothOperands);   // output projection
-  t.product(lq, e, ff, kBackwardBothOperands);  // feed-forward in
-  t.product(lq, ff, e, kBackwardBothOperands);  // feed-forward out
-}
-
-// The volume-embedding MLP of one pass; its input (the IPE features) needs no gradient.
-void volume_embedding(Tally& t, const ModelConfig& c) {
-  const double e = c.width, s = c.samples;
-  t.product(s, static_cast<double>(ipe_width(c.ipe_degrees)), e, kBackwardOneOperand);
-  for (int64_t i = 0; i < kVolumeEmbeddingHiddenLayers; ++i) t.product(s, e, e, kBackwardBothOperands);
-}
-
-void le_branch(Tally& t, const ModelConfig& c) {
-  const double e = c.width, ff = double(c.width) * c.ff_ratio, s = c.samples, n = c.le_count;
-  const double view = static_cast<double>(view_encoding_width(c.view_encoding));
-  transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);  // LE x volumes
-  for (int64_t j = 0; j < c.le_layers; ++j) transformer_block(t, n, n, e, ff, true, true);
-  transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);  // view decodes LE
-  t.product(1, e + view, e, kBackwardBothOperands);                       // LE colour head hidden layer
-  t.product(1, e, kRgb, kBackwardBothOperands);                           // LE colour head output
-}
-
 }  // namespace
-
-FlopCount model_flops_per_ray(const ModelConfig& c) {
-  Tally t;
-  const double e = c.width, ff = double(c.width) * c.ff_ratio, tokens = double(c.samples) + 1;
-  const bool le = c.le_count > 0;
-  if (le) {
-    // View token, shared by both passes; its input (the view encoding) needs no gradient.
-    t.product(1, static_cast<double>(view_encoding_width(c.view_encoding)), e, kBackwardOneOperand);
-  }
-  for (const int layers : {c.coarse_layers, c.fine_layers}) {
-    volume_embedding(t, c);
-    // AB transformer over the ray token plus S volume tokens (the full score matrix is
-    // computed: the causal mask is added, not skipped).
-    for (int i = 0; i < layers; ++i) transformer_block(t, tokens, tokens, e, ff, true, true);
-    // Resampling probe: the ray token's query against every key, without gradient.
-    t.product(1, e, tokens, 0.0);
-    t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
-    if (le) le_branch(t, c);
-  }
-  return t.c;
-}
 
 double median(std::vector<double> v) {
   if (v.empty()) throw std::invalid_argument("median of an empty list");
@@ -184,7 +105,7 @@ Split bench_split(int64_t side, uint64_t seed) {
     poses.push_back(look_at(eye * kCameraDistance, torch::zeros({3}), torch::tensor({0.0f, 1.0f, 0.0f})));
   }
   s.c2w = torch::stack(poses);
-  s.images = torch::rand({kBenchViews, side, side, kRgb}, gen);
+  s.images = torch::rand({kBenchViews, side, side, kRgbChannels}, gen);
   return s;
 }
 
@@ -335,99 +256,6 @@ nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, d
 }
 
 }  // namespace
-
-namespace {
-
-// Names with their summed microseconds, largest first (ties by name).
-std::vector<std::pair<std::string, double>> largest_first(const std::map<std::string, double>& us) {
-  std::vector<std::pair<std::string, double>> v(us.begin(), us.end());
-  std::sort(v.begin(), v.end(), [](const auto& a, const auto& b) {
-    return a.second != b.second ? a.second > b.second : a.first < b.first;
-  });
-  return v;
-}
-
-}  // namespace
-
-nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top) {
-  if (steps < 1) throw std::invalid_argument("trace_summary: steps must be >= 1");
-  const auto parsed = nlohmann::json::parse(trace_json, nullptr, /*allow_exceptions=*/false);
-  const auto& events = parsed.is_object() && parsed.contains("traceEvents") ? parsed["traceEvents"] : parsed;
-  if (!events.is_array()) throw std::invalid_argument("trace_summary: not a Chrome trace (no array of events)");
-  struct Event {
-    double start, end;
-    std::string name;
-  };
-  std::map<std::string, std::vector<Event>> by_thread;
-  // Kineto's device-side events (a CUDA trace): kernels, copies and fills, each timed on the GPU.
-  std::map<std::string, double> device_us;
-  std::map<std::string, int64_t> device_calls;
-  double device_total_us = 0;
-  int64_t device_events = 0;
-  for (const auto& e : events) {
-    if (!e.is_object() || e.value("ph", "") != "X") continue;
-    if (!e.contains("ts") || !e.contains("dur") || !e["ts"].is_number() || !e["dur"].is_number())
-      throw std::invalid_argument("trace_summary: an \"X\" event without numeric ts and dur");
-    const std::string cat = e.contains("cat") && e["cat"].is_string() ? e["cat"].get<std::string>() : "";
-    if (cat == "gpu_user_annotation") continue;  // a span over kernels listed on their own
-    const double ts = e["ts"].get<double>(), dur = e["dur"].get<double>();
-    if (cat == "kernel" || cat == "gpu_memcpy" || cat == "gpu_memset") {
-      const std::string name = e.value("name", "?").substr(0, kMaxOpName);
-      device_us[name] += dur;
-      device_calls[name] += 1;
-      device_total_us += dur;
-      ++device_events;
-      continue;
-    }
-    by_thread[e.contains("tid") ? e["tid"].dump() : ""].push_back({ts, ts + dur, e.value("name", "?")});
-  }
-  std::map<std::string, double> self_us;
-  std::map<std::string, int64_t> calls;
-  int64_t ops = 0;
-  double total_us = 0;
-  for (auto& [tid, list] : by_thread) {
-    // Parents first: earlier start, and the longer of two that start together.
-    std::sort(list.begin(), list.end(),
-              [](const Event& a, const Event& b) { return a.start != b.start ? a.start < b.start : a.end > b.end; });
-    std::vector<double> child_us(list.size(), 0.0);
-    std::vector<size_t> open;  // indices of the enclosing events
-    for (size_t i = 0; i < list.size(); ++i) {
-      while (!open.empty() && list[open.back()].end <= list[i].start) open.pop_back();
-      if (!open.empty()) child_us[open.back()] += list[i].end - list[i].start;
-      open.push_back(i);
-    }
-    for (size_t i = 0; i < list.size(); ++i) {
-      const double self = std::max(0.0, list[i].end - list[i].start - child_us[i]);
-      self_us[list[i].name] += self;
-      calls[list[i].name] += 1;
-      total_us += self;
-      ++ops;
-    }
-  }
-  const auto ranked = largest_first(self_us);
-  const double per_step = static_cast<double>(steps);
-  nlohmann::json out{{"steps", steps},
-                     {"ops_per_step", static_cast<double>(ops) / per_step},
-                     {"self_ms_per_step", total_us / 1000.0 / per_step},
-                     {"top", nlohmann::json::array()}};
-  for (size_t i = 0; i < std::min(top, ranked.size()); ++i)
-    out["top"].push_back({{"op", ranked[i].first},
-                          {"self_ms_per_step", ranked[i].second / 1000.0 / per_step},
-                          {"calls_per_step", static_cast<double>(calls[ranked[i].first]) / per_step}});
-  if (device_events > 0) {
-    const auto by_time = largest_first(device_us);
-    nlohmann::json gpu{{"events_per_step", static_cast<double>(device_events) / per_step},
-                       {"busy_ms_per_step", device_total_us / 1000.0 / per_step},
-                       {"top", nlohmann::json::array()}};
-    for (size_t i = 0; i < std::min(top, by_time.size()); ++i)
-      gpu["top"].push_back({{"kernel", by_time[i].first},
-                            {"ms_per_step", by_time[i].second / 1000.0 / per_step},
-                            {"share", by_time[i].second / device_total_us},
-                            {"calls_per_step", static_cast<double>(device_calls[by_time[i].first]) / per_step}});
-    out["gpu"] = gpu;
-  }
-  return out;
-}
 
 nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const BenchMeasurements& m) {
   const FlopCount f = model_flops_per_ray(cfg.model);

@@ -8,20 +8,11 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
+#include "model/flop_count.h"
+#include "train/trace_summary.h"
 #include "util/config.h"
 
 namespace ablenerf {
-
-// Floating-point operations per ray of the matrix products the model runs (dense GEMMs,
-// attention scores and attention-weighted sums; 2 FLOP per multiply-add). Element-wise work
-// (IPE, softmax, LayerNorm, GELU, resampling) is not counted. The LE query projection, computed
-// once per forward call for the whole batch, is not a per-ray cost and is left out.
-struct FlopCount {
-  double forward = 0;   // inference forward
-  double backward = 0;  // gradients of a training step (no-grad products excluded)
-  double train() const { return forward + backward; }
-};
-FlopCount model_flops_per_ray(const ModelConfig& cfg);
 
 struct BenchOptions {
   torch::Device device{torch::kCPU};
@@ -63,15 +54,6 @@ struct BenchMeasurements {
   // LibTorch >= 2 it is Kineto's trace instead: host ops plus the GPU's kernels (CUPTI).
   std::string trace_json;
 };
-
-// What a trace spends per step: every op's self time (its duration less that of the ops nested
-// in it on the same thread) summed by name, divided by `steps`. Returns {"steps", "ops_per_step",
-// "self_ms_per_step", "top": [{"op", "self_ms_per_step", "calls_per_step"}, ...]} with the `top`
-// ops of largest self time first. A CUDA trace (Kineto's: events of category "kernel",
-// "gpu_memcpy" or "gpu_memset") adds "gpu": {"events_per_step", "busy_ms_per_step" (their summed
-// durations), "top": [{"kernel", "ms_per_step", "share", "calls_per_step"}, ...]}; those events
-// are left out of the host's self times. Throws std::invalid_argument when the trace is not such JSON.
-nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_t top);
 
 // Median of a non-empty list (mean of the middle two for an even count).
 double median(std::vector<double> values);

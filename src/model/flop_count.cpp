@@ -1,0 +1,91 @@
+#include "model/flop_count.h"
+
+#include <cstdint>
+
+#include "data/rays.h"
+#include "model/ipe.h"
+#include "model/view_encoding.h"
+
+namespace ablenerf {
+
+namespace {
+
+// The backward of a product whose two operands both need gradients is two products of the same
+// size (one per operand); a product with one constant operand (input features, no-grad probes)
+// needs only the other operand's gradient.
+constexpr double kBackwardBothOperands = 2.0;
+constexpr double kBackwardOneOperand = 1.0;
+constexpr int64_t kRgb = kRgbChannels;
+constexpr int64_t kQkv = 3, kKv = 2;
+constexpr int64_t kVolumeEmbeddingHiddenLayers = 3;  // 4 Linear layers: in->E, then 3 x E->E
+
+// Accumulates products with their backward multiplier.
+struct Tally {
+  FlopCount c;
+  // m x k times k x n.
+  void product(double m, double k, double n, double backward_factor) {
+    const double f = kFlopPerMac * m * k * n;
+    c.forward += f;
+    c.backward += backward_factor * f;
+  }
+};
+
+// One post-norm transformer block per ray: lq queries attending to lk keys. `q_per_ray` is
+// false when the queries are shared by the whole batch (the LE cross-attention), so their
+// projection is a per-call cost, not a per-ray one.
+void transformer_block(Tally& t, double lq, double lk, double e, double ff, bool self, bool q_per_ray) {
+  if (self) {
+    t.product(lq, e, kQkv * e, kBackwardBothOperands);  // packed Q/K/V
+  } else {
+    if (q_per_ray) t.product(lq, e, e, kBackwardBothOperands);
+    t.product(lk, e, kKv * e, kBackwardBothOperands);  // packed K/V
+  }
+  // Scores and weighted values, summed over heads (heads x dh = E).
+  t.product(lq, e, lk, kBackwardBothOperands);
+  t.product(lq, lk, e, kBackwardBothOperands);
+  t.product(lq, e, e, kBackwardBothOperands);   // output projection
+  t.product(lq, e, ff, kBackwardBothOperands);  // feed-forward in
+  t.product(lq, ff, e, kBackwardBothOperands);  // feed-forward out
+}
+
+// The volume-embedding MLP of one pass; its input (the IPE features) needs no gradient.
+void volume_embedding(Tally& t, const ModelConfig& c) {
+  const double e = c.width, s = c.samples;
+  t.product(s, static_cast<double>(ipe_width(c.ipe_degrees)), e, kBackwardOneOperand);
+  for (int64_t i = 0; i < kVolumeEmbeddingHiddenLayers; ++i) t.product(s, e, e, kBackwardBothOperands);
+}
+
+void le_branch(Tally& t, const ModelConfig& c) {
+  const double e = c.width, ff = double(c.width) * c.ff_ratio, s = c.samples, n = c.le_count;
+  const double view = static_cast<double>(view_encoding_width(c.view_encoding));
+  transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);  // LE x volumes
+  for (int64_t j = 0; j < c.le_layers; ++j) transformer_block(t, n, n, e, ff, true, true);
+  transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);  // view decodes LE
+  t.product(1, e + view, e, kBackwardBothOperands);                       // LE colour head hidden layer
+  t.product(1, e, kRgb, kBackwardBothOperands);                           // LE colour head output
+}
+
+}  // namespace
+
+FlopCount model_flops_per_ray(const ModelConfig& c) {
+  Tally t;
+  const double e = c.width, ff = double(c.width) * c.ff_ratio, tokens = double(c.samples) + 1;
+  const bool le = c.le_count > 0;
+  if (le) {
+    // View token, shared by both passes; its input (the view encoding) needs no gradient.
+    t.product(1, static_cast<double>(view_encoding_width(c.view_encoding)), e, kBackwardOneOperand);
+  }
+  for (const int layers : {c.coarse_layers, c.fine_layers}) {
+    volume_embedding(t, c);
+    // AB transformer over the ray token plus S volume tokens (the full score matrix is
+    // computed: the causal mask is added, not skipped).
+    for (int i = 0; i < layers; ++i) transformer_block(t, tokens, tokens, e, ff, true, true);
+    // Resampling probe: the ray token's query against every key, without gradient.
+    t.product(1, e, tokens, 0.0);
+    t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
+    if (le) le_branch(t, c);
+  }
+  return t.c;
+}
+
+}  // namespace ablenerf
