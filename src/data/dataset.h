@@ -29,7 +29,7 @@ struct LoadOptions {
   // inverse DCT) instead of in full and then box-filtered: 4 to 20 times less work, a result within
   // about one 8-bit level of the box filter's (tests/data/dataset_test.cpp).
   bool jpeg_reduce = true;
-  MaskSource masks = MaskSource::Auto;  // data.masks: which pixels train (Split::mask)
+  MaskSource masks = MaskSource::None;  // data.masks: which pixels train (Split::mask)
   // Print a progress line while decoding (the CLI's loads; tests keep quiet).
   bool progress = false;
   // Splits to decode; empty = all present. Others are still validated for pose/shape errors

@@ -491,6 +491,8 @@ TEST(Captures, MasksFolderKeepsWhitePixelsAtEveryDownscale) {
   }
   LoadOptions o;
   o.scene = SceneKind::Bounded;
+  EXPECT_FALSE(Dataset::load(t.path(), o).split("train").mask.defined());  // data.masks = none by default
+  o.masks = MaskSource::Auto;
   for (const int down : {1, 2}) {
     SCOPED_TRACE("downscale " + std::to_string(down));
     o.downscale = down;
@@ -546,7 +548,9 @@ TEST(Captures, MaskPathAndInstantNgpDynamicMasks) {
            "{\"file_path\": \"images/p2.png\", \"transform_matrix\": [[1,0,0,0],[0,1,0,1],[0,0,1,0],[0,0,0,1]]}]}";
   };
   test::write_file(t / "transforms.json", json_with("mask0.png"));
-  const Dataset ds = Dataset::load(t.path());
+  LoadOptions o;
+  o.masks = MaskSource::Auto;
+  const Dataset ds = Dataset::load(t.path(), o);
   const auto& train = ds.split("train").mask;  // p1, p2
   ASSERT_TRUE(train.defined());
   EXPECT_FALSE(train[0].slice(1, 0, 3).any().item<bool>());
@@ -557,7 +561,7 @@ TEST(Captures, MaskPathAndInstantNgpDynamicMasks) {
   EXPECT_TRUE(test_mask[0].slice(1, 0, 5).all().item<bool>());
   EXPECT_FALSE(test_mask[0].slice(1, 5, W).any().item<bool>());
   test::write_file(t / "transforms.json", json_with("missing.png"));
-  test::expect_input_error([&] { Dataset::load(t.path()); }, t / "transforms.json", "frames[0].mask_path",
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, t / "transforms.json", "frames[0].mask_path",
                            "image not found", true);
 }
 
