@@ -1,5 +1,6 @@
 // COLMAP's binary model files (cameras.bin, images.bin, points3D.bin): little-endian records read
 // with every length and count checked against the bytes left (colmap_model.h).
+#include <cmath>
 #include <cstring>
 #include <string>
 #include <unordered_set>

@@ -51,7 +51,7 @@ inline std::string image_label(uint32_t id, const std::string& name) {
   return "image " + std::to_string(id) + " (" + printable(name, kColmapQuoteChars) + ")";
 }
 
-inline std::string base_name(const std::string& path) { return fs::path(path).filename().string(); }
+inline std::string base_name(const std::string& path) { return std::filesystem::path(path).filename().string(); }
 
 // The checks shared by both encodings. `where` names the record ("camera 3", "line 5: camera 3").
 void check_camera(const ColmapCamera& c, const std::string& origin, const std::string& where);
