@@ -40,6 +40,9 @@ class GridEmbeddingImpl : public torch::nn::Module {
   const HashGridShape& shape() const { return shape_; }
   // The table as the lookup reads it: (levels, table_size, features).
   torch::Tensor table() const { return table_ * lr_scale_; }
+  // The parameter itself (table() / lr_scale()) and the scale.
+  const torch::Tensor& table_parameter() const { return table_; }
+  double lr_scale() const { return lr_scale_; }
 
  private:
   HashGridShape shape_;

@@ -1,5 +1,6 @@
 #include "train/adam.h"
 
+#include <ATen/Parallel.h>
 #include <torch/version.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@ namespace ablenerf {
 
 namespace {
 constexpr double kWeightDecay = 0.0;
+constexpr int64_t kElementsPerTask = 1 << 16;
 #if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
 constexpr bool kDeviceFormCompiled = true;
 #else
@@ -174,13 +176,16 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     float* m = st.exp_avg().data_ptr<float>();
     float* v = st.exp_avg_sq().data_ptr<float>();
     float* w = p.data_ptr<float>();
-    const int64_t n = p.numel();
-    for (int64_t j = 0; j < n; ++j) {
-      m[j] = m[j] * b1 + one_b1 * g[j];
-      v[j] = v[j] * b2 + one_b2 * (g[j] * g[j]);
-      const float denom = std::sqrt(v[j]) / sqrt_bias2 + eps;
-      w[j] = w[j] + neg_step * (m[j] / denom);
-    }
+    // Element by element, so splitting the range over threads changes no bit (the grid's table is
+    // a million entries; the transformer's matrices are far smaller and stay on one thread).
+    at::parallel_for(0, p.numel(), kElementsPerTask, [&](int64_t lo, int64_t hi) {
+      for (int64_t j = lo; j < hi; ++j) {
+        m[j] = m[j] * b1 + one_b1 * g[j];
+        v[j] = v[j] * b2 + one_b2 * (g[j] * g[j]);
+        const float denom = std::sqrt(v[j]) / sqrt_bias2 + eps;
+        w[j] = w[j] + neg_step * (m[j] / denom);
+      }
+    });
   }
 }
 

@@ -85,9 +85,9 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   // The table's decay once per step, this process's share of it (ranks add their gradients).
   if (tc.grid_decay > 0 && model->grid()) {
     const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
-    const auto decay = grid_weight_decay(model->grid()->table()) * (tc.grid_decay * share);
-    decay.backward();
-    sums.loss.add_(decay.detach().to(sums.loss.dtype()));
+    const auto& grid = model->grid();
+    const auto decay = add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share);
+    sums.loss.add_(decay.to(sums.loss.dtype()));
   }
   sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;

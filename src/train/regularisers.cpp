@@ -28,4 +28,19 @@ torch::Tensor grid_weight_decay(const torch::Tensor& table) {
   return table.pow(2).mean({1, 2}).sum();
 }
 
+torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight) {
+  TORCH_CHECK(param.dim() == 3, "add_grid_weight_decay: table (levels, rows, features) expected");
+  torch::NoGradGuard no_grad;
+  // Every level has rows * features entries, so the sum of level means is one sum over the table.
+  const double coeff = weight * scale * scale / static_cast<double>(param.size(1) * param.size(2));
+  // The norm, not a product and a sum: one reduction with no temporary (and float32 under autocast).
+  const auto value = torch::linalg_vector_norm(param, 2, c10::nullopt, false, c10::nullopt).square() * coeff;
+  auto& grad = param.mutable_grad();
+  if (grad.defined())
+    grad.add_(param, 2 * coeff);
+  else
+    grad = param * (2 * coeff);
+  return value;
+}
+
 }  // namespace ablenerf

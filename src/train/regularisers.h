@@ -21,4 +21,13 @@ torch::Tensor attention_distribution(const torch::Tensor& weights);
 // squared table entries of that level. table: (levels, rows, features) -> 0-d.
 torch::Tensor grid_weight_decay(const torch::Tensor& table);
 
+// The same term on the table the lookup reads, scale * param (model/grid_embedding.h: the parameter
+// is the table over its learning-rate scale), times `weight`, with its gradient added straight into
+// param's .grad: weight * scale^2 / (rows * features) * sum(param^2), gradient twice that coefficient
+// times param. Two passes over the table and no temporaries of its size, where autograd through
+// grid_weight_decay makes five (the scaled table, its square, and their backward): the table is the
+// model's largest tensor (2^19 rows in the capture preset) and those passes were a fifth of a CPU
+// step. Returns the term's value (0-d, param's dtype); no graph is recorded.
+torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight);
+
 }  // namespace ablenerf

@@ -108,6 +108,30 @@ TEST(Regularisers, GridDecayIsTheSumOfLevelMeans) {
   EXPECT_NEAR(grid_weight_decay(table).item<double>(), 0.25 + 4.0 + 9.0, 1e-14);
 }
 
+TEST(Regularisers, FusedGridDecayEqualsAutogradOnTheScaledTable) {
+  // add_grid_weight_decay(param, scale, weight) is grid_weight_decay(scale * param) * weight, its
+  // gradient added to whatever param.grad holds.
+  torch::manual_seed(11);
+  const double scale = 5.0, weight = 0.35;
+  auto ref = torch::randn({4, 32, 3}, torch::kDouble).requires_grad_(true);
+  (grid_weight_decay(ref * scale) * weight).backward();
+  const auto expected_grad = ref.grad().clone();
+  const double expected = (grid_weight_decay(ref.detach() * scale) * weight).item<double>();
+  // Closed form too: the sum over levels of mean squares is sum(p^2) / (rows * features) here.
+  EXPECT_NEAR(expected, weight * scale * scale * ref.detach().pow(2).sum().item<double>() / (32 * 3), 1e-12);
+
+  const auto param = ref.detach().clone().requires_grad_(true);
+  EXPECT_NEAR(add_grid_weight_decay(param, scale, weight).item<double>(), expected, 1e-12 * expected);
+  ASSERT_TRUE(param.grad().defined());
+  EXPECT_TRUE(torch::allclose(param.grad(), expected_grad, 0, 1e-13));
+  // A gradient already there (the colour loss's) is added to, not replaced.
+  const auto before = torch::randn_like(param);
+  param.mutable_grad() = before.clone();
+  add_grid_weight_decay(param, scale, weight);
+  EXPECT_TRUE(torch::allclose(param.grad(), before + expected_grad, 0, 1e-13));
+  EXPECT_FALSE(add_grid_weight_decay(param, scale, weight).requires_grad());
+}
+
 TEST(Regularisers, AttentionWeightsCarryAGradientOnlyWhenAsked) {
   torch::manual_seed(3);
   AbleNerf model(regulariser_model(false));
