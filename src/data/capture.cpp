@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <string>
+#include <vector>
 
 #include "data/capture_formats.h"
 #include "util/errors.h"
@@ -84,6 +86,20 @@ std::string resolve_in_root(const std::string& root, const std::string& rel, con
   return canon.string();
 }
 
+namespace {
+// The image in `dir` named `stem` with any image extension, `preferred` (e.g. the photo's own) first;
+// empty when there is none. Serves the images_N/ copies and the masks/ folder alike.
+fs::path same_stem_image(const fs::path& dir, const std::string& stem, const std::string& preferred = "") {
+  std::vector<std::string> exts{".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".Png", ".Jpg"};
+  if (!preferred.empty()) exts.insert(exts.begin(), preferred);
+  for (const std::string& ext : exts) {
+    const fs::path cand = dir / (stem + ext);
+    if (fs::is_regular_file(cand)) return cand;
+  }
+  return {};
+}
+}  // namespace
+
 std::string resolve_downscaled(const std::string& root, const std::string& image, int downscale) {
   if (downscale <= 1) return "";
   std::error_code ec;
@@ -97,15 +113,10 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
   for (++it; it != rel.end(); ++it) rest /= *it;
   const fs::path dir = canon_root / ("images_" + std::to_string(downscale)) / rest.parent_path();
   if (!fs::is_directory(dir)) return "";
-  for (const std::string& ext :
-       {rest.extension().string(), std::string(".png"), std::string(".jpg"), std::string(".jpeg"), std::string(".JPG"),
-        std::string(".PNG"), std::string(".JPEG")}) {
-    const fs::path cand = dir / (rest.stem().string() + ext);
-    if (fs::is_regular_file(cand))
-      return resolve_in_root(root, cand.lexically_relative(canon_root).string(), image,
-                             "images_" + std::to_string(downscale));
-  }
-  return "";
+  const fs::path cand = same_stem_image(dir, rest.stem().string(), rest.extension().string());
+  if (cand.empty()) return "";
+  return resolve_in_root(root, cand.lexically_relative(canon_root).string(), image,
+                         "images_" + std::to_string(downscale));
 }
 
 std::string mask_in_folder(const std::string& root, const std::string& image, const std::string& field) {
@@ -115,11 +126,8 @@ std::string mask_in_folder(const std::string& root, const std::string& image, co
   if (!fs::is_directory(masks)) return "";
   const fs::path rel = fs::path(image).lexically_relative(canon_root / "images");
   if (rel.empty() || *rel.begin() == "..") return "";
-  const fs::path dir = masks / rel.parent_path();
-  for (const char* ext : {".png", ".jpg", ".jpeg", ".PNG", ".JPG", ".JPEG", ".Png", ".Jpg"}) {
-    const fs::path cand = dir / (rel.stem().string() + ext);
-    if (fs::is_regular_file(cand)) return fs::weakly_canonical(cand, ec).string();
-  }
+  const fs::path cand = same_stem_image(masks / rel.parent_path(), rel.stem().string());
+  if (!cand.empty()) return fs::weakly_canonical(cand, ec).string();
   throw InputError(
       masks.string(), field,
       "no mask for images/" + rel.string() + " (masks/" + (rel.parent_path() / rel.stem()).string() + ".png or .jpg)");

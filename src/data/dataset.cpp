@@ -67,6 +67,21 @@ DecodedImage decode_frame(const CaptureFrame& fr, int64_t want_h, int64_t want_w
   return d;
 }
 
+// "image is WxH but the capture's images are W'xH'" for a decoded image of the wrong size.
+std::string size_mismatch(const char* what, const DecodedImage& decoded, int64_t want_h, int64_t want_w) {
+  return std::string(what) + " is " + std::to_string(decoded.stored_width) + "x" +
+         std::to_string(decoded.stored_height) + " but the capture's images are " + std::to_string(want_w) + "x" +
+         std::to_string(want_h);
+}
+
+// A decoded full-size image (h', w', c) at the loaded size (h, w): box-averaged over f x f pixels
+// of the stored image, after libjpeg's reduction when it made one. A reduced decode is
+// ceil(size / reduced): its last row or column, from a partial block, is cropped like the
+// remainder of a box filter.
+torch::Tensor to_loaded_size(const torch::Tensor& im, const DecodedImage& decoded, int f, int64_t h, int64_t w) {
+  return box_downscale(im, f / decoded.reduced).slice(0, 0, h).slice(1, 0, w);
+}
+
 // One frame's decoded image as (h, w, 4) float straight RGBA at the loaded size (h, w):
 // box-downscaled (after libjpeg's reduction, when it made one), or cropped from the
 // pre-downscaled copy.
@@ -75,9 +90,7 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const DecodedImage& decoded, in
   torch::Tensor raw = image_tensor(decoded.image);
   const auto size_error = [&](int64_t want_h, int64_t want_w) {
     return InputError(fr.image, fr.field,
-                      "image is " + std::to_string(decoded.stored_width) + "x" + std::to_string(decoded.stored_height) +
-                          " but the capture's images are " + std::to_string(want_w) + "x" + std::to_string(want_h) +
-                          (fr.prescaled ? " (pre-downscaled copy)" : ""));
+                      size_mismatch("image", decoded, want_h, want_w) + (fr.prescaled ? " (pre-downscaled copy)" : ""));
   };
   if (fr.prescaled) {
     // images_N/ copies are W/N rounded or floored: one extra row or column is cropped.
@@ -89,10 +102,8 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const DecodedImage& decoded, in
   torch::Tensor im = raw.to(torch::kFloat).div_(255.0f);
   if (im.size(2) == 1) im = im.expand({-1, -1, 3});
   if (im.size(2) == 3) im = torch::cat({im, torch::ones_like(im.slice(2, 0, 1))}, 2);
-  // Straight RGBA, before compositing (docs/MODEL.md, section 1). A reduced decode is
-  // ceil(size / reduced): its last row or column, from a partial block, is cropped like the
-  // remainder of a box filter.
-  if (!fr.prescaled) im = box_downscale(im, f / decoded.reduced).slice(0, 0, h).slice(1, 0, w);
+  // Straight RGBA, before compositing (docs/MODEL.md, section 1).
+  if (!fr.prescaled) im = to_loaded_size(im, decoded, f, h, w);
   return im;
 }
 
@@ -103,11 +114,9 @@ torch::Tensor frame_rgba(const CaptureFrame& fr, const DecodedImage& decoded, in
 torch::Tensor frame_mask(const CaptureFrame& fr, const DecodedImage& decoded, int64_t full_h, int64_t full_w, int f,
                          int64_t h, int64_t w) {
   if (decoded.stored_height != full_h || decoded.stored_width != full_w)
-    throw InputError(fr.mask, fr.mask_field,
-                     "mask is " + std::to_string(decoded.stored_width) + "x" + std::to_string(decoded.stored_height) +
-                         " but the capture's images are " + std::to_string(full_w) + "x" + std::to_string(full_h));
-  torch::Tensor set = image_tensor(decoded.image).select(2, 0).to(torch::kFloat).div_(255.0f).unsqueeze(-1);
-  set = box_downscale(set, f / decoded.reduced).slice(0, 0, h).slice(1, 0, w).squeeze(-1);
+    throw InputError(fr.mask, fr.mask_field, size_mismatch("mask", decoded, full_h, full_w));
+  const torch::Tensor full = image_tensor(decoded.image).select(2, 0).to(torch::kFloat).div_(255.0f).unsqueeze(-1);
+  const torch::Tensor set = to_loaded_size(full, decoded, f, h, w).squeeze(-1);
   return fr.mask_keeps_set ? set.ge(0.5f) : set.lt(0.5f);
 }
 

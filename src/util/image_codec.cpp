@@ -38,17 +38,12 @@ DecodedImage decode_image_file(const std::string& path, int reduce) {
     out.stored_width = out.image.width;
     return out;
   }
-  if (reduce > 1) {
-    const auto [h, w] = jpeg_size(path);
-    out.stored_height = h;
-    out.stored_width = w;
-    out.reduced = reduce;
-    out.image = decode_jpeg_file(path, &out.exif_orientation, reduce);
-  } else {
-    out.image = decode_jpeg_file(path, &out.exif_orientation);
-    out.stored_height = out.image.height;
-    out.stored_width = out.image.width;
-  }
+  // One pass over the header: the stored size comes back from the decode itself.
+  std::pair<int, int> stored;
+  out.reduced = reduce > 1 ? reduce : 1;
+  out.image = decode_jpeg_file(path, &out.exif_orientation, out.reduced, &stored);
+  out.stored_height = stored.first;
+  out.stored_width = stored.second;
   return out;
 }
 

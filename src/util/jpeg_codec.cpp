@@ -181,13 +181,14 @@ std::pair<int, int> jpeg_size(const std::string& path) {
   return {static_cast<int>(s.cinfo.image_height), static_cast<int>(s.cinfo.image_width)};
 }
 
-Image8 decode_jpeg_file(const std::string& path, int* exif_orientation, int reduce) {
+Image8 decode_jpeg_file(const std::string& path, int* exif_orientation, int reduce, std::pair<int, int>* stored_size) {
   if (reduce != 1 && reduce != 2 && reduce != 4 && reduce != 8)
     throw std::invalid_argument("decode_jpeg_file: reduce must be 1, 2, 4 or 8");
   JpegSession s(path);
   read_jpeg_header(s, exif_orientation != nullptr);
   jpeg_decompress_struct& c = s.cinfo;
   if (exif_orientation) *exif_orientation = saved_exif_orientation(c);
+  if (stored_size) *stored_size = {static_cast<int>(c.image_height), static_cast<int>(c.image_width)};
   // libjpeg converts YCbCr (and RGB) to RGB with upsampled chroma ("fancy" triangle upsampling and
   // the accurate integer IDCT, its defaults).
   c.out_color_space = c.jpeg_color_space == JCS_GRAYSCALE ? JCS_GRAYSCALE : JCS_RGB;

@@ -32,8 +32,10 @@ namespace ablenerf {
 // inverse DCT: 1/8 keeps each 8x8 block's DC term, its mean; 1/2 and 1/4 keep the lowest 4x4 and
 // 2x2 coefficients), which skips most of the IDCT and colour-conversion work and never builds the
 // full-size image. The result is ceil(width / reduce) x ceil(height / reduce). Any other value is
-// std::invalid_argument. The pixel limit applies to the stored size.
-Image8 decode_jpeg_file(const std::string& path, int* exif_orientation = nullptr, int reduce = 1);
+// std::invalid_argument. The pixel limit applies to the stored size, which comes back in
+// `stored_size` ({height, width}) when given.
+Image8 decode_jpeg_file(const std::string& path, int* exif_orientation = nullptr, int reduce = 1,
+                        std::pair<int, int>* stored_size = nullptr);
 
 // {height, width} of the stored (raw, unrotated) pixels, from the header only (jpeg_read_header:
 // the entropy-coded data is not read). Refuses what the header alone shows decode_jpeg_file would
