@@ -15,6 +15,9 @@ namespace ablenerf {
 namespace {
 // Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
 constexpr uint64_t kLeNoiseSeed = 4;
+// The share of the coarse samples the proposal spreads evenly along the ray whatever its field says
+// (model/proposal.h): room to find a surface the field has not learned yet.
+constexpr double kProposalPadding = 0.2;
 static_assert(sizeof(ModelOutput) ==
                   sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
               "every ModelOutput field must be listed in ModelOutput::kFields");
@@ -47,6 +50,7 @@ AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjectio
     grid_ = register_module("grid", GridEmbedding(cfg, grid_cube(cfg, scene)));
     features = grid_->width() + ipe_width(cfg.grid_ipe_degrees);
   }
+  if (cfg.proposal_samples > 0) proposal_ = register_module("proposal", Proposal(cfg, grid_cube(cfg, scene)));
   volume_embedding_ = register_module("volume_embedding", VolumeEmbedding(features, e));
   coarse_ = register_module("coarse", ABTransformer(e, cfg.heads, ff, cfg.coarse_layers));
   fine_ = register_module("fine", ABTransformer(e, cfg.heads, ff, cfg.fine_layers));
@@ -101,15 +105,7 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
                                           const torch::Tensor& view_code, bool colour, bool weights_grad) {
   const int64_t b = t.size(0);
-  Gaussians g;
-  if (unbounded_) {
-    const int64_t n = t.size(-1);
-    const auto m = conical_frustum_moments(t.slice(-1, 0, n - 1), t.slice(-1, 1, n), rays.radii);
-    const auto mean = rays.origins.unsqueeze(1) + rays.directions.unsqueeze(1) * m.t_mean.unsqueeze(-1);
-    g = contract_gaussians(mean, rays.directions, m);
-  } else {
-    g = cast_intervals(t, rays);
-  }
+  const Gaussians g = frustums(t, rays);
   torch::Tensor features;
   if (!grid_)
     features = integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees);
@@ -131,6 +127,14 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
   if (le_tf) p.le_colour = (*le_head)((*le_tf)(le, y.slice(1, 1), view), view_code);
   p.rgb = tonemap(p.ray_colour, p.le_colour);
   return p;
+}
+
+Gaussians AbleNerfImpl::frustums(const torch::Tensor& t, const Rays& rays) const {
+  if (!unbounded_) return cast_intervals(t, rays);
+  const int64_t n = t.size(-1);
+  const auto m = conical_frustum_moments(t.slice(-1, 0, n - 1), t.slice(-1, 1, n), rays.radii);
+  const auto mean = rays.origins.unsqueeze(1) + rays.directions.unsqueeze(1) * m.t_mean.unsqueeze(-1);
+  return contract_gaussians(mean, rays.directions, m);
 }
 
 ForwardOptions ForwardOptions::slice(int64_t lo, int64_t hi) const {
@@ -183,15 +187,28 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
 
   // Unbounded scenes place and resample their fence-posts in the normalised s in [0, 1]
   // (model/contraction.h); bounded ones directly in depth.
-  const auto s_c = unbounded_ ? coarse_fence_posts(b, 0.0, 1.0, cfg_.samples, options, opts.coarse_jitter)
-                              : coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
-  const auto t_c = unbounded_ ? unbounded_depths(s_c, near, far) : s_c;
+  const auto depths = [&](const torch::Tensor& s) { return unbounded_ ? unbounded_depths(s, near, far) : s; };
+  torch::Tensor s_c, proposal_s, proposal_w;
+  if (proposal_) {
+    // Proposal sampling (model/proposal.h): the field's weights over even intervals of the
+    // normalised ray coordinate, and the coarse fence-posts drawn from them.
+    proposal_s = coarse_fence_posts(b, 0.0, 1.0, proposal_->samples(), options);
+    const auto s_p = unbounded_ ? proposal_s : near + (far - near) * proposal_s;
+    proposal_w = density_weights(proposal_->density(frustums(depths(s_p), rays)), proposal_s);
+    const auto s_unit =
+        proposal_fence_posts(proposal_s, proposal_w, cfg_.samples, kProposalPadding, opts.coarse_jitter);
+    s_c = unbounded_ ? s_unit : near + (far - near) * s_unit;
+  } else {
+    s_c = unbounded_ ? coarse_fence_posts(b, 0.0, 1.0, cfg_.samples, options, opts.coarse_jitter)
+                     : coarse_fence_posts(b, near, far, cfg_.samples, options, opts.coarse_jitter);
+  }
+  const auto t_c = depths(s_c);
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
                           opts.coarse_colour, opts.weights_grad);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
   const auto s_f =
       resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
-  const auto t_f = unbounded_ ? unbounded_depths(s_f, near, far) : s_f;
+  const auto t_f = depths(s_f);
   // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view, view_code,
                           /*colour=*/true, opts.weights_grad);
@@ -205,6 +222,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   out.fine_weights = fp32(f.weights);
   out.fine_t = t_f;
   out.fine_s = unbounded_ ? s_f : (s_f - near) / (far - near);
+  out.proposal_s = proposal_s;
+  out.proposal_weights = proposal_w;
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);

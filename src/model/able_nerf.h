@@ -14,6 +14,7 @@
 #include "model/grid_embedding.h"
 #include "model/le_transformer.h"
 #include "model/ndc.h"
+#include "model/proposal.h"
 #include "model/volume_embedding.h"
 #include "util/config.h"
 
@@ -51,6 +52,9 @@ struct ModelOutput {
   torch::Tensor fine_weights;          // (B,S) last fine layer's ray-token attention over volumes
   torch::Tensor fine_t;                // (B,S+1) fine fence-posts (interval i = [t_i, t_i+1])
   torch::Tensor fine_s;                // (B,S+1) the same in the normalised ray coordinate in [0, 1]
+  // With the proposal field (model.proposal_samples = N > 0): its fence-posts in the normalised ray
+  // coordinate (B,N+1) and its weights (B,N), the latter with their graph for the proposal loss.
+  torch::Tensor proposal_s, proposal_weights;
   // With ForwardOptions::branches: linear colours before tone mapping (LE colours are zeros
   // when the model has no LE).
   torch::Tensor ray_colour_coarse, le_colour_coarse, ray_colour_fine, le_colour_fine;
@@ -58,10 +62,10 @@ struct ModelOutput {
   // Every field, for code that treats them alike (joining the outputs of ray slices). A field
   // added above without being listed here fails the static_assert in able_nerf.cpp.
   static constexpr torch::Tensor ModelOutput::*kFields[] = {
-      &ModelOutput::rgb_coarse,        &ModelOutput::rgb_fine,         &ModelOutput::coarse_weights,
-      &ModelOutput::fine_weights,      &ModelOutput::fine_t,           &ModelOutput::fine_s,
-      &ModelOutput::ray_colour_coarse, &ModelOutput::le_colour_coarse, &ModelOutput::ray_colour_fine,
-      &ModelOutput::le_colour_fine};
+      &ModelOutput::rgb_coarse,       &ModelOutput::rgb_fine,         &ModelOutput::coarse_weights,
+      &ModelOutput::fine_weights,     &ModelOutput::fine_t,           &ModelOutput::fine_s,
+      &ModelOutput::proposal_s,       &ModelOutput::proposal_weights, &ModelOutput::ray_colour_coarse,
+      &ModelOutput::le_colour_coarse, &ModelOutput::ray_colour_fine,  &ModelOutput::le_colour_fine};
 };
 
 class AbleNerfImpl : public torch::nn::Module {
@@ -81,6 +85,8 @@ class AbleNerfImpl : public torch::nn::Module {
   bool has_le() const { return cfg_.le_count > 0; }
   // The grid front end, or nullptr with the paper's IPE.
   const GridEmbeddingImpl* grid() const { return grid_ ? grid_.get() : nullptr; }
+  // The proposal field, or nullptr without one (model.proposal_samples = 0, the paper).
+  const ProposalImpl* proposal() const { return proposal_ ? proposal_.get() : nullptr; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
@@ -102,6 +108,8 @@ class AbleNerfImpl : public torch::nn::Module {
                 RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
                 const torch::Tensor& view, const torch::Tensor& view_code, bool colour, bool weights_grad);
   ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
+  // The interval Gaussians of fence-posts t (B,N+1) (depths): contracted for unbounded scenes.
+  Gaussians frustums(const torch::Tensor& t, const Rays& rays) const;
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;
@@ -112,6 +120,7 @@ class AbleNerfImpl : public torch::nn::Module {
   torch::Tensor ray_token_;      // (1,1,E) initial ray token
   torch::Tensor mask_;           // (S+1,S+1) additive mask buffer; undefined when model.mask is off
   GridEmbedding grid_{nullptr};  // model.embedding = "grid" only
+  Proposal proposal_{nullptr};   // model.proposal_samples > 0 only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};
   RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};

@@ -16,6 +16,11 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
   if (tc.distortion_weight > 0)
     loss = loss + distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
                       (tc.distortion_weight / static_cast<double>(global_rays));
+  if (tc.proposal_weight > 0 && out.proposal_weights.defined())
+    loss = loss + proposal_loss(out.proposal_s, out.proposal_weights, out.fine_s,
+                                attention_distribution(out.fine_weights).detach())
+                          .sum() *
+                      (tc.proposal_weight / static_cast<double>(global_rays));
   return {loss, se_f.detach() * inv, ray_se.detach()};
 }
 

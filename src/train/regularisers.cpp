@@ -23,6 +23,27 @@ torch::Tensor attention_distribution(const torch::Tensor& weights) {
   return weights / weights.sum(-1, /*keepdim=*/true).clamp_min(1e-6);
 }
 
+torch::Tensor proposal_loss(const torch::Tensor& s_p, const torch::Tensor& w_p, const torch::Tensor& s_t,
+                            const torch::Tensor& w_t) {
+  TORCH_CHECK(w_p.dim() == 2 && s_p.dim() == 2 && s_p.size(1) == w_p.size(1) + 1 && w_t.dim() == 2 && s_t.dim() == 2 &&
+                  s_t.size(1) == w_t.size(1) + 1 && s_p.size(0) == s_t.size(0),
+              "proposal_loss: weights (B,N), (B,M) and fence-posts (B,N+1), (B,M+1) expected");
+  // mip-NeRF 360's epsilon in the denominator.
+  constexpr double kEps = 1e-7;
+  const int64_t n = w_p.size(1);
+  // Inclusive prefix sums of the proposal with a leading 0: c_k = sum_j<k w_p_j, k = 0..N.
+  const auto c = torch::cat({torch::zeros({w_p.size(0), 1}, w_p.options()), torch::cumsum(w_p, 1)}, 1);
+  const auto posts = s_p.contiguous();
+  const auto target = s_t.to(posts.dtype()).contiguous();
+  // The proposal intervals that overlap [a, b] are j = lo(a) .. hi(b) - 1: lo(a) the last post <= a,
+  // hi(b) the first post > b (clamped to the ends).
+  const auto above = torch::searchsorted(posts, target, /*out_int32=*/false, /*right=*/true);
+  const auto lo = torch::clamp(above - 1, 0, n), hi = torch::clamp(above, 0, n);
+  const int64_t m = w_t.size(1);
+  const auto bound = c.gather(1, hi.slice(1, 1, m + 1)) - c.gather(1, lo.slice(1, 0, m));
+  return (torch::clamp_min(w_t - bound, 0).pow(2) / (w_t + kEps)).sum(1);
+}
+
 torch::Tensor grid_weight_decay(const torch::Tensor& table) {
   TORCH_CHECK(table.dim() == 3, "grid_weight_decay: table (levels, rows, features) expected");
   return table.pow(2).mean({1, 2}).sum();

@@ -17,6 +17,16 @@ torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor&
 // nothing of where the surface is, so the loss is put on this distribution instead.
 torch::Tensor attention_distribution(const torch::Tensor& weights);
 
+// mip-NeRF 360's proposal loss (Barron et al. 2022, section 3, eq. 13-14) per ray: the proposal's
+// histogram (fence-posts s_p (B,N+1), weights w_p (B,N)) must bound the target's (s_t (B,M+1), w_t
+// (B,M)) from above: with bound_i the proposal's weight over every interval that overlaps target
+// interval i,  sum_i max(0, w_t_i - bound_i)^2 / (w_t_i + eps)  -> (B,). The target is treated as a
+// constant (detach it): only the proposal learns from this. Both fence-post sets sorted, in one
+// coordinate. As in mip-NeRF 360's code, a proposal interval that only touches a target interval at a
+// shared post counts as overlapping it.
+torch::Tensor proposal_loss(const torch::Tensor& s_p, const torch::Tensor& w_p, const torch::Tensor& s_t,
+                            const torch::Tensor& w_t);
+
 // Zip-NeRF's normalised weight decay (Barron et al. 2023): the sum over levels of the mean of the
 // squared table entries of that level. table: (levels, rows, features) -> 0-d.
 torch::Tensor grid_weight_decay(const torch::Tensor& table);

@@ -49,6 +49,10 @@ void visit_fields(C& c, F&& f) {
   f("model.grid_ipe_degrees", &c.model.grid_ipe_degrees);
   f("model.grid_lr_scale", &c.model.grid_lr_scale);
   f("model.grid_bound", &c.model.grid_bound);
+  f("model.proposal_samples", &c.model.proposal_samples);
+  f("model.proposal_levels", &c.model.proposal_levels);
+  f("model.proposal_max_resolution", &c.model.proposal_max_resolution);
+  f("model.proposal_log2_table", &c.model.proposal_log2_table);
   f("model.le_count", &c.model.le_count);
   f("model.le_layers", &c.model.le_layers);
   f("model.mask", &c.model.mask);
@@ -77,6 +81,7 @@ void visit_fields(C& c, F&& f) {
   f("train.fine_weight", &c.train.fine_weight);
   f("train.distortion_weight", &c.train.distortion_weight);
   f("train.grid_decay", &c.train.grid_decay);
+  f("train.proposal_weight", &c.train.proposal_weight);
   f("train.seed", &c.train.seed);
   f("train.log_every", &c.train.log_every);
   f("train.eval_every", &c.train.eval_every);
@@ -233,6 +238,12 @@ void Config::validate() const {
   need(m.grid_ipe_degrees >= 0 && m.grid_ipe_degrees <= 30, "model.grid_ipe_degrees", "must be in 0..30");
   need(m.grid_lr_scale > 0, "model.grid_lr_scale", "must be positive");
   need(m.grid_bound > 0, "model.grid_bound", "must be positive");
+  need(m.proposal_samples == 0 || (m.proposal_samples >= 2 && m.proposal_samples <= 1024), "model.proposal_samples",
+       "must be 0 (off) or in 2..1024");
+  need(m.proposal_levels >= 1 && m.proposal_levels <= 32, "model.proposal_levels", "must be in 1..32");
+  need(m.proposal_log2_table >= 1 && m.proposal_log2_table <= 24, "model.proposal_log2_table", "must be in 1..24");
+  need(m.proposal_max_resolution >= m.grid_base_resolution && m.proposal_max_resolution <= (1 << 20),
+       "model.proposal_max_resolution", "must be in model.grid_base_resolution..1048576");
   need(m.le_count >= 0, "model.le_count", "must be >= 0");
   need(m.le_layers >= 0, "model.le_layers", "must be >= 0");
   need(m.resample_padding >= 0, "model.resample_padding", "must be >= 0");
@@ -252,13 +263,15 @@ void Config::validate() const {
   need(t.coarse_weight >= 0 && t.fine_weight >= 0, "train.fine_weight", "loss weights must be >= 0");
   need(t.distortion_weight >= 0 && std::isfinite(t.distortion_weight), "train.distortion_weight", "must be >= 0");
   need(t.grid_decay >= 0 && std::isfinite(t.grid_decay), "train.grid_decay", "must be >= 0");
+  need(t.proposal_weight >= 0 && std::isfinite(t.proposal_weight), "train.proposal_weight", "must be >= 0");
   need(t.log_every >= 1, "train.log_every", "must be >= 1");
   need(t.eval_every >= 0, "train.eval_every", "must be >= 0");
   need(t.eval_views >= 0, "train.eval_views", "must be >= 0");
   need(t.ckpt_every >= 0, "train.ckpt_every", "must be >= 0");
   need(t.max_bad_steps >= 1, "train.max_bad_steps", "must be >= 1");
   need(t.time_budget_s >= 0 && std::isfinite(t.time_budget_s), "train.time_budget_s", "must be >= 0 seconds");
-  need(t.error_tile >= 1, "train.error_tile", "must be >= 1 pixel");
+  // The map keeps a masked pixel's place in its tile in 16 bits (train/error_map.h).
+  need(t.error_tile >= 1 && t.error_tile <= 256, "train.error_tile", "must be in 1..256 pixels");
   need(t.error_uniform_share >= 0 && t.error_uniform_share <= 1, "train.error_uniform_share", "must be in [0, 1]");
   need(eval.chunk >= 1, "eval.chunk", "must be >= 1");
 }

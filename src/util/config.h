@@ -122,10 +122,19 @@ struct ModelConfig {
   int grid_ipe_degrees = 4;
   double grid_lr_scale = 20;  // the table's learning rate over the run's (instant-ngp's 1e-2 at lr 5e-4)
   double grid_bound = 1.5;    // bounded scenes: the grid spans [-grid_bound, grid_bound]^3 of the world
-  int le_count = 32;          // learnable embeddings; 0 = the paper's "no LE" ablation
-  int le_layers = 2;          // LE self-attention blocks
-  bool mask = true;           // causal volume mask (docs/MODEL.md, section 4) (false = bidirectional ablation)
-  bool randomized = false;    // stratified jitter of coarse samples and resampling (released: off)
+  // The proposal field (model/proposal.h; docs/MODEL.md, "Proposal sampling"): a small density grid
+  // read at proposal_samples intervals of every ray places the coarse pass's samples where the
+  // surfaces are, in place of the paper's even spacing. 0 = off (the paper). Its hash grid:
+  // proposal_levels levels from grid_base_resolution to proposal_max_resolution cells per side, of
+  // 2^proposal_log2_table rows (learning rate scaled by grid_lr_scale as the front end's).
+  int proposal_samples = 0;
+  int proposal_levels = 5;
+  int proposal_max_resolution = 128;
+  int proposal_log2_table = 16;
+  int le_count = 32;        // learnable embeddings; 0 = the paper's "no LE" ablation
+  int le_layers = 2;        // LE self-attention blocks
+  bool mask = true;         // causal volume mask (docs/MODEL.md, section 4) (false = bidirectional ablation)
+  bool randomized = false;  // stratified jitter of coarse samples and resampling (released: off)
   ViewEncoding view_encoding = ViewEncoding::Release;  // "release": d, 4 linear freqs 1..8; "paper": 16 octave bands
   double resample_padding = 0.01;                      // added to every blurred weight before inverse-CDF sampling
 };
@@ -167,6 +176,9 @@ struct TrainConfig {
   // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over
   // levels of each level's mean squared feature), weighted by this. 0 = off.
   double grid_decay = 0.0;
+  // Weight of mip-NeRF 360's proposal loss (section 3, eq. 13-14; train/regularisers.h), which trains
+  // the proposal field (model.proposal_samples > 0) to bound the fine pass's attention. nerfacto's 1.
+  double proposal_weight = 1.0;
   int64_t seed = 4;
   int64_t log_every = 100;    // steps between log.jsonl lines
   int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
@@ -180,7 +192,8 @@ struct TrainConfig {
   double time_budget_s = 0;
   // Which pixels a step's rays come from (train/error_map.h): "uniform" = every training pixel
   // equally likely; "error" = a tile of error_tile x error_tile pixels in proportion to the recent
-  // squared error of its rays, mixed with uniform sampling at error_uniform_share.
+  // squared error of its rays, mixed with uniform sampling at error_uniform_share. error_tile is at
+  // most 256 pixels (a pixel's place inside its tile is kept in 16 bits).
   RaySampling ray_sampling = RaySampling::Uniform;
   int64_t error_tile = 4;
   double error_uniform_share = 0.25;

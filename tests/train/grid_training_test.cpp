@@ -47,6 +47,19 @@ TEST(GridTraining, ResumeEqualsUninterrupted) {
     EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
 }
 
+TEST(GridTraining, ResumeWithAProposalFieldEqualsUninterrupted) {
+  const test::IntraOpThreads threads(1);
+  test::TempDir t;
+  const Config c =
+      test::config_with(tiny_grid_config(), {"model.proposal_samples=12", "model.proposal_levels=2",
+                                             "model.proposal_max_resolution=8", "model.proposal_log2_table=6"});
+  test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
+  auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
+  ASSERT_TRUE(a.contains("proposal.grid.table"));
+  for (const auto& kv : a)
+    EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+}
+
 TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
   test::TempDir t;
   const Config c = tiny_grid_config();

@@ -98,6 +98,58 @@ TEST(Regularisers, AttentionDistributionSumsToOneAndKeepsTheShape) {
               distortion_loss(attention_distribution(w), s).sum().item<double>(), 1e-12);
 }
 
+TEST(Regularisers, ProposalLossIsZeroWhereTheProposalCoversTheTarget) {
+  const auto s = torch::tensor({{0.0, 0.2, 0.4, 0.6, 0.8, 1.0}}, torch::kDouble);
+  const auto w = torch::tensor({{0.1, 0.5, 0.2, 0.1, 0.1}}, torch::kDouble);
+  // The same histogram bounds itself.
+  EXPECT_NEAR(proposal_loss(s, w, s, w).item<double>(), 0.0, 1e-15);
+  // One proposal interval over the target's whole support bounds any split of it.
+  const auto wide = torch::tensor({{0.0, 0.3, 0.7, 1.0}}, torch::kDouble);
+  const auto fine = torch::tensor({{0.0, 0.35, 0.4, 0.5, 0.65, 1.0}}, torch::kDouble);
+  EXPECT_NEAR(proposal_loss(wide, torch::tensor({{0.0, 0.9, 0.0}}, torch::kDouble), fine,
+                            torch::tensor({{0.0, 0.3, 0.3, 0.3, 0.0}}, torch::kDouble))
+                  .item<double>(),
+              0.0, 1e-15);
+}
+
+TEST(Regularisers, ProposalLossByHand) {
+  // Proposal posts 0, .5, 1 with weights .2, .3; target posts 0, .2, .45, .7, 1 with .1, .4, .3, .2.
+  // Target intervals [0, .2] and [.2, .45] lie in proposal interval 0 (bound .2), [.45, .7] straddles
+  // both (bound .5), [.7, 1] lies in interval 1 (bound .3): only [.2, .45] exceeds its bound, by .2.
+  const auto sp = torch::tensor({{0.0, 0.5, 1.0}}, torch::kDouble);
+  const auto wp = torch::tensor({{0.2, 0.3}}, torch::kDouble);
+  const auto st = torch::tensor({{0.0, 0.2, 0.45, 0.7, 1.0}}, torch::kDouble);
+  const auto wt = torch::tensor({{0.1, 0.4, 0.3, 0.2}}, torch::kDouble);
+  const double eps = 1e-7;
+  const double expected = 0.2 * 0.2 / (0.4 + eps);
+  EXPECT_NEAR(proposal_loss(sp, wp, st, wt).item<double>(), expected, 1e-14);
+  // A target interval straddling a proposal post sees both intervals: [.4, .6] is bounded by .5.
+  const auto st2 = torch::tensor({{0.0, 0.4, 0.6, 1.0}}, torch::kDouble);
+  const auto wt2 = torch::tensor({{0.0, 0.6, 0.0}}, torch::kDouble);
+  EXPECT_NEAR(proposal_loss(sp, wp, st2, wt2).item<double>(), 0.1 * 0.1 / (0.6 + eps), 1e-14);
+}
+
+TEST(Regularisers, ProposalLossGradientMatchesFiniteDifferences) {
+  torch::manual_seed(8);
+  const auto sp = std::get<0>(torch::rand({3, 9}, torch::kDouble).sort(1));
+  const auto st = std::get<0>(torch::rand({3, 13}, torch::kDouble).sort(1));
+  const auto wt = torch::rand({3, 12}, torch::kDouble) * 0.3;
+  auto wp = (torch::rand({3, 8}, torch::kDouble) * 0.3).requires_grad_(true);
+  proposal_loss(sp, wp, st, wt).sum().backward();
+  const double h = 1e-6;
+  for (int r = 0; r < 3; ++r)
+    for (int j = 0; j < 8; ++j) {
+      auto up = wp.detach().clone(), down = wp.detach().clone();
+      up[r][j] += h;
+      down[r][j] -= h;
+      const double fd =
+          (proposal_loss(sp, up, st, wt).sum().item<double>() - proposal_loss(sp, down, st, wt).sum().item<double>()) /
+          (2 * h);
+      EXPECT_NEAR(wp.grad()[r][j].item<double>(), fd, 1e-6) << r << "," << j;
+    }
+  EXPECT_GT(wp.grad().abs().max().item<double>(), 0.0);
+}
+
 TEST(Regularisers, GridDecayIsTheSumOfLevelMeans) {
   // Level l holds +-c_l: its mean square is c_l^2 whatever the signs.
   auto table = torch::ones({3, 16, 2}, torch::kDouble);

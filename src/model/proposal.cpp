@@ -1,0 +1,48 @@
+#include "model/proposal.h"
+
+#include "model/resampler.h"
+
+namespace ablenerf {
+
+namespace {
+// nerfacto's proposal MLP width (one hidden layer of 16).
+constexpr int64_t kHidden = 16;
+// The density's logit is clamped before exp so that one bad step cannot overflow it (exp(15) is
+// far more than any interval needs to be opaque).
+constexpr double kMaxLogDensity = 15.0;
+}  // namespace
+
+torch::Tensor density_weights(const torch::Tensor& sigma, const torch::Tensor& s) {
+  const int64_t n = sigma.size(-1);
+  const auto depth = sigma * (s.slice(-1, 1, n + 1) - s.slice(-1, 0, n));  // optical depth per interval
+  const auto before = torch::cumsum(depth, -1) - depth;                    // exclusive
+  return torch::exp(-before) * (1 - torch::exp(-depth));
+}
+
+torch::Tensor proposal_fence_posts(const torch::Tensor& s, const torch::Tensor& weights, int64_t samples,
+                                   double padding, const torch::Tensor& jitter) {
+  torch::NoGradGuard no_grad;
+  const auto w = weights.detach().to(torch::kFloat);
+  return sample_pdf(s.to(torch::kFloat).contiguous(), w + padding / static_cast<double>(w.size(-1)), samples + 1,
+                    jitter)
+      .to(s.dtype());
+}
+
+ProposalImpl::ProposalImpl(const ModelConfig& cfg, GridCube cube) : samples_(cfg.proposal_samples) {
+  // The front end's grid class with the proposal's sizes.
+  ModelConfig g = cfg;
+  g.grid_levels = cfg.proposal_levels;
+  g.grid_max_resolution = cfg.proposal_max_resolution;
+  g.grid_log2_table = cfg.proposal_log2_table;
+  grid_ = register_module("grid", GridEmbedding(g, cube));
+  hidden_ = register_module("hidden", torch::nn::Linear(grid_->width(), kHidden));
+  out_ = register_module("out", torch::nn::Linear(kHidden, 1));
+}
+
+torch::Tensor ProposalImpl::density(const Gaussians& g) {
+  const auto features = grid_(g.mean, g.cov);
+  const auto logit = out_(torch::relu(hidden_(features.to(hidden_->weight.dtype())))).squeeze(-1);
+  return torch::exp(logit.to(torch::kFloat).clamp_max(kMaxLogDensity));
+}
+
+}  // namespace ablenerf
