@@ -42,6 +42,20 @@ TEST(AbleNerf, PresetParameterCounts) {
   EXPECT_GT(AbleNerf(preset("demo").model)->parameter_count(), 0);
 }
 
+TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
+  // configs/capture.toml (the preset for real captures, docs/BENCHMARKS.md): both of ablenerf's
+  // extensions on, the paper's presets with neither.
+  const AbleNerf capture(preset("capture").model);
+  EXPECT_NE(capture->grid(), nullptr);
+  ASSERT_NE(capture->proposal(), nullptr);
+  EXPECT_EQ(capture->proposal()->samples(), 32);
+  for (const char* paper : {"blender", "demo"}) {
+    const AbleNerf m(preset(paper).model);
+    EXPECT_EQ(m->grid(), nullptr) << paper;
+    EXPECT_EQ(m->proposal(), nullptr) << paper;
+  }
+}
+
 TEST(AbleNerf, OutputContract) {
   torch::manual_seed(1);
   AbleNerf model(tiny());
