@@ -9,8 +9,10 @@
 #include <c10/cuda/CUDAException.h>
 #include <c10/cuda/CUDAGuard.h>
 
+#include "kernels/aten_cuda.h"
 #include "kernels/ray_attention_launch.h"
 #endif
+#include "kernels/tensor_checks.h"
 
 namespace ablenerf {
 
@@ -48,11 +50,6 @@ kernels::RayAttentionShape kernel_shape(const Geometry& g, bool masked) {
   return s;
 }
 
-const __nv_bfloat16* bf16_ptr(const torch::Tensor& x) {
-  return reinterpret_cast<const __nv_bfloat16*>(x.data_ptr<at::BFloat16>());
-}
-__nv_bfloat16* bf16_ptr(torch::Tensor& x) { return reinterpret_cast<__nv_bfloat16*>(x.data_ptr<at::BFloat16>()); }
-
 // out, row0 and the per-row log-sum-exp of a checked, contiguous, aligned qkv.
 struct Forward {
   torch::Tensor out, row0, lse;
@@ -67,12 +64,11 @@ Forward run_forward(const torch::Tensor& qkv, const Geometry& g, bool masked) {
   f.lse = torch::empty({g.batch, g.heads, g.tokens}, fp32);
   const auto shape = kernel_shape(g, masked);
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
-  const cudaError_t err =
-      qkv.scalar_type() == torch::kFloat
-          ? kernels::launch_ray_attention_forward(qkv.data_ptr<float>(), f.out.data_ptr<float>(),
-                                                  f.lse.data_ptr<float>(), f.row0.data_ptr<float>(), shape, stream)
-          : kernels::launch_ray_attention_forward(bf16_ptr(qkv), bf16_ptr(f.out), f.lse.data_ptr<float>(),
-                                                  f.row0.data_ptr<float>(), shape, stream);
+  cudaError_t err = cudaSuccess;
+  aten_cuda::dispatch_activation(qkv, [&](auto tag) {
+    err = kernels::launch_ray_attention_forward(aten_cuda::ptr(qkv, tag), aten_cuda::mutable_ptr(f.out, tag),
+                                                f.lse.data_ptr<float>(), f.row0.data_ptr<float>(), shape, stream);
+  });
   C10_CUDA_CHECK(err);
   C10_CUDA_KERNEL_LAUNCH_CHECK();
   return f;
@@ -88,12 +84,12 @@ torch::Tensor run_backward(const torch::Tensor& qkv, const torch::Tensor& out, c
   auto grad = torch::empty(qkv.sizes(), qkv.options());
   const auto shape = kernel_shape(g, masked);
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();
-  const cudaError_t err =
-      qkv.scalar_type() == torch::kFloat
-          ? kernels::launch_ray_attention_backward(qkv.data_ptr<float>(), out.data_ptr<float>(), go.data_ptr<float>(),
-                                                   lse.data_ptr<float>(), grad.data_ptr<float>(), shape, stream)
-          : kernels::launch_ray_attention_backward(bf16_ptr(qkv), bf16_ptr(out), bf16_ptr(go), lse.data_ptr<float>(),
-                                                   bf16_ptr(grad), shape, stream);
+  cudaError_t err = cudaSuccess;
+  aten_cuda::dispatch_activation(qkv, [&](auto tag) {
+    err = kernels::launch_ray_attention_backward(aten_cuda::ptr(qkv, tag), aten_cuda::ptr(out, tag),
+                                                 aten_cuda::ptr(go, tag), lse.data_ptr<float>(),
+                                                 aten_cuda::mutable_ptr(grad, tag), shape, stream);
+  });
   C10_CUDA_CHECK(err);
   C10_CUDA_KERNEL_LAUNCH_CHECK();
   return grad;
@@ -130,9 +126,8 @@ class RayAttentionFunction : public torch::autograd::Function<RayAttentionFuncti
 RayAttentionResult ray_attention(const torch::Tensor& qkv, int64_t heads, bool masked) {
 #ifdef ABLENERF_CUDA_KERNELS
   const Geometry g = geometry(qkv, heads, "ray_attention");
-  TORCH_CHECK(qkv.is_cuda(), "ray_attention: qkv must be a CUDA tensor, got device ", qkv.device());
-  TORCH_CHECK(qkv.scalar_type() == torch::kFloat || qkv.scalar_type() == torch::kBFloat16,
-              "ray_attention: qkv must be float32 or bfloat16, got ", qkv.scalar_type());
+  kernel_checks::cuda("ray_attention", "qkv", qkv);
+  kernel_checks::activation_dtype("ray_attention", "qkv", qkv);
   TORCH_CHECK(g.head_dim == kernels::kRayAttentionHeadDim,
               "ray_attention: head_dim (qkv.size(2) / (3 * heads)) must be ", kernels::kRayAttentionHeadDim, ", got ",
               g.head_dim);
