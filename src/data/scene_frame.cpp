@@ -6,19 +6,13 @@
 #include <sstream>
 
 #include "util/errors.h"
+#include "util/vec3.h"
 
 namespace ablenerf {
 
 namespace {
 
-using V3 = std::array<double, 3>;
-
-V3 sub(const V3& a, const V3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-double dot(const V3& a, const V3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-double norm(const V3& a) { return std::sqrt(dot(a, a)); }
-V3 cross(const V3& a, const V3& b) {
-  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
+using V3 = Vec3;
 
 V3 column(const Pose34& p, int c) {
   return {p[static_cast<size_t>(c)], p[static_cast<size_t>(4 + c)], p[static_cast<size_t>(8 + c)]};
@@ -28,7 +22,7 @@ V3 column(const Pose34& p, int c) {
 std::array<double, 9> rotation_to_z(const V3& a) {
   const V3 z{0, 0, 1};
   const V3 v = cross(a, z);
-  const double c = dot(a, z), s = norm(v);
+  const double c = dot(a, z), s = length(v);
   if (s < 1e-12) {
     if (c > 0) return {1, 0, 0, 0, 1, 0, 0, 0, 1};
     return {1, 0, 0, 0, -1, 0, 0, 0, -1};  // a = -z: half a turn about x
@@ -94,7 +88,7 @@ std::vector<double> point_depths(const Capture& cap, const std::vector<Pose34>& 
   for (const auto& p : poses) {
     const V3 o = column(p, 3), z = column(p, 2);
     for (size_t i = 0; i < cap.points.size(); i += stride) {
-      const double d = -dot(sub(cap.points[i], o), z);
+      const double d = -dot((to_vec3(cap.points[i]) - o), z);
       if (d > 0) depths.push_back(d);
     }
   }
@@ -120,10 +114,10 @@ SceneFrame fit_forward_facing(const Capture& cap, const std::vector<Pose34>& pos
                               const V3& up_sum, const std::string& root) {
   SceneFrame f;
   f.kind = SceneKind::ForwardFacing;
-  f.centre = mean;
+  f.centre = to_array(mean);
   // Rows of R: right = up x back, up' = back x right, back (so R back = +z, the cameras look down -z).
   V3 right = cross(up_sum, back);
-  const double rn = norm(right);
+  const double rn = length(right);
   if (!(rn > 1e-9)) throw InputError(root, "poses", "the cameras' up vectors are parallel to their viewing direction");
   right = {right[0] / rn, right[1] / rn, right[2] / rn};
   const V3 up = cross(back, right);
@@ -143,11 +137,12 @@ SceneFrame fit_forward_facing(const Capture& cap, const std::vector<Pose34>& pos
 }  // namespace
 
 bool SceneFrame::identity() const {
-  return scale == 1 && centre == V3{0, 0, 0} && rotation == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  return scale == 1 && centre == std::array<double, 3>{0, 0, 0} &&
+         rotation == std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
 }
 
 std::array<double, 3> SceneFrame::point_to_scene(const std::array<double, 3>& p) const {
-  const V3 r = rotate(rotation, sub(p, centre));
+  const V3 r = rotate(rotation, to_vec3(p) - to_vec3(centre));
   return {scale * r[0], scale * r[1], scale * r[2]};
 }
 
@@ -157,7 +152,7 @@ Pose34 SceneFrame::to_scene(const Pose34& c2w) const {
     const V3 col = rotate(rotation, column(c2w, c));
     for (int r = 0; r < 3; ++r) out[static_cast<size_t>(r * 4 + c)] = static_cast<float>(col[static_cast<size_t>(r)]);
   }
-  const V3 t = point_to_scene(column(c2w, 3));
+  const V3 t = to_vec3(point_to_scene(to_array(column(c2w, 3))));
   for (int r = 0; r < 3; ++r) out[static_cast<size_t>(r * 4 + 3)] = static_cast<float>(t[static_cast<size_t>(r)]);
   return out;
 }
@@ -265,11 +260,11 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
       }
   }
   double spread = 0;
-  for (const auto& p : poses) spread = std::max(spread, norm(sub(column(p, 3), mean)));
-  if (!(spread > 1e-9 * (1 + norm(mean))))
+  for (const auto& p : poses) spread = std::max(spread, length(column(p, 3) - mean));
+  if (!(spread > 1e-9 * (1 + length(mean))))
     throw InputError(root, "poses", "every camera is at the same point (degenerate poses: nothing to triangulate)");
   // Forward-facing: every optical axis close to the mean one, and a known near bound.
-  const double back_norm = norm(back);
+  const double back_norm = length(back);
   bool facing_one_way = back_norm > 1e-9;
   if (facing_one_way) {
     for (size_t i = 0; i < 3; ++i) back[i] /= back_norm;
@@ -292,16 +287,16 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
   if (solve3(A, b, focus)) {
     for (const auto& p : poses) {
       const V3 z = column(p, 2);
-      in_front += dot(sub(focus, column(p, 3)), V3{-z[0], -z[1], -z[2]}) > 0;
+      in_front += dot(focus - column(p, 3), V3{-z[0], -z[1], -z[2]}) > 0;
     }
   }
-  const bool use_focus = 2 * in_front > static_cast<int>(poses.size()) && norm(sub(focus, mean)) < 10 * spread;
-  f.centre = use_focus ? focus : mean;
-  const double up_norm = norm(up);
+  const bool use_focus = 2 * in_front > static_cast<int>(poses.size()) && length(focus - mean) < 10 * spread;
+  f.centre = to_array(use_focus ? focus : mean);
+  const double up_norm = length(up);
   f.rotation = up_norm > 1e-9 ? rotation_to_z({up[0] / up_norm, up[1] / up_norm, up[2] / up_norm})
                               : std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
   double radius = 0;
-  for (const auto& p : poses) radius = std::max(radius, norm(sub(column(p, 3), f.centre)));
+  for (const auto& p : poses) radius = std::max(radius, length(column(p, 3) - to_vec3(f.centre)));
   f.scale = 1.0 / radius;
   f.kind = requested == SceneKind::Bounded ? SceneKind::Bounded : SceneKind::Unbounded;
 

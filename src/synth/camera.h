@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "synth/vec3.h"
+#include "util/vec3.h"
 #include "synth/world.h"
 
 namespace ablenerf::synth {

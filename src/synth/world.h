@@ -5,7 +5,7 @@
 #include <limits>
 #include <vector>
 
-#include "synth/vec3.h"
+#include "util/vec3.h"
 
 namespace ablenerf::synth {
 

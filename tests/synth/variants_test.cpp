@@ -117,14 +117,14 @@ TEST(SynthVariants, EnvironmentBackgroundIsOpaqueAndShowsTheSky) {
   // The top-left pixel misses every object: its colour is the environment along its 3x3
   // sub-sample rays, averaged in linear light.
   const synth::Camera cam = synth::test_cameras(2, 16)[0];
-  synth::Vec3 sum;
+  Vec3 sum;
   for (int sy = 0; sy < synth::kSubsamplesPerAxis; ++sy)
     for (int sx = 0; sx < synth::kSubsamplesPerAxis; ++sx) {
       const synth::Ray r =
           synth::camera_ray(cam, (sx + 0.5) / synth::kSubsamplesPerAxis, (sy + 0.5) / synth::kSubsamplesPerAxis);
       ASSERT_FALSE(synth::intersect_scene(r).hit());
-      const synth::Vec3 e = synth::environment(normalize(r.dir));
-      sum += synth::Vec3{std::clamp(e.x, 0.0, 1.0), std::clamp(e.y, 0.0, 1.0), std::clamp(e.z, 0.0, 1.0)};
+      const Vec3 e = synth::environment(normalize(r.dir));
+      sum += Vec3{std::clamp(e.x, 0.0, 1.0), std::clamp(e.y, 0.0, 1.0), std::clamp(e.z, 0.0, 1.0)};
     }
   const double n = synth::kSubsamplesPerAxis * synth::kSubsamplesPerAxis;
   EXPECT_NEAR(img[0][0][0].item<int>() / 255.0, synth::linear_to_srgb(sum.x / n), 0.6 / 255);

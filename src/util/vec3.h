@@ -1,9 +1,13 @@
 #pragma once
-// A minimal double-precision 3-vector for the demo-scene ray tracer. The tracer runs per ray
-// on the CPU, where small value types beat tensor calls by orders of magnitude.
+// The project's one double-precision 3-vector, for code that works on single points and directions
+// rather than tensors: the demo scene's ray tracer (src/synth, per ray on the CPU, where a small
+// value type beats tensor calls by orders of magnitude) and the scene frame's fit
+// (data/scene_frame.cpp). Points stored as std::array<double, 3> convert with to_vec3 / to_array.
+#include <array>
 #include <cmath>
+#include <cstddef>
 
-namespace ablenerf::synth {
+namespace ablenerf {
 
 struct Vec3 {
   double x = 0, y = 0, z = 0;
@@ -23,8 +27,13 @@ struct Vec3 {
     z += o.z;
     return *this;
   }
-  double operator[](int i) const { return i == 0 ? x : i == 1 ? y : z; }
+  double operator[](size_t i) const { return i == 0 ? x : i == 1 ? y : z; }
+  double& operator[](size_t i) { return i == 0 ? x : i == 1 ? y : z; }
+  bool operator==(const Vec3& o) const { return x == o.x && y == o.y && z == o.z; }
 };
+
+inline Vec3 to_vec3(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
+inline std::array<double, 3> to_array(const Vec3& v) { return {v.x, v.y, v.z}; }
 
 constexpr Vec3 operator*(double s, const Vec3& v) { return v * s; }
 constexpr double dot(const Vec3& a, const Vec3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
@@ -38,4 +47,4 @@ constexpr Vec3 mix(const Vec3& a, const Vec3& b, double s) { return a + (b - a) 
 // Mirror direction of d about the unit normal n.
 constexpr Vec3 reflect(const Vec3& d, const Vec3& n) { return d - n * (2.0 * dot(d, n)); }
 
-}  // namespace ablenerf::synth
+}  // namespace ablenerf
