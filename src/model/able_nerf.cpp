@@ -15,8 +15,9 @@ namespace ablenerf {
 namespace {
 // Seed of the LE perturbation when the caller gives no generator (same noise for every chunk).
 constexpr uint64_t kLeNoiseSeed = 4;
-// The share of the coarse samples the proposal spreads evenly along the ray whatever its field says
-// (model/proposal.h): room to find a surface the field has not learned yet.
+// Added to the proposal's weights over the whole ray, 0.2 / N to each of its N (model/proposal.h):
+// with weights summing to one, a sixth of the coarse samples stays spread evenly along the ray
+// whatever the field says, room to find a surface it has not learned yet.
 constexpr double kProposalPadding = 0.2;
 static_assert(sizeof(ModelOutput) ==
                   sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
