@@ -12,6 +12,28 @@
 
 namespace ablenerf::test {
 
+// A tiny model with a small proposal field (model/proposal.h): 24 proposal intervals, a 3-level
+// grid of 4-32 cells and 2^10 rows; the paper's IPE for the tokens.
+inline ModelConfig proposal_model_config() {
+  ModelConfig m;
+  m.width = 16;
+  m.heads = 2;
+  m.ff_ratio = 2;
+  m.coarse_layers = 1;
+  m.fine_layers = 1;
+  m.samples = 8;
+  m.le_count = 2;
+  m.le_layers = 1;
+  m.grid_base_resolution = 4;
+  m.grid_lr_scale = 10;
+  m.grid_bound = 1.5;
+  m.proposal_samples = 24;
+  m.proposal_levels = 3;
+  m.proposal_max_resolution = 32;
+  m.proposal_log2_table = 10;
+  return m;
+}
+
 // A fresh empty folder under the system temp dir, removed when the object dies.
 class TempDir {
  public:

@@ -50,29 +50,9 @@ TEST(Proposal, FencePostsFollowTheWeightsWithAnEvenShare) {
   EXPECT_LE(padded.max().item<double>(), 1.0);
 }
 
-ModelConfig proposal_config() {
-  ModelConfig m;
-  m.width = 16;
-  m.heads = 2;
-  m.ff_ratio = 2;
-  m.coarse_layers = 1;
-  m.fine_layers = 1;
-  m.samples = 8;
-  m.le_count = 2;
-  m.le_layers = 1;
-  m.grid_base_resolution = 4;
-  m.grid_lr_scale = 10;
-  m.grid_bound = 1.5;
-  m.proposal_samples = 24;
-  m.proposal_levels = 3;
-  m.proposal_max_resolution = 32;
-  m.proposal_log2_table = 10;
-  return m;
-}
-
 TEST(Proposal, TheModelDrawsItsCoarseSamplesFromTheField) {
   torch::manual_seed(2);
-  AbleNerf model(proposal_config());
+  AbleNerf model(test::proposal_model_config());
   ASSERT_NE(model->proposal(), nullptr);
   EXPECT_EQ(model->named_parameters().find("proposal.grid.table") != nullptr, true);
   const Rays rays = test::random_rays(6, 3);
@@ -96,7 +76,7 @@ TEST(Proposal, TheModelDrawsItsCoarseSamplesFromTheField) {
     if (kv.key().rfind("proposal.", 0) == 0)
       EXPECT_TRUE(!kv.value().grad().defined() || kv.value().grad().abs().max().item<double>() == 0) << kv.key();
   // Without the field the paper's even coarse spacing: no proposal outputs.
-  ModelConfig paper = proposal_config();
+  ModelConfig paper = test::proposal_model_config();
   paper.proposal_samples = 0;
   AbleNerf plain(paper);
   EXPECT_EQ(plain->proposal(), nullptr);

@@ -5,37 +5,18 @@
 #include <torch/torch.h>
 
 #include "model/proposal.h"
+#include "test_util.h"
 #include "train/regularisers.h"
 
 namespace ablenerf {
 namespace {
-
-ModelConfig proposal_config() {
-  ModelConfig m;
-  m.width = 16;
-  m.heads = 2;
-  m.ff_ratio = 2;
-  m.coarse_layers = 1;
-  m.fine_layers = 1;
-  m.samples = 8;
-  m.le_count = 2;
-  m.le_layers = 1;
-  m.grid_base_resolution = 4;
-  m.grid_lr_scale = 10;
-  m.grid_bound = 1.5;
-  m.proposal_samples = 24;
-  m.proposal_levels = 3;
-  m.proposal_max_resolution = 32;
-  m.proposal_log2_table = 10;
-  return m;
-}
 
 TEST(Proposal, LearnsATargetFromTheProposalLossAndSamplesThere) {
   // Rays through the box along +z (bounded scene, near 0, far 2.4 from z = -1.2). The target puts
   // every ray's weight in s in [0.60, 0.65] (a wall at z ~ 0.3): the proposal loss alone must teach
   // the field that, and the coarse fence-posts drawn from it must then gather there.
   torch::manual_seed(5);
-  const ModelConfig cfg = proposal_config();
+  const ModelConfig cfg = test::proposal_model_config();
   Proposal proposal(cfg, GridCube{-1.5, 1.5});
   const int64_t b = 64, n = cfg.proposal_samples, m = 20;
   auto gen = at::detail::createCPUGenerator(9);
