@@ -9,6 +9,7 @@
 
 #include "data/rays.h"
 #include "util/config.h"
+#include "model/model_config.h"
 
 namespace ablenerf::test {
 

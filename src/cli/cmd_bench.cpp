@@ -8,6 +8,9 @@
 #include "train/bench.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "train/train_config.h"
+#include "data/data_config.h"
+#include "model/compute_config.h"
 
 namespace ablenerf::cli {
 namespace cmd_bench {
@@ -63,8 +66,8 @@ void setup(CLI::App& app) {
     o.warmup = a->warmup;
     o.matmul_size = a->matmul;
     o.image_side = a->image;
-    o.near = c.data.near;
-    o.far = c.data.far;
+    o.near = c.get<DataConfig>().near;
+    o.far = c.get<DataConfig>().far;
     if (!a->trace.empty()) {
       if (a->compare) throw InputError("bench", "--trace", "cannot be combined with --compare");
       const auto dir = fs::absolute(a->trace).parent_path();
@@ -89,10 +92,10 @@ void setup(CLI::App& app) {
       return;
     }
     Config base = c;
-    base.compute.precision = Precision::Fp32;
-    base.compute.attention = AttentionKernel::Plain;
-    base.compute.cpu_split = CpuSplit::Ops;
-    base.train.graph = false;
+    base.get<ComputeConfig>().precision = Precision::Fp32;
+    base.get<ComputeConfig>().attention = AttentionKernel::Plain;
+    base.get<ComputeConfig>().cpu_split = CpuSplit::Ops;
+    base.get<TrainConfig>().graph = false;
     const auto reference = bench_report(base, o, measure(base, o));
     const auto fast = bench_report(c, o, measure(c, o));
     const auto ratio = [&](const char* what) {

@@ -13,6 +13,8 @@
 #include "util/errors.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "geometry/export_geometry.h"
+#include "eval/eval_config.h"
+#include "model/model_config.h"
 #endif
 
 namespace ablenerf::cli {
@@ -44,7 +46,7 @@ void run_export_weights(const ExportArgs& a) {
     c = resolve_config(a.cfg);
   }
   torch::manual_seed(static_cast<uint64_t>(a.seed));
-  AbleNerf model(c.model);
+  AbleNerf model(c.get<ModelConfig>());
   if (!a.run.empty()) load_weights(model, a.run + "/weights.pt");
   save_weights(model, a.out);
   nlohmann::json j;
@@ -77,7 +79,7 @@ void run_geometry(const ExportArgs& a) {
   o.alpha_mask = a.mask == "alpha";
   o.device = parse_device(a.device);
   const RunFolder run = RunFolder::open(a.run);
-  o.chunk = run.config.eval.chunk;
+  o.chunk = run.config.get<EvalConfig>().chunk;
   std::cout << export_geometry(run, o).dump() << std::endl;
 #else
   throw EnvironmentError("export", "this build has no geometry export",

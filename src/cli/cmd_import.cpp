@@ -10,6 +10,7 @@
 #include "cli/common.h"
 #include "model/able_nerf.h"
 #include "util/fs.h"
+#include "model/model_config.h"
 
 namespace ablenerf::cli {
 namespace cmd_import {
@@ -21,7 +22,7 @@ struct ImportArgs {
 
 void run_import(const ImportArgs& a) {
   const Config c = resolve_config(a.cfg);
-  AbleNerf model(c.model);
+  AbleNerf model(c.get<ModelConfig>());
   import_release_weights(model, read_weights_dict(a.weights), a.weights);
   ensure_dir(a.out);
   write_file_atomic(a.out + "/config.toml", c.to_toml());

@@ -20,6 +20,7 @@
 #include "geometry/surface_score.h"
 #endif
 #include "util/errors.h"
+#include "eval/eval_config.h"
 
 namespace ablenerf::cli {
 namespace cmd_metrics {

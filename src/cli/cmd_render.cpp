@@ -27,6 +27,8 @@
 #include "util/fs.h"
 #include "util/image_io.h"
 #include "util/progress.h"
+#include "eval/eval_config.h"
+#include "data/data_config.h"
 
 namespace fs = std::filesystem;
 
@@ -128,7 +130,7 @@ void run_render(const RenderArgs& a) {
   CameraList cams;
   int w = 0, h = 0;
   if (capture) {
-    cams = capture_cameras(run.data_dir, scene, run.config.data.downscale);
+    cams = capture_cameras(run.data_dir, scene, run.config.get<DataConfig>().downscale);
     w = cams.intrinsics.width, h = cams.intrinsics.height;
     if (a.width > 0 || a.height > 0) {
       const double s = a.width > 0 ? static_cast<double>(a.width) / w : static_cast<double>(a.height) / h;
@@ -138,7 +140,8 @@ void run_render(const RenderArgs& a) {
     }
   } else {
     const std::string cams_json = a.cameras.empty() ? dataset_cameras_json(run) : a.cameras;
-    std::tie(w, h) = output_size(cams_json, a.width, a.height, a.cameras.empty() ? run.config.data.downscale : 1);
+    std::tie(w, h) =
+        output_size(cams_json, a.width, a.height, a.cameras.empty() ? run.config.get<DataConfig>().downscale : 1);
     cams = load_cameras(cams_json, w, h);
     cams.c2w = poses_to_scene(cams.c2w, scene);
   }
@@ -186,7 +189,7 @@ void run_render(const RenderArgs& a) {
   fo.le_noise = a.le_noise;
   fo.le_zero = a.le_zero;
   fo.generator = &gen;
-  const int64_t chunk = a.chunk > 0 ? a.chunk : run.config.eval.chunk;
+  const int64_t chunk = a.chunk > 0 ? a.chunk : run.config.get<EvalConfig>().chunk;
   const double near = scene.near, far = scene.far;
   // Depth colours span near..far; an unbounded scene's far (1e6) would colour everything alike, so
   // its maps span near to twice the cameras' sphere.

@@ -12,6 +12,7 @@
 #ifdef ABLENERF_HAVE_VIEW
 
 #include "view/view_server.h"
+#include "train/train_config.h"
 #endif
 
 namespace ablenerf::cli {
@@ -94,7 +95,7 @@ void setup(CLI::App& app) {
       if (!seconds || *seconds <= 0)
         throw InputError("train", "--time-budget",
                          "expected a duration such as 5m, 90s, 2h or 1h30m, got '" + a->time_budget + "'");
-      config.train.time_budget_s = *seconds;
+      config.get<TrainConfig>().time_budget_s = *seconds;
       config.validate();
     }
     TrainOptions o;

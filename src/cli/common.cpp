@@ -3,6 +3,7 @@
 #include <optional>
 
 #include "model/able_nerf.h"
+#include "model/model_config.h"
 
 namespace ablenerf::cli {
 
@@ -41,7 +42,7 @@ nlohmann::json config_summary(const Config& c) {
   nlohmann::json j;
   j["source"] = c.source;
   for (const auto& [k, v] : c.items()) j["keys"][k] = v;
-  j["parameters"] = AbleNerf(c.model)->parameter_count();
+  j["parameters"] = AbleNerf(c.get<ModelConfig>())->parameter_count();
   return j;
 }
 

@@ -6,6 +6,13 @@
 #include <algorithm>
 #include <iostream>
 
+// Every section of the run configuration, so that every program knows them all
+// (util/config_section.h: a section is registered by its header).
+#include "data/data_config.h"
+#include "eval/eval_config.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
+#include "train/train_config.h"
 #include "cli/command.h"
 #include "util/errors.h"
 #include "util/log.h"

@@ -19,6 +19,7 @@
 #include "util/image_io.h"
 #include "util/log.h"
 #include "util/progress.h"
+#include "data/data_config.h"
 
 namespace fs = std::filesystem;
 

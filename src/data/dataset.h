@@ -16,6 +16,7 @@
 #include "data/capture.h"
 #include "data/rays.h"
 #include "data/scene_frame.h"
+#include "data/data_config.h"
 
 namespace ablenerf {
 

@@ -7,6 +7,7 @@
 
 #include "util/errors.h"
 #include "util/vec3.h"
+#include "data/data_config.h"
 
 namespace ablenerf {
 

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "data/capture.h"
-#include "util/config.h"
+#include "data/data_config.h"
 
 namespace ablenerf {
 

@@ -19,6 +19,8 @@
 #include "util/fs.h"
 #include "util/image_io.h"
 #include "util/progress.h"
+#include "eval/eval_config.h"
+#include "data/data_config.h"
 
 namespace fs = std::filesystem;
 
@@ -65,8 +67,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     throw InputError("--chunk", "", "must be positive (got " + std::to_string(*opts.chunk) + ")");
   if (opts.downscale && *opts.downscale <= 0)
     throw InputError("--downscale", "", "must be positive (got " + std::to_string(*opts.downscale) + ")");
-  const SsimVariant variant = opts.ssim.empty() ? run.config.eval.ssim : parse_ssim_variant(opts.ssim, "--ssim");
-  const int64_t chunk = opts.chunk.value_or(run.config.eval.chunk);
+  const SsimVariant variant =
+      opts.ssim.empty() ? run.config.get<EvalConfig>().ssim : parse_ssim_variant(opts.ssim, "--ssim");
+  const int64_t chunk = opts.chunk.value_or(run.config.get<EvalConfig>().chunk);
 
   LoadOptions lo = load_options_for(run.config, {opts.split});
   // The capture's masks score the "unmasked" part even for a run trained on every pixel

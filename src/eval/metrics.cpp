@@ -5,6 +5,7 @@
 
 #include "util/errors.h"
 #include "util/image_io.h"
+#include "eval/eval_config.h"
 
 namespace ablenerf {
 

@@ -6,7 +6,7 @@
 
 #include <string>
 
-#include "util/config.h"
+#include "eval/eval_config.h"
 
 namespace ablenerf {
 

@@ -101,6 +101,14 @@ std::vector<SplitMetrics> load_metrics(const RunFolder& run) {
   return out;
 }
 
+// A key's value as config.toml writes it: the report reads the [train] section by name, since the
+// train module sits above this one (docs/ARCHITECTURE.md, "Modules").
+std::string config_value(const Config& c, const std::string& key) {
+  for (const auto& [k, v] : c.items())
+    if (k == key) return v;
+  return "?";
+}
+
 std::string summary_section(const RunFolder& run, const RunLog& log) {
   std::ostringstream s;
   s << "<h2>Run</h2><table class=\"kv\">";
@@ -109,7 +117,7 @@ std::string summary_section(const RunFolder& run, const RunLog& log) {
   };
   row("Run folder", html_escape(fs::absolute(run.dir).lexically_normal().string()));
   row("Dataset", run.data_dir.empty() ? "n/a" : html_escape(run.data_dir));
-  row("Steps", log.last_step >= 0 ? std::to_string(log.last_step) + " of " + std::to_string(run.config.train.steps)
+  row("Steps", log.last_step >= 0 ? std::to_string(log.last_step) + " of " + config_value(run.config, "train.steps")
                                   : "no training log");
   row("Training time", log.elapsed_s >= 0 ? Progress::format_duration(log.elapsed_s) : "n/a");
   if (!log.train.empty()) {
@@ -117,7 +125,7 @@ std::string summary_section(const RunFolder& run, const RunLog& log) {
     row("Last train loss", fmt_json(last.value("loss", nlohmann::json())));
     row("Last train PSNR (dB)", fmt_json(last.value("psnr", nlohmann::json())));
   }
-  row("Parameters", std::to_string(AbleNerf(run.config.model)->parameter_count()));
+  row("Parameters", std::to_string(AbleNerf(run.config.get<ModelConfig>())->parameter_count()));
   if (log.skipped_lines) row("Unreadable log lines", std::to_string(log.skipped_lines));
   s << "</table>";
   return s.str();

@@ -9,6 +9,8 @@
 #include "geometry/fuse.h"
 #include "util/errors.h"
 #include "util/progress.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace fs = std::filesystem;
 
@@ -77,7 +79,7 @@ torch::Tensor photo_alpha(const CaptureFrame& frame, const Capture& capture, con
 
 CropBox default_crop(const RunFolder& run, const SceneFrame& scene) {
   CropBox b;
-  const double half = scene.kind == SceneKind::Unbounded ? 1.0 : run.config.model.grid_bound;
+  const double half = scene.kind == SceneKind::Unbounded ? 1.0 : run.config.get<ModelConfig>().grid_bound;
   b.lo = {-half, -half, -half};
   b.hi = {half, half, half};
   return b;
@@ -115,7 +117,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   std::vector<const CaptureFrame*> frames;
   for (const auto& sp : capture.splits)
     for (const auto& f : sp.frames) frames.push_back(&f);
-  CameraList cams = capture_cameras(capture, scene, run.config.data.downscale);
+  CameraList cams = capture_cameras(capture, scene, run.config.get<DataConfig>().downscale);
   const int64_t n_all = cams.c2w.size(0);
   const int64_t n = std::min<int64_t>(n_all, std::max<int64_t>(opts.views, 1));
   Intrinsics k = cams.intrinsics;

@@ -9,6 +9,9 @@
 #include "model/resampler.h"
 #include "model/tonemap.h"
 #include "model/view_encoding.h"
+#include "data/data_config.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

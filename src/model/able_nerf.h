@@ -16,7 +16,8 @@
 #include "model/ndc.h"
 #include "model/proposal.h"
 #include "model/volume_embedding.h"
-#include "util/config.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

@@ -12,6 +12,7 @@
 #include "kernels/bias_gelu.h"
 #include "kernels/ray_attention.h"
 #include "kernels/residual_layer_norm.h"
+#include "model/compute_config.h"
 #endif
 
 namespace ablenerf {

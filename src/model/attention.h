@@ -7,7 +7,7 @@
 // mask expanded to B x heads copies.
 #include <torch/torch.h>
 
-#include "util/config.h"
+#include "model/compute_config.h"
 
 namespace ablenerf {
 

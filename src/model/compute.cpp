@@ -5,6 +5,7 @@
 #include <stdexcept>
 
 #include "util/errors.h"
+#include "model/compute_config.h"
 
 #if TORCH_VERSION_MAJOR >= 2
 #include <ATen/autocast_mode.h>

@@ -15,7 +15,7 @@
 
 #include <string>
 
-#include "util/config.h"
+#include "model/compute_config.h"
 
 namespace ablenerf {
 

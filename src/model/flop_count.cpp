@@ -5,6 +5,7 @@
 #include "data/rays.h"
 #include "model/ipe.h"
 #include "model/view_encoding.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

@@ -1,7 +1,7 @@
 #pragma once
 // The analytic FLOP count of the model's matrix products per ray (`ablenerf bench` turns it into
 // achieved FLOP/s and a share of the measured peak; docs/BENCHMARKS.md).
-#include "util/config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

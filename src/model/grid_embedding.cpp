@@ -3,6 +3,8 @@
 #include <cmath>
 
 #include "kernels/hash_grid.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

@@ -17,7 +17,8 @@
 #include <torch/torch.h>
 
 #include "kernels/hash_grid_shape.h"
-#include "util/config.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

@@ -1,6 +1,7 @@
 #include "model/proposal.h"
 
 #include "model/resampler.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

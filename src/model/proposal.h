@@ -20,7 +20,7 @@
 
 #include "model/frustum.h"
 #include "model/grid_embedding.h"
-#include "util/config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

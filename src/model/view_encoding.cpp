@@ -1,4 +1,5 @@
 #include "model/view_encoding.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

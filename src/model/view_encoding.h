@@ -3,7 +3,7 @@
 // the view token and, again, the LE colour head.
 #include <torch/torch.h>
 
-#include "util/config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

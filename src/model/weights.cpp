@@ -6,6 +6,7 @@
 #include "model/able_nerf.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 

@@ -7,6 +7,9 @@
 #include "model/compute.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "data/data_config.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
 
 namespace fs = std::filesystem;
 
@@ -66,21 +69,21 @@ void RunFolder::write_scene(const SceneFrame& scene) const { write_file_atomic(s
 SceneFrame RunFolder::scene() const {
   if (fs::exists(scene_path())) return SceneFrame::from_json(read_file(scene_path()), scene_path());
   SceneFrame f;
-  f.kind = config.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
-  f.near = config.data.near;
-  f.far = f.kind == SceneKind::Unbounded ? kUnboundedFar : config.data.far;
+  f.kind = config.get<DataConfig>().scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+  f.near = config.get<DataConfig>().near;
+  f.far = f.kind == SceneKind::Unbounded ? kUnboundedFar : config.get<DataConfig>().far;
   return f;
 }
 
 AbleNerf load_run_model(const RunFolder& run, const torch::Device& device) {
   const SceneFrame scene = run.scene();
-  AbleNerf model(run.config.model, scene.kind, NdcProjection{scene.ndc_a, scene.ndc_b});
+  AbleNerf model(run.config.get<ModelConfig>(), scene.kind, NdcProjection{scene.ndc_a, scene.ndc_b});
   if (!fs::exists(run.weights_path())) throw InputError(run.weights_path(), "", "missing (the run has no weights yet)");
   load_weights(model, run.weights_path());
   model->to(device);
   // A run trained in bf16 on a GPU still renders on a CPU: there, in fp32.
   model->set_compute(
-      Compute::from_config(run.config.compute, device, run.path("config.toml"), /*bf16_falls_back=*/true));
+      Compute::from_config(run.config.get<ComputeConfig>(), device, run.path("config.toml"), /*bf16_falls_back=*/true));
   model->eval();
   return model;
 }

@@ -22,6 +22,9 @@
 #include "model/compute.h"
 #include "train/trainer.h"
 #include "util/fs.h"
+#include "train/train_config.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
 
 // Device-side peak memory needs the CUDA caching allocator, which only CUDA builds of LibTorch
 // link; build with -DABLENERF_WITH_CUDA against such a LibTorch (>= 2) to report it.
@@ -173,14 +176,14 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   m.threads = at::get_num_threads();
   const auto& d = o.device;
   const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
-  const Precision precision = cfg.compute.precision;
+  const Precision precision = cfg.get<ComputeConfig>().precision;
   // The trainer's own step (Trainer::step) on an in-memory split: the same rays, micro-batches,
   // loss, optimiser and (on CUDA) CUDA graph as `ablenerf train`.
   Config c = cfg;
-  c.train.rays_per_step = o.train_rays;
-  c.train.micro_batch = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
-  c.train.seed = static_cast<int64_t>(o.seed);
-  c.train.time_budget_s = 0;
+  c.get<TrainConfig>().rays_per_step = o.train_rays;
+  c.get<TrainConfig>().micro_batch = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
+  c.get<TrainConfig>().seed = static_cast<int64_t>(o.seed);
+  c.get<TrainConfig>().time_budget_s = 0;
   TrainOptions to;
   to.device = d;
   to.quiet = true;
@@ -194,7 +197,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
 #endif
   m.device_step = trainer.device_form();
   // Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
-  for (int64_t i = 0; i < o.warmup || (m.device_step && c.train.graph && !trainer.graph_captured()); ++i)
+  for (int64_t i = 0; i < o.warmup || (m.device_step && c.get<TrainConfig>().graph && !trainer.graph_captured()); ++i)
     trainer.step();
   m.graph = trainer.graph_captured();
   m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
@@ -258,7 +261,7 @@ nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, d
 }  // namespace
 
 nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const BenchMeasurements& m) {
-  const FlopCount f = model_flops_per_ray(cfg.model);
+  const FlopCount f = model_flops_per_ray(cfg.get<ModelConfig>());
   const double n = static_cast<double>(o.matmul_size);
   const double matmul_flops = kFlopPerMac * n * n * n;
   const double peak = matmul_flops / m.matmul.wall_median();
@@ -276,9 +279,9 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["flops_per_ray"] = {{"forward", f.forward},
                         {"train", f.train()},
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
-  j["precision"] = name_of(cfg.compute.precision);
-  j["attention"] = name_of(cfg.compute.attention);
-  j["cpu_split"] = name_of(cfg.compute.cpu_split);
+  j["precision"] = name_of(cfg.get<ComputeConfig>().precision);
+  j["attention"] = name_of(cfg.get<ComputeConfig>().attention);
+  j["cpu_split"] = name_of(cfg.get<ComputeConfig>().cpu_split);
   j["device_step"] = m.device_step;
   j["cuda_graph"] = m.graph;
   j["matmul_peak"] = {{"n", o.matmul_size},

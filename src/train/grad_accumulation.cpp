@@ -4,6 +4,7 @@
 
 #include "kernels/cpu_parallel.h"
 #include "train/regularisers.h"
+#include "train/train_config.h"
 
 namespace ablenerf {
 

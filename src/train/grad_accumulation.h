@@ -12,7 +12,7 @@
 
 #include "model/able_nerf.h"
 #include "train/ray_batch.h"
-#include "util/config.h"
+#include "train/train_config.h"
 
 namespace ablenerf {
 

@@ -1,4 +1,5 @@
 #include "train/lr_schedule.h"
+#include "train/train_config.h"
 
 #include <algorithm>
 #include <cmath>

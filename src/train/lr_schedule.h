@@ -7,7 +7,7 @@
 // whatever the budget.
 #include <cstdint>
 
-#include "util/config.h"
+#include "train/train_config.h"
 
 namespace ablenerf {
 

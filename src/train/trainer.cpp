@@ -26,6 +26,8 @@
 #include "util/fs.h"
 #include "util/log.h"
 #include "util/progress.h"
+#include "eval/eval_config.h"
+#include "train/train_config.h"
 
 namespace fs = std::filesystem;
 
@@ -67,14 +69,15 @@ bool Trainer::graph_captured() const { return s_->cuda && s_->cuda->captured(); 
 // Where the schedule stands in [0, 1]: the share of steps done or, with a time budget, the share
 // of it already spent if that is further along (elapsed time counts across resumes).
 double Trainer::schedule_fraction() const {
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   const double by_steps = tc.steps > 0 ? static_cast<double>(s_->state.step) / static_cast<double>(tc.steps) : 1.0;
   if (tc.time_budget_s <= 0) return by_steps;
   return std::max(by_steps, s_->agreed_elapsed / tc.time_budget_s);
 }
 
 int64_t Trainer::schedule_step() const {
-  const auto by_time = static_cast<int64_t>(schedule_fraction() * static_cast<double>(config_.train.steps));
+  const auto by_time =
+      static_cast<int64_t>(schedule_fraction() * static_cast<double>(config_.get<TrainConfig>().steps));
   return std::max<int64_t>(s_->state.step, by_time);
 }
 
@@ -85,7 +88,7 @@ StepReport Trainer::step() {
   // step's all-reduce (host form), so that every rank takes the same decisions.
   if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
   const double lr = (*s.schedule)(s.state.step, schedule_step());
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   // Every rank draws the same global batch from one identically seeded stream and keeps its slice.
   const auto all = s.sampler->draw(tc.rays_per_step);
   const int64_t begin = tc.rays_per_step * s.rank / s.world;
@@ -98,7 +101,7 @@ StepReport Trainer::step() {
 
 StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& indices, double lr) {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   s.adam->set_lr(lr);
   s.adam->clear_grads();
   const RayBatch batch = s.sampler->gather(indices);
@@ -136,7 +139,7 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
 // CUDA graph captures.
 void Trainer::device_body() {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   const RayBatch batch = s.sampler->gather(s.indices_dev);
   StepSums sums;
   {
@@ -226,7 +229,7 @@ void Trainer::check_divergence(const StepReport& r) {
   if (s.leader)
     log_warn("train: step " + std::to_string(r.step) + ": non-finite loss or gradient, step skipped (" +
              std::to_string(s.bad_in_a_row) + " in a row)");
-  if (s.bad_in_a_row >= config_.train.max_bad_steps)
+  if (s.bad_in_a_row >= config_.get<TrainConfig>().max_bad_steps)
     throw TrainingDiverged("training diverged: " + std::to_string(s.bad_in_a_row) +
                            " consecutive non-finite steps at step " + std::to_string(r.step) +
                            "; the last checkpoint (" + s.run.checkpoint_path() +
@@ -235,7 +238,7 @@ void Trainer::check_divergence(const StepReport& r) {
 
 void Trainer::log_step(const StepReport& r) {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   if (!s.leader || r.step < 0 || !r.finite) return;
   s.loss_acc += r.loss;
   s.mse_fine_acc += r.mse_fine;
@@ -275,7 +278,7 @@ std::vector<int64_t> held_out_views(int64_t size, int64_t count) {
 // Mean PSNR of the fine colour on train.eval_views images spread over the held-out split.
 void Trainer::held_out_check() {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   if (!s.leader || tc.eval_every <= 0 || s.held_out.empty()) return;
   if (s.state.step % tc.eval_every != 0 && s.state.step != tc.steps) return;
   flush();
@@ -285,7 +288,7 @@ void Trainer::held_out_check() {
   const std::vector<int64_t> views = held_out_views(split.size(), tc.eval_views);
   for (const int64_t i : views) {
     RenderResult img = render_image(s.model, split.c2w[i], split.cameras.at(static_cast<size_t>(i)), s.near, s.far,
-                                    config_.eval.chunk, {}, opts_.device);
+                                    config_.get<EvalConfig>().chunk, {}, opts_.device);
     sum += psnr(img.rgb.cpu(), split.images[i]);
   }
   s.model->train();
@@ -306,7 +309,7 @@ void Trainer::held_out_check() {
 
 TrainResult Trainer::run() {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   s.progress.emplace("train", tc.steps, kProgressIntervalS);
   const auto this_run_seconds = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - s.start).count();

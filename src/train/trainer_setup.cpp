@@ -12,6 +12,10 @@
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/log.h"
+#include "train/train_config.h"
+#include "data/data_config.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
 
 namespace fs = std::filesystem;
 
@@ -43,11 +47,11 @@ void Trainer::setup() {
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};
   // The capture's metadata, read once (its splits decide the held-out one, then it is loaded).
-  Capture capture = read_capture(s.run.data_dir, {}, config_.data.downscale);
+  Capture capture = read_capture(s.run.data_dir, {}, config_.get<DataConfig>().downscale);
   const auto present = capture.split_names();
   for (const char* name : {"val", "test"})
     if (s.held_out.empty() && std::find(present.begin(), present.end(), name) != present.end()) s.held_out = name;
-  if (config_.train.eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
+  if (config_.get<TrainConfig>().eval_every > 0 && s.leader && !s.held_out.empty()) want.push_back(s.held_out);
   LoadOptions lo = load_options_for(config_, want);
   lo.progress = s.leader && !opts_.quiet;
   s.ds = Dataset::load(std::move(capture), s.run.data_dir, lo);
@@ -55,7 +59,7 @@ void Trainer::setup() {
   if (!s.ds->has(s.held_out)) s.held_out.clear();
   // data.scene resolved from the capture, recorded in the run's config with the scene frame (so
   // that eval and render place samples as training did).
-  if (config_.data.scene == SceneKind::Auto) config_.data.scene = s.ds->scene.kind;
+  if (config_.get<DataConfig>().scene == SceneKind::Auto) config_.get<DataConfig>().scene = s.ds->scene.kind;
   s.run.config = config_;
   if (s.leader) {
     write_file_atomic(s.run.path("config.toml"), config_.to_toml());
@@ -91,18 +95,19 @@ void Trainer::setup(const Split& train, const Intrinsics& k) { build(train, k); 
 
 void Trainer::build(const Split& train, const Intrinsics& k) {
   auto& s = *s_;
-  const TrainConfig& tc = config_.train;
+  const TrainConfig& tc = config_.get<TrainConfig>();
   torch::manual_seed(static_cast<uint64_t>(tc.seed));
   if (s.ds) {
     s.near = s.ds->near, s.far = s.ds->far, s.scene = s.ds->scene.kind;
   } else {
-    s.scene = config_.data.scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
-    s.near = config_.data.near, s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.data.far;
+    s.scene = config_.get<DataConfig>().scene == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
+    s.near = config_.get<DataConfig>().near,
+    s.far = s.scene == SceneKind::Unbounded ? kUnboundedFar : config_.get<DataConfig>().far;
   }
   const NdcProjection ndc = s.ds ? NdcProjection{s.ds->scene.ndc_a, s.ds->scene.ndc_b} : NdcProjection{};
-  s.model = AbleNerf(config_.model, s.scene, ndc);
+  s.model = AbleNerf(config_.get<ModelConfig>(), s.scene, ndc);
   s.model->to(opts_.device);
-  s.model->set_compute(Compute::from_config(config_.compute, opts_.device, config_.source));
+  s.model->set_compute(Compute::from_config(config_.get<ComputeConfig>(), opts_.device, config_.source));
   s.model->train();
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,

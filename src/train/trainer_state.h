@@ -18,6 +18,7 @@
 #include "train/ray_batch.h"
 #include "train/trainer.h"
 #include "util/progress.h"
+#include "data/data_config.h"
 
 namespace ablenerf {
 

@@ -11,6 +11,9 @@
 #include "train/trainer.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
+#include "eval/eval_config.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 
@@ -62,14 +65,14 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
   scene_ = run_.scene();
   if (run_.data_dir.empty())
     throw InputError(run_.path("run.json"), "data", "no dataset recorded: the viewer needs its cameras");
-  Capture capture = read_capture(run_.data_dir, {}, run_.config.data.downscale);
-  cams_ = capture_cameras(capture, scene_, run_.config.data.downscale);
+  Capture capture = read_capture(run_.data_dir, {}, run_.config.get<DataConfig>().downscale);
+  cams_ = capture_cameras(capture, scene_, run_.config.get<DataConfig>().downscale);
   capture_h_ = capture.height;
   capture_w_ = capture.width;
   for (auto& split : capture.splits)
     for (auto& f : split.frames) frames_.push_back(std::move(f));
   if (live_) {
-    model_ = AbleNerf(run_.config.model, scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
+    model_ = AbleNerf(run_.config.get<ModelConfig>(), scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
     model_->to(device_);
     wants_ = true;  // the first render needs the trainer's weights
   } else {
@@ -149,14 +152,14 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
     k = f.camera.scaled(static_cast<double>(width) / f.camera.width, width, height);
     // The photo as the loader reads it (upright, at the run's downscale), straight RGBA averaged
     // over areas to the asked size (as the loader's box downscale), then composited.
-    auto rgba = frame_photo_rgba(f, capture_h_, capture_w_, run_.config.data.downscale);
+    auto rgba = frame_photo_rgba(f, capture_h_, capture_w_, run_.config.get<DataConfig>().downscale);
     rgba = torch::nn::functional::interpolate(rgba.permute({2, 0, 1}).unsqueeze(0),
                                               torch::nn::functional::InterpolateFuncOptions()
                                                   .size(std::vector<int64_t>{height, width})
                                                   .mode(torch::kArea))
                .squeeze(0)
                .permute({1, 2, 0});
-    const float bg = run_.config.data.background == Background::White ? 1.0f : 0.0f;
+    const float bg = run_.config.get<DataConfig>().background == Background::White ? 1.0f : 0.0f;
     const auto a = rgba.slice(2, 3, 4);
     truth = rgba.slice(2, 0, 3) * a + bg * (1 - a);
   }
@@ -167,8 +170,8 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
   {
     const std::lock_guard<std::mutex> lock(mu_);
     const torch::NoGradGuard no_grad;
-    const RenderResult r = render_image(model_, pose.to(device_), k, scene_.near, scene_.far, run_.config.eval.chunk,
-                                        ForwardOptions{}, device_);
+    const RenderResult r = render_image(model_, pose.to(device_), k, scene_.near, scene_.far,
+                                        run_.config.get<EvalConfig>().chunk, ForwardOptions{}, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
     } else if (mode == ViewMode::Error) {

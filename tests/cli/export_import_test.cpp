@@ -6,6 +6,7 @@
 
 #include "model/able_nerf.h"
 #include "test_util.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {
@@ -18,9 +19,9 @@ TEST(ExportImportCli, ExportOfAFreshModelRoundTripsExactly) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   Config c = Config::load(demo_config());
   torch::manual_seed(9);
-  AbleNerf expected(c.model);  // same seed, same construction order -> same init
+  AbleNerf expected(c.get<ModelConfig>());  // same seed, same construction order -> same init
   torch::manual_seed(10);
-  AbleNerf loaded(c.model);
+  AbleNerf loaded(c.get<ModelConfig>());
   load_weights(loaded, dir / "w.pt");
   for (const auto& p : expected->named_parameters())
     EXPECT_TRUE(torch::equal(p.value(), loaded->named_parameters()[p.key()])) << p.key();
@@ -30,11 +31,11 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   test::TempDir dir;
   // A release-named dictionary for the demo model, built from our own names' mapping.
   Config c = Config::load(demo_config());
-  AbleNerf shape_model(c.model);
+  AbleNerf shape_model(c.get<ModelConfig>());
   const auto ours = shape_model->named_parameters();
   c10::impl::GenericDict dict(c10::StringType::get(), c10::TensorType::get());
   torch::manual_seed(3);
-  for (const auto& [rel, name] : release_name_map(c.model))
+  for (const auto& [rel, name] : release_name_map(c.get<ModelConfig>()))
     dict.insert("model." + rel, torch::randn(ours[name].sizes()));
   const auto bytes = torch::pickle_save(c10::IValue(dict));
   std::ofstream(dir / "rel.pt", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
@@ -44,7 +45,7 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = test::run_cli("export --run " + (dir / "run") + " --out " + (dir / "out.pt"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  AbleNerf loaded(c.model);
+  AbleNerf loaded(c.get<ModelConfig>());
   load_weights(loaded, dir / "out.pt");
   const auto p = loaded->named_parameters();
   EXPECT_TRUE(torch::equal(p["le"], dict.at("model.light_probes").toTensor()));
@@ -57,7 +58,7 @@ TEST(ExportImportCli, ImportThenExportKeepsReleaseValues) {
   r = test::run_cli("import --weights " + (dir / "bad.pt") + " --config " + demo_config() + " --out " + (dir / "run2"));
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_EQ(r.output, "error: " + (dir / "bad.pt") + ": color_token: expected shape [1, 1, " +
-                          std::to_string(c.model.width) + "] got [1, 1, 7]\n");
+                          std::to_string(c.get<ModelConfig>().width) + "] got [1, 1, 7]\n");
 }
 
 TEST(ExportImportCli, ExportNeedsExactlyOneSource) {

@@ -12,6 +12,7 @@
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/image_io.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;

@@ -10,6 +10,7 @@
 #include "test_geometry.h"
 #include "test_util.h"
 #include "util/errors.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 

@@ -8,6 +8,7 @@
 #include "model/able_nerf.h"
 #include "test_util.h"
 #include "util/image_io.h"
+#include "model/model_config.h"
 
 namespace fs = std::filesystem;
 
@@ -71,7 +72,7 @@ RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir)
   const Config cfg = tiny_model_config();
   RunFolder run = RunFolder::create(run_dir, cfg, data_dir);
   torch::manual_seed(kModelSeed);
-  AbleNerf model(cfg.model);
+  AbleNerf model(cfg.get<ModelConfig>());
   save_weights(model, run.weights_path());
   std::string log;
   for (int step = 100; step <= 500; step += 100)

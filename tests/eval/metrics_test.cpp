@@ -11,6 +11,7 @@
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/image_io.h"
+#include "eval/eval_config.h"
 
 namespace ablenerf {
 namespace {

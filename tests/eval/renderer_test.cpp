@@ -31,7 +31,7 @@ torch::Tensor test_pose() {
 
 AbleNerf tiny_model() {
   torch::manual_seed(3);
-  AbleNerf m(test::tiny_model_config().model);
+  AbleNerf m(test::tiny_model_config().get<ModelConfig>());
   m->eval();
   return m;
 }

@@ -10,6 +10,8 @@
 #include "kernels/cpu_parallel.h"
 #include "model/tonemap.h"
 #include "test_util.h"
+#include "model/compute_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {
@@ -37,20 +39,20 @@ ModelConfig tiny() {
 Rays some_rays(int64_t b) { return test::random_rays(b, 99); }
 
 TEST(AbleNerf, PresetParameterCounts) {
-  EXPECT_EQ(AbleNerf(preset("blender").model)->parameter_count(), 6163404);  // docs/MODEL.md, section 11
-  EXPECT_EQ(AbleNerf(preset("shiny").model)->parameter_count(), 6160332);    // 16 LE
-  EXPECT_GT(AbleNerf(preset("demo").model)->parameter_count(), 0);
+  EXPECT_EQ(AbleNerf(preset("blender").get<ModelConfig>())->parameter_count(), 6163404);  // docs/MODEL.md, section 11
+  EXPECT_EQ(AbleNerf(preset("shiny").get<ModelConfig>())->parameter_count(), 6160332);    // 16 LE
+  EXPECT_GT(AbleNerf(preset("demo").get<ModelConfig>())->parameter_count(), 0);
 }
 
 TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
   // configs/capture.toml (the preset for real captures, docs/BENCHMARKS.md): both of ablenerf's
   // extensions on, the paper's presets with neither.
-  const AbleNerf capture(preset("capture").model);
+  const AbleNerf capture(preset("capture").get<ModelConfig>());
   EXPECT_NE(capture->grid(), nullptr);
   ASSERT_NE(capture->proposal(), nullptr);
   EXPECT_EQ(capture->proposal()->samples(), 32);
   for (const char* paper : {"blender", "demo"}) {
-    const AbleNerf m(preset(paper).model);
+    const AbleNerf m(preset(paper).get<ModelConfig>());
     EXPECT_EQ(m->grid(), nullptr) << paper;
     EXPECT_EQ(m->proposal(), nullptr) << paper;
   }

@@ -7,6 +7,7 @@
 
 #include "model/ab_transformer.h"
 #include "model/attention.h"
+#include "model/compute_config.h"
 
 namespace ablenerf {
 namespace {

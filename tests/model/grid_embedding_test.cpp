@@ -13,6 +13,8 @@
 #include "model/grid_embedding.h"
 #include "test_util.h"
 #include "util/errors.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

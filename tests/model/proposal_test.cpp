@@ -10,6 +10,7 @@
 #include "model/able_nerf.h"
 #include "model/proposal.h"
 #include "test_util.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

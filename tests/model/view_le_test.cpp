@@ -7,6 +7,7 @@
 #include "model/colour_heads.h"
 #include "model/le_transformer.h"
 #include "model/view_encoding.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

@@ -8,6 +8,7 @@
 #include "model/able_nerf.h"
 #include "test_util.h"
 #include "util/errors.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

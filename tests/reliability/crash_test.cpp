@@ -17,6 +17,7 @@
 #include "run/run_folder.h"
 #include "test_util.h"
 #include "train/checkpoint.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -58,7 +59,7 @@ fs::file_time_type mtime_or_min(const std::string& path) {
 // Loads the run's checkpoint the way the trainer does; throws on any problem. Returns its step.
 int64_t load_step(const std::string& run_dir) {
   const RunFolder run = RunFolder::open(run_dir);
-  AbleNerf model(run.config.model);
+  AbleNerf model(run.config.get<ModelConfig>());
   torch::optim::Adam optim(model->parameters(), torch::optim::AdamOptions(1e-3));
   return load_checkpoint(run.checkpoint_path(), run.config, model, optim).step;
 }

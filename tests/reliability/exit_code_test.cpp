@@ -13,6 +13,7 @@
 #include "run/run_folder.h"
 #include "test_util.h"
 #include "train/checkpoint.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -58,7 +59,7 @@ TEST(ExitCodes, SigintCheckpointsAndExits130) {
   EXPECT_NE(test::read_text(t / "train.log").find("interrupted; checkpoint saved"), std::string::npos)
       << test::read_text(t / "train.log");
   const RunFolder r = RunFolder::open(run);
-  AbleNerf model(r.config.model);
+  AbleNerf model(r.config.get<ModelConfig>());
   torch::optim::Adam optim(model->parameters(), torch::optim::AdamOptions(1e-3));
   EXPECT_GE(load_checkpoint(r.checkpoint_path(), r.config, model, optim).step, 1);
 }

@@ -24,6 +24,7 @@
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -137,7 +138,7 @@ TEST(FullDisk, CheckpointSaveFailsAndKeepsTheEarlierCheckpoint) {
   const std::string path = disk / "checkpoint.pt";
   const Config small_cfg = model_config(16), big_cfg = model_config(96);
   torch::manual_seed(3);
-  AbleNerf small(small_cfg.model), big(big_cfg.model);
+  AbleNerf small(small_cfg.get<ModelConfig>()), big(big_cfg.get<ModelConfig>());
   torch::optim::Adam small_opt(small->parameters(), torch::optim::AdamOptions(1e-3));
   torch::optim::Adam big_opt(big->parameters(), torch::optim::AdamOptions(1e-3));
   TrainState st;
@@ -146,7 +147,7 @@ TEST(FullDisk, CheckpointSaveFailsAndKeepsTheEarlierCheckpoint) {
   save_checkpoint(path, small_cfg, small, small_opt, st);
   st.step = 6;
   expect_write_failure([&] { save_checkpoint(path, big_cfg, big, big_opt, st); }, path, disk);
-  AbleNerf again(small_cfg.model);
+  AbleNerf again(small_cfg.get<ModelConfig>());
   torch::optim::Adam again_opt(again->parameters(), torch::optim::AdamOptions(1e-3));
   EXPECT_EQ(load_checkpoint(path, small_cfg, again, again_opt).step, 5);
   EXPECT_TRUE(torch::equal(again->parameters().front(), small->parameters().front()));
@@ -174,7 +175,7 @@ TEST(FullDisk, TrainingRunFailsWithOneLineAndALoadableCheckpoint) {
   EXPECT_NE(line.find("(disk full? free space in " + (disk / "run") + ")"), std::string::npos) << r.output;
   // The last checkpoint that fitted loads.
   const RunFolder run = RunFolder::open(disk / "run");
-  AbleNerf model(run.config.model);
+  AbleNerf model(run.config.get<ModelConfig>());
   torch::optim::Adam optim(model->parameters(), torch::optim::AdamOptions(1e-3));
   EXPECT_GE(load_checkpoint(run.checkpoint_path(), run.config, model, optim).step, 1);
 }

@@ -9,6 +9,7 @@
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -37,7 +38,7 @@ TEST(RunFolder, CreateThenOpenGivesTheSameConfigAndDataFolder) {
   EXPECT_EQ(made.log_path(), t / "run/log.jsonl");
   const RunFolder opened = RunFolder::open(t / "run");
   EXPECT_EQ(opened.config.to_toml(), c.to_toml());
-  EXPECT_EQ(opened.config.model.width, 48);
+  EXPECT_EQ(opened.config.get<ModelConfig>().width, 48);
   EXPECT_EQ(opened.data_dir, fs::absolute(t / "data").lexically_normal().string());
 }
 

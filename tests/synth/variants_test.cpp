@@ -16,6 +16,7 @@
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 using nlohmann::json;

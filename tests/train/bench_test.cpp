@@ -5,6 +5,7 @@
 
 #include "train/bench.h"
 #include "test_util.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {
@@ -56,7 +57,8 @@ TEST(BenchFlops, NoLeDropsTheLeBranch) {
 
 TEST(BenchFlops, BlenderPresetMatchesSpecEstimate) {
   // Spec 10.1: ~0.43 G multiply-adds (~0.86 GFLOP) forward, ~2.6 GFLOP forward+backward per ray.
-  const FlopCount f = model_flops_per_ray(Config::load(test::source_dir() + "/configs/blender.toml").model);
+  const FlopCount f =
+      model_flops_per_ray(Config::load(test::source_dir() + "/configs/blender.toml").get<ModelConfig>());
   EXPECT_NEAR(f.forward, 0.86e9, 0.03 * 0.86e9);
   EXPECT_NEAR(f.train(), 2.6e9, 0.03 * 2.6e9);
 }
@@ -69,7 +71,7 @@ TEST(BenchMedian, OddEvenAndUnsorted) {
 
 TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
   Config cfg;
-  cfg.model = hand_config();
+  cfg.get<ModelConfig>() = hand_config();
   BenchOptions o;
   o.train_rays = 10;
   o.render_rays = 40;
@@ -100,7 +102,7 @@ TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
 // A run of the hand-counted model small enough for a test: 4 rays, 2 timed steps.
 Config tiny_bench_config() {
   Config cfg;
-  cfg.model = hand_config();
+  cfg.get<ModelConfig>() = hand_config();
   return cfg;
 }
 BenchOptions tiny_bench_options() {

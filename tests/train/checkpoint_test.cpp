@@ -8,6 +8,7 @@
 #include "train/checkpoint.h"
 #include "train_fixture.h"
 #include "util/errors.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -16,7 +17,7 @@ namespace {
 
 struct Fixture {
   Config config = test::tiny_config();
-  AbleNerf model{config.model};
+  AbleNerf model{config.get<ModelConfig>()};
   torch::optim::Adam optim{model->parameters(), torch::optim::AdamOptions(1e-3)};
   Fixture() {
     // one real step so that Adam has state to save
@@ -91,7 +92,7 @@ TEST(Checkpoint, TruncatedCorruptedAndForeignAreRefused) {
 
   Config other = f.config;
   other.set("model.le_count=3");
-  AbleNerf m2(other.model);
+  AbleNerf m2(other.get<ModelConfig>());
   torch::optim::Adam o2(m2->parameters(), torch::optim::AdamOptions(1e-3));
   try {
     load_checkpoint(t / "c.pt", other, m2, o2);

@@ -14,6 +14,7 @@
 #include "synth/render.h"
 #include "train_fixture.h"
 #include "util/image_io.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 
@@ -57,7 +58,7 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   const RunFolder run = RunFolder::open(t / "run");
   const SceneFrame scene = run.scene();
   ASSERT_EQ(scene.kind, SceneKind::ForwardFacing);  // auto, from the layout and the LLFF bounds
-  EXPECT_EQ(run.config.data.scene, SceneKind::ForwardFacing);
+  EXPECT_EQ(run.config.get<DataConfig>().scene, SceneKind::ForwardFacing);
   const double psnr = test::held_out_psnr(t / "run");
   // The same capture trained as an unbounded scene (contraction, the other choice for it).
   c.set("data.scene=unbounded");

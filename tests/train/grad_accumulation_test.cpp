@@ -11,6 +11,8 @@
 #include "test_util.h"
 #include "train_fixture.h"
 #include "train/grad_accumulation.h"
+#include "train/train_config.h"
+#include "model/compute_config.h"
 
 namespace ablenerf {
 namespace {

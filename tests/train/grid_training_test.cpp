@@ -11,6 +11,7 @@
 #include "train/trainer.h"
 #include "train_fixture.h"
 #include "util/errors.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 
@@ -67,7 +68,7 @@ TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
   // A checkpoint of this run read with another table size: the config key is named.
   Config other = c;
   other.set("model.grid_log2_table=9");
-  AbleNerf m2(other.model);
+  AbleNerf m2(other.get<ModelConfig>());
   torch::optim::Adam o2(m2->parameters(), torch::optim::AdamOptions(1e-3));
   const std::string ckpt = grid_refusal([&] { load_checkpoint(t / "run/checkpoint.pt", other, m2, o2); });
   EXPECT_NE(ckpt.find("model.grid_log2_table"), std::string::npos) << ckpt;
@@ -76,7 +77,7 @@ TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
   dict.insert_or_assign("grid.table", torch::zeros({4, 128, 2}));
   const std::vector<char> bytes = torch::pickle_save(c10::IValue(dict));
   test::write_file(t / "bad.pt", std::string(bytes.begin(), bytes.end()));
-  AbleNerf m(c.model);
+  AbleNerf m(c.get<ModelConfig>());
   const std::string w = grid_refusal([&] { load_weights(m, t / "bad.pt"); });
   EXPECT_NE(w.find("grid.table"), std::string::npos) << w;
   EXPECT_NE(w.find("[4, 256, 2]"), std::string::npos) << w;

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "train/lr_schedule.h"
+#include "train/train_config.h"
 
 using namespace ablenerf;
 

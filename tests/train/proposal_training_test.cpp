@@ -7,6 +7,7 @@
 #include "model/proposal.h"
 #include "test_util.h"
 #include "train/regularisers.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

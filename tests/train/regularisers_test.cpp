@@ -10,6 +10,8 @@
 #include "train_fixture.h"
 #include "train/grad_accumulation.h"
 #include "train/regularisers.h"
+#include "train/train_config.h"
+#include "model/model_config.h"
 
 namespace ablenerf {
 namespace {

@@ -13,6 +13,7 @@
 #include "test_util.h"
 #include "train/trainer.h"
 #include "util/config.h"
+#include "model/model_config.h"
 
 namespace ablenerf::test {
 

@@ -8,6 +8,8 @@
 #include "train/adam.h"
 #include "train/trainer.h"
 #include "train_fixture.h"
+#include "train/train_config.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 
@@ -55,8 +57,8 @@ void expect_graph_equals_eager(const Config& c, const std::string& data) {
   EXPECT_NEAR(re.loss, rg.loss, 1e-5 * std::abs(re.loss));
   EXPECT_LT(max_weight_difference(eager.model(), graph.model()), 1e-5);
   // And the weights did move.
-  torch::manual_seed(static_cast<uint64_t>(c.train.seed));
-  AbleNerf init(c.model);
+  torch::manual_seed(static_cast<uint64_t>(c.get<TrainConfig>().seed));
+  AbleNerf init(c.get<ModelConfig>());
   init->to(torch::Device(torch::kCUDA, 0));
   EXPECT_GT(max_weight_difference(init, graph.model()), 1e-4);
 }

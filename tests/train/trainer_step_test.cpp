@@ -11,6 +11,8 @@
 #include "train/trainer.h"
 #include "train_fixture.h"
 #include "util/progress.h"
+#include "train/train_config.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 
@@ -56,9 +58,9 @@ TEST(TrainerStep, FirstStepIsTheClosedFormAdamStep) {
 
   // The reference gradient: the same rays (the sampler's stream, seeded alike), one forward of the
   // whole batch, the loss written out.
-  RaySampler sampler(small_split(), small_k(), torch::kCPU, static_cast<uint64_t>(c.train.seed));
+  RaySampler sampler(small_split(), small_k(), torch::kCPU, static_cast<uint64_t>(c.get<TrainConfig>().seed));
   const RayBatch batch = sampler.gather(sampler.draw(20));
-  const auto out = model->forward(batch.rays, c.data.near, c.data.far);
+  const auto out = model->forward(batch.rays, c.get<DataConfig>().near, c.get<DataConfig>().far);
   const auto loss = 0.5 * (out.rgb_coarse - batch.target).pow(2).mean() + (out.rgb_fine - batch.target).pow(2).mean();
   const auto params = model->parameters();
   const auto grads = torch::autograd::grad({loss}, params, {}, false, false, /*allow_unused=*/true);
@@ -67,7 +69,7 @@ TEST(TrainerStep, FirstStepIsTheClosedFormAdamStep) {
   EXPECT_EQ(r.step, 1);
   EXPECT_TRUE(r.finite);
   EXPECT_NEAR(r.loss, loss.item<double>(), 1e-5);
-  const double lr = LrSchedule(c.train)(0);
+  const double lr = LrSchedule(c.get<TrainConfig>())(0);
   EXPECT_DOUBLE_EQ(r.lr, lr);
   EXPECT_EQ(t.steps_done(), 1);
   int moved = 0;

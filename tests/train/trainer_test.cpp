@@ -13,6 +13,8 @@
 #include "train/trainer.h"
 #include "train_fixture.h"
 #include "util/errors.h"
+#include "data/data_config.h"
+#include "model/model_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -98,7 +100,7 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   // scene is bounded), and the scene frame beside it.
   RunFolder r = RunFolder::open(t / "run");
   Config resolved = c;
-  resolved.data.scene = SceneKind::Bounded;
+  resolved.get<DataConfig>().scene = SceneKind::Bounded;
   EXPECT_EQ(r.config.to_toml(), resolved.to_toml());
   EXPECT_EQ(r.scene().kind, SceneKind::Bounded);
   EXPECT_TRUE(r.scene().identity());
@@ -234,7 +236,7 @@ TEST(Trainer, DivergenceStopsWithLastGoodCheckpoint) {
     EXPECT_NE(std::string(e.what()).find("non-finite"), std::string::npos);
   }
   // The checkpoint on disk loads and is from before the bad steps.
-  AbleNerf m(c.model);
+  AbleNerf m(c.get<ModelConfig>());
   torch::optim::Adam o(m->parameters(), torch::optim::AdamOptions(1.0));
   TrainState s = load_checkpoint(t / "run/checkpoint.pt", c, m, o);
   EXPECT_LT(s.step, 50);

@@ -18,6 +18,7 @@
 #include "test_util.h"
 #include "util/image_io.h"
 #include "view/view_server.h"
+#include "eval/eval_config.h"
 
 using namespace ablenerf;
 
@@ -95,8 +96,8 @@ TEST(ViewServer, PageCamerasAndARenderEqualToTheRenderers) {
   auto c2w = torch::tensor(std::vector<float>(pose.begin(), pose.end())).reshape({3, 4});
   const torch::NoGradGuard no_grad;
   const RunFolder run = RunFolder::open(s.dir() / "run");
-  const RenderResult ref = render_image(model, c2w, k, run.scene().near, run.scene().far, run.config.eval.chunk,
-                                        ForwardOptions{}, torch::kCPU);
+  const RenderResult ref = render_image(model, c2w, k, run.scene().near, run.scene().far,
+                                        run.config.get<EvalConfig>().chunk, ForwardOptions{}, torch::kCPU);
   EXPECT_LE((got.to(torch::kInt) - to_uint8(ref.rgb).to(torch::kInt)).abs().max().item<int>(), 0);
   // Depth mode: a colour map of the same size.
   auto d = cli.Get(("/api/render?w=16&h=12&mode=depth&pose=" + pose_text(pose)).c_str());

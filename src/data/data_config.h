@@ -1,0 +1,71 @@
+#pragma once
+// The [data] section of the run configuration (util/config_section.h), registered below: how a capture is read
+// (data/dataset.h, data/scene_frame.h), owned by the data module.
+#include "util/config_section.h"
+
+namespace ablenerf {
+
+enum class Background { White, Black };  // data.background: the colour RGBA images are composited on
+// data.scene (data/scene_frame.h): where samples lie along a ray and how they are encoded.
+//  * Bounded: depth-linear samples between near and far (Blender's object on a card);
+//  * Unbounded: mip-NeRF 360's scene contraction of the frustum Gaussians, half the samples linear
+//    in depth inside the cameras' sphere, half linear in disparity out to (practically) infinity;
+//  * ForwardFacing: NeRF's normalised device coordinates (model/ndc.h) for captures whose cameras all
+//    look the same way at a scene in front of them (LLFF): samples linear in disparity to infinity;
+//  * Auto: Bounded for Blender scenes; for real captures ForwardFacing when every camera looks
+//    within kForwardFacingMaxAngleDeg of their mean direction and the capture knows how near its
+//    scene comes (sparse points or LLFF bounds), else Unbounded.
+enum class SceneKind { Auto, Bounded, Unbounded, ForwardFacing };
+// data.masks (data/dataset.h): which pixels of the photos train. Auto: the masks the capture comes
+// with (a masks/ folder, nerfstudio's mask_path, instant-ngp's dynamic_mask_*), every pixel when it
+// has none; None (the default): every pixel; Alpha: the pixels whose alpha is at least 0.5 (RGBA
+// photos).
+enum class MaskSource { Auto, None, Alpha };
+
+template <>
+inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
+template <>
+inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"},
+                                                        {SceneKind::Bounded, "bounded"},
+                                                        {SceneKind::Unbounded, "unbounded"},
+                                                        {SceneKind::ForwardFacing, "forward"}};
+template <>
+inline const EnumNames<MaskSource> kEnumNames<MaskSource>{
+    {MaskSource::Auto, "auto"}, {MaskSource::None, "none"}, {MaskSource::Alpha, "alpha"}};
+
+struct DataConfig {
+  static constexpr const char* kName = "data";
+  static constexpr int kOrder = 1;
+
+  int downscale = 1;  // integer box-downscale factor
+  Background background = Background::White;
+  // Near/far of Blender scenes (their convention: 2/6). A real capture's bounds come from the
+  // capture itself (sparse points, LLFF bounds or the camera layout; data/scene_frame.h) unless
+  // bounds = "config".
+  double near = 2.0;
+  double far = 6.0;
+  SceneKind scene = SceneKind::Auto;
+  bool bounds_from_config = false;  // data.bounds_from_config: use near/far for captures too
+  // Off by default: on the gold cape (object masks) training on the masked pixels only cost 0.8 dB
+  // on the object at 15 minutes (docs/BENCHMARKS.md, "The capture preset and the peer").
+  MaskSource masks = MaskSource::None;
+
+  template <class F>
+  void visit(F&& f) {
+    f("downscale", &downscale);
+    f("background", &background);
+    f("near", &near);
+    f("far", &far);
+    f("scene", &scene);
+    f("bounds_from_config", &bounds_from_config);
+    f("masks", &masks);
+  }
+
+  void validate(const SectionCheck& need) const {
+    need(downscale >= 1, "downscale", "must be >= 1");
+    need(near >= 0 && far > near, "far", "need 0 <= near < far");
+  }
+};
+ABLENERF_CONFIG_SECTION(DataConfig);
+
+}  // namespace ablenerf

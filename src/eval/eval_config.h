@@ -1,0 +1,41 @@
+#pragma once
+// The [eval] section of the run configuration (util/config_section.h), registered below: how held-out views are
+// rendered and scored (eval/evaluate.h, eval/metrics.h), owned by the eval module.
+#include <cstdint>
+
+#include "util/config_section.h"
+
+namespace ablenerf {
+
+// eval.ssim (eval/metrics.h):
+enum class SsimVariant {
+  // mip-NeRF / multinerf: 11x11 Gaussian (sigma 1.5), valid convolution (no padding), mean over
+  // the valid map and channels; variances clamped at 0 and the covariance bounded by
+  // sqrt(var_x var_y) as in multinerf. Needs images of at least 11x11.
+  Standard,
+  // The ABLE-NeRF authors' release: same window, zero padding of 5 ("same"-size map), mean over
+  // the full map including the zero-padded borders, no clamping (biased low near borders).
+  Release,
+};
+
+template <>
+inline const EnumNames<SsimVariant> kEnumNames<SsimVariant>{{SsimVariant::Standard, "standard"},
+                                                            {SsimVariant::Release, "release"}};
+
+struct EvalConfig {
+  static constexpr const char* kName = "eval";
+  static constexpr int kOrder = 3;
+
+  int64_t chunk = 4096;                      // rays per forward when rendering
+  SsimVariant ssim = SsimVariant::Standard;  // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
+
+  template <class F>
+  void visit(F&& f) {
+    f("chunk", &chunk);
+    f("ssim", &ssim);
+  }
+  void validate(const SectionCheck& need) const { need(chunk >= 1, "chunk", "must be >= 1"); }
+};
+ABLENERF_CONFIG_SECTION(EvalConfig);
+
+}  // namespace ablenerf

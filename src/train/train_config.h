@@ -1,0 +1,126 @@
+#pragma once
+// The [train] section of the run configuration (util/config_section.h), registered below: the training recipe
+// (docs/MODEL.md, section 8, and the extensions it lists), owned by the train module.
+#include <cmath>
+#include <cstdint>
+
+#include "util/config_section.h"
+
+namespace ablenerf {
+
+enum class RaySampling { Uniform, Error };  // train.ray_sampling (train/error_map.h)
+
+template <>
+inline const EnumNames<RaySampling> kEnumNames<RaySampling>{{RaySampling::Uniform, "uniform"},
+                                                            {RaySampling::Error, "error"}};
+
+struct TrainConfig {
+  static constexpr const char* kName = "train";
+  static constexpr int kOrder = 2;
+
+  int64_t steps = 234375;        // optimiser steps
+  int64_t rays_per_step = 8192;  // global batch
+  int64_t micro_batch = 1024;    // rays per forward/backward (gradient accumulation)
+  double lr_init = 5e-4;
+  double lr_final = 1e-4;
+  int64_t lr_warmup_steps = 1250;
+  double lr_warmup_mult = 0.01;
+  int64_t lr_decay_steps = 250000;  // log-linear decay length; 0 = the step budget
+  // Adam's constants (train/adam.h). The release's: (0.9, 0.999), 1e-8.
+  double adam_beta1 = 0.9;
+  double adam_beta2 = 0.999;
+  double adam_eps = 1e-8;
+  double coarse_weight = 1.0;
+  double fine_weight = 1.0;
+  // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
+  // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):
+  // pulls each ray's attention onto one compact stretch. 0 = off (the paper).
+  double distortion_weight = 0.0;
+  // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over
+  // levels of each level's mean squared feature), weighted by this. 0 = off.
+  double grid_decay = 0.0;
+  // Weight of mip-NeRF 360's proposal loss (section 3, eq. 13-14; train/regularisers.h), which trains
+  // the proposal field (model.proposal_samples > 0) to bound the fine pass's attention. nerfacto's 1.
+  double proposal_weight = 1.0;
+  int64_t seed = 4;
+  int64_t log_every = 100;    // steps between log.jsonl lines
+  int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
+  int64_t eval_views = 4;     // held-out views used for that check, spread evenly over the split
+  int64_t ckpt_every = 5000;  // steps between checkpoints (0 = only at the end)
+  int64_t max_bad_steps = 5;  // consecutive non-finite losses before the run stops
+  // Wall-clock budget in seconds (0 = none). With one, the learning-rate schedule advances by
+  // whichever is further along, steps or time, and training ends when either runs out, so a run
+  // finishes in its budget on a slow machine with its schedule complete. With several processes
+  // the ranks agree on the elapsed time (the mean over the group, every step).
+  double time_budget_s = 0;
+  // Which pixels a step's rays come from (train/error_map.h): "uniform" = every training pixel
+  // equally likely; "error" = a tile of error_tile x error_tile pixels in proportion to the recent
+  // squared error of its rays, mixed with uniform sampling at error_uniform_share. error_tile is at
+  // most 256 pixels (a pixel's place inside its tile is kept in 16 bits).
+  RaySampling ray_sampling = RaySampling::Uniform;
+  int64_t error_tile = 4;
+  double error_uniform_share = 0.25;
+  // On CUDA (one process, LibTorch >= 2): capture the training step as one CUDA graph and replay
+  // it (false: the same device step, run eagerly). Ignored elsewhere.
+  bool graph = true;
+
+  template <class F>
+  void visit(F&& f) {
+    f("steps", &steps);
+    f("rays_per_step", &rays_per_step);
+    f("micro_batch", &micro_batch);
+    f("lr_init", &lr_init);
+    f("lr_final", &lr_final);
+    f("lr_warmup_steps", &lr_warmup_steps);
+    f("lr_warmup_mult", &lr_warmup_mult);
+    f("lr_decay_steps", &lr_decay_steps);
+    f("adam_beta1", &adam_beta1);
+    f("adam_beta2", &adam_beta2);
+    f("adam_eps", &adam_eps);
+    f("coarse_weight", &coarse_weight);
+    f("fine_weight", &fine_weight);
+    f("distortion_weight", &distortion_weight);
+    f("grid_decay", &grid_decay);
+    f("proposal_weight", &proposal_weight);
+    f("seed", &seed);
+    f("log_every", &log_every);
+    f("eval_every", &eval_every);
+    f("eval_views", &eval_views);
+    f("ckpt_every", &ckpt_every);
+    f("max_bad_steps", &max_bad_steps);
+    f("time_budget_s", &time_budget_s);
+    f("ray_sampling", &ray_sampling);
+    f("error_tile", &error_tile);
+    f("error_uniform_share", &error_uniform_share);
+    f("graph", &graph);
+  }
+
+  void validate(const SectionCheck& need) const {
+    need(steps >= 0, "steps", "must be >= 0");
+    need(rays_per_step >= 1, "rays_per_step", "must be >= 1");
+    need(micro_batch >= 1, "micro_batch", "must be >= 1");
+    need(lr_init > 0 && lr_final > 0, "lr_init", "learning rates must be positive");
+    need(lr_warmup_steps >= 0, "lr_warmup_steps", "must be >= 0");
+    need(lr_warmup_mult > 0 && lr_warmup_mult <= 1, "lr_warmup_mult", "must be in (0, 1]");
+    need(lr_decay_steps >= 0, "lr_decay_steps", "must be >= 0");
+    need(adam_beta1 >= 0 && adam_beta1 < 1, "adam_beta1", "must be in [0, 1)");
+    need(adam_beta2 >= 0 && adam_beta2 < 1, "adam_beta2", "must be in [0, 1)");
+    need(adam_eps > 0 && std::isfinite(adam_eps), "adam_eps", "must be > 0");
+    need(coarse_weight >= 0 && fine_weight >= 0, "fine_weight", "loss weights must be >= 0");
+    need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
+    need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
+    need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
+    need(log_every >= 1, "log_every", "must be >= 1");
+    need(eval_every >= 0, "eval_every", "must be >= 0");
+    need(eval_views >= 0, "eval_views", "must be >= 0");
+    need(ckpt_every >= 0, "ckpt_every", "must be >= 0");
+    need(max_bad_steps >= 1, "max_bad_steps", "must be >= 1");
+    need(time_budget_s >= 0 && std::isfinite(time_budget_s), "time_budget_s", "must be >= 0 seconds");
+    // The map keeps a masked pixel's place in its tile in 16 bits (train/error_map.h).
+    need(error_tile >= 1 && error_tile <= 256, "error_tile", "must be in 1..256 pixels");
+    need(error_uniform_share >= 0 && error_uniform_share <= 1, "error_uniform_share", "must be in [0, 1]");
+  }
+};
+ABLENERF_CONFIG_SECTION(TrainConfig);
+
+}  // namespace ablenerf
