@@ -44,6 +44,18 @@ void setup(CLI::App& app) {
   app.add_option("--layout", a->opts.layout,
                  "auto (blender; nerfstudio for the lens or background variants), blender or nerfstudio")
       ->capture_default_str();
+  app.add_option("--exposure-jitter", a->opts.exposure_jitter,
+                 "Train views only: each photo's exposure off by up to this many stops (centred; truth in scene.json)")
+      ->capture_default_str();
+  app.add_option("--white-balance-jitter", a->opts.white_balance_jitter,
+                 "Train views only: red and blue gains off by up to this many stops (centred)")
+      ->capture_default_str();
+  app.add_option("--pose-noise-deg", a->opts.pose_noise_deg,
+                 "Train views only: the written pose turned by exactly this many degrees about a random axis")
+      ->capture_default_str();
+  app.add_option("--pose-noise-shift", a->opts.pose_noise_shift,
+                 "Train views only: the written camera centre moved by this fraction of its distance")
+      ->capture_default_str();
   app.callback([a] {
     synth::validate(a->opts);  // fail before creating any folder
     const auto start = std::chrono::steady_clock::now();

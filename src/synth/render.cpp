@@ -9,7 +9,8 @@ namespace ablenerf::synth {
 namespace {
 
 // Renders rows first_row, first_row + stride, ... into img.
-void render_rows(const Camera& cam, int first_row, int stride, bool environment_background, ViewImage& img) {
+void render_rows(const Camera& cam, int first_row, int stride, bool environment_background, const Vec3& gain,
+                 ViewImage& img) {
   constexpr int n = kSubsamplesPerAxis;
   constexpr double inv_samples = 1.0 / (n * n);
   for (int j = first_row; j < img.height; j += stride) {
@@ -22,7 +23,7 @@ void render_rows(const Camera& cam, int first_row, int stride, bool environment_
           if (!environment_background && !intersect_scene(r).hit()) continue;
           // Clamp each sub-sample before averaging: the film saturates, and an unclamped sun
           // highlight would otherwise bleed across the whole pixel.
-          const Vec3 c = trace(r);
+          const Vec3 c = trace(r) * gain;
           sum += Vec3{std::clamp(c.x, 0.0, 1.0), std::clamp(c.y, 0.0, 1.0), std::clamp(c.z, 0.0, 1.0)};
           ++hits;
         }
@@ -48,7 +49,7 @@ double linear_to_srgb(double x) {
   return x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1.0 / 2.4) - 0.055;
 }
 
-ViewImage render_view(const Camera& cam, int threads, bool environment_background) {
+ViewImage render_view(const Camera& cam, int threads, bool environment_background, const Vec3& gain) {
   ViewImage img;
   img.width = cam.width;
   img.height = cam.height;
@@ -57,12 +58,12 @@ ViewImage render_view(const Camera& cam, int threads, bool environment_backgroun
   if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   threads = std::min(threads, std::max(1, img.height));
   if (threads == 1) {
-    render_rows(cam, 0, 1, environment_background, img);
+    render_rows(cam, 0, 1, environment_background, gain, img);
     return img;
   }
   std::vector<std::thread> pool;
   for (int t = 0; t < threads; ++t)
-    pool.emplace_back(render_rows, std::cref(cam), t, threads, environment_background, std::ref(img));
+    pool.emplace_back(render_rows, std::cref(cam), t, threads, environment_background, std::cref(gain), std::ref(img));
   for (auto& th : pool) th.join();
   return img;
 }

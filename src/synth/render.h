@@ -24,7 +24,10 @@ struct ViewImage {
 // depend on the thread count: every pixel is computed independently. With
 // `environment_background` a sub-sample that misses every object sees the environment (sky and
 // ground at infinity) and counts as a hit: alpha is 1 everywhere, depth stays 0 on a miss.
-ViewImage render_view(const Camera& cam, int threads = 1, bool environment_background = false);
+// `gain` multiplies the linear radiance of every sub-sample before the film clamps it (a photo's
+// exposure and white balance).
+ViewImage render_view(const Camera& cam, int threads = 1, bool environment_background = false,
+                      const Vec3& gain = {1, 1, 1});
 
 // IEC 61966-2-1 sRGB transfer function for a linear value in [0,1].
 double linear_to_srgb(double linear);

@@ -3,6 +3,8 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cmath>
+#include <random>
 #include <atomic>
 #include <exception>
 #include <mutex>
@@ -156,7 +158,84 @@ struct Job {
   const Camera* cam;
   std::string base;  // path without extension
   bool depth;
+  Vec3 gain{1, 1, 1};
 };
+
+// What the train views' photos went through (SynthOptions): per view, the colour gains and the
+// pose the image was rendered from (the written pose is the perturbed one).
+struct ViewTruth {
+  Vec3 gain{1, 1, 1};
+  double exposure_stops = 0, red_stops = 0, blue_stops = 0;
+  Camera true_camera;
+};
+
+constexpr uint64_t kJitterSeedSalt = 0x6a09e667f3bcc909ULL;  // a stream apart from the cameras'
+
+double uniform_pm(std::mt19937_64& rng, double s) {
+  return s * (2.0 * static_cast<double>(rng() >> 11) * 0x1.0p-53 - 1.0);
+}
+
+// n draws uniform in [-s, s], then centred so that their mean is exactly 0.
+std::vector<double> centred_draws(std::mt19937_64& rng, size_t n, double s) {
+  std::vector<double> v(n);
+  double mean = 0;
+  for (auto& x : v) mean += (x = uniform_pm(rng, s));
+  mean /= static_cast<double>(n);
+  for (auto& x : v) x -= mean;
+  return v;
+}
+
+// A unit vector uniform on the sphere.
+Vec3 random_direction(std::mt19937_64& rng) {
+  const double z = uniform_pm(rng, 1.0), phi = M_PI * uniform_pm(rng, 1.0);
+  const double r = std::sqrt(std::max(0.0, 1 - z * z));
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+// Rodrigues' rotation of v about the unit axis by angle (radians).
+Vec3 rotate(const Vec3& v, const Vec3& axis, double angle) {
+  return v * std::cos(angle) + cross(axis, v) * std::sin(angle) + axis * (dot(axis, v) * (1 - std::cos(angle)));
+}
+
+// The train views' gains and perturbed poses (cams are changed in place; the truth is returned).
+std::vector<ViewTruth> jitter_train_views(std::vector<Camera>& cams, const SynthOptions& o) {
+  std::mt19937_64 rng(o.seed ^ kJitterSeedSalt);
+  const size_t n = cams.size();
+  const auto exposure = centred_draws(rng, n, o.exposure_jitter);
+  const auto red = centred_draws(rng, n, o.white_balance_jitter);
+  const auto blue = centred_draws(rng, n, o.white_balance_jitter);
+  std::vector<ViewTruth> truth(n);
+  for (size_t k = 0; k < n; ++k) {
+    ViewTruth& t = truth[k];
+    t.exposure_stops = exposure[k];
+    t.red_stops = red[k];
+    t.blue_stops = blue[k];
+    const double g = std::exp2(exposure[k]);
+    t.gain = {g * std::exp2(red[k]), g, g * std::exp2(blue[k])};
+    t.true_camera = cams[k];
+    const Vec3 axis = random_direction(rng), shift_dir = random_direction(rng);
+    Camera& c = cams[k];
+    const double angle = o.pose_noise_deg * M_PI / 180.0;
+    for (int col = 0; col < 3; ++col) {
+      const Vec3 turned = rotate(c.axis(col), axis, angle);
+      for (int r = 0; r < 3; ++r) c.c2w[r][col] = turned[static_cast<size_t>(r)];
+    }
+    const Vec3 centre = c.centre() + shift_dir * (o.pose_noise_shift * length(c.centre()));
+    for (int r = 0; r < 3; ++r) c.c2w[r][3] = centre[static_cast<size_t>(r)];
+  }
+  return truth;
+}
+
+json truth_json(const std::vector<ViewTruth>& truth) {
+  json views = json::array();
+  for (const ViewTruth& t : truth)
+    views.push_back({{"gain_rgb", vec_json(t.gain)},
+                     {"exposure_stops", t.exposure_stops},
+                     {"red_stops", t.red_stops},
+                     {"blue_stops", t.blue_stops},
+                     {"true_transform_matrix", pose_json(t.true_camera)}});
+  return views;
+}
 
 }  // namespace
 
@@ -181,6 +260,15 @@ void validate(const SynthOptions& o) {
     throw InputError("synth", "--train-views", "must be between 1 and " + std::to_string(kMaxViews));
   if (o.test_views < 1 || o.test_views > kMaxViews)
     throw InputError("synth", "--test-views", "must be between 1 and " + std::to_string(kMaxViews));
+  const auto in_range = [](double v, double hi) { return std::isfinite(v) && v >= 0 && v <= hi; };
+  const std::string stops = "must be between 0 and " + std::to_string(static_cast<int>(kMaxJitterStops)) + " stops";
+  if (!in_range(o.exposure_jitter, kMaxJitterStops)) throw InputError("synth", "--exposure-jitter", stops);
+  if (!in_range(o.white_balance_jitter, kMaxJitterStops)) throw InputError("synth", "--white-balance-jitter", stops);
+  if (!in_range(o.pose_noise_deg, kMaxPoseNoiseDeg))
+    throw InputError("synth", "--pose-noise-deg",
+                     "must be between 0 and " + std::to_string(static_cast<int>(kMaxPoseNoiseDeg)) + " degrees");
+  if (!in_range(o.pose_noise_shift, kMaxPoseNoiseShift))
+    throw InputError("synth", "--pose-noise-shift", "must be between 0 and 0.5 of the camera distance");
 }
 
 void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
@@ -193,8 +281,15 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
     for (auto* cams : {&train, &test})
       for (auto& c : *cams) c.lens = kWideLens;
   const bool environment = o.background == "environment";
+  const bool jittered =
+      o.exposure_jitter > 0 || o.white_balance_jitter > 0 || o.pose_noise_deg > 0 || o.pose_noise_shift > 0;
+  // The images are rendered from the true cameras; `train` then holds the poses written.
+  std::vector<ViewTruth> truth;
+  if (jittered) truth = jitter_train_views(train, o);
   std::vector<Job> jobs;
-  for (size_t k = 0; k < train.size(); ++k) jobs.push_back({&train[k], dir + "/train/r_" + std::to_string(k), false});
+  for (size_t k = 0; k < train.size(); ++k)
+    jobs.push_back({jittered ? &truth[k].true_camera : &train[k], dir + "/train/r_" + std::to_string(k), false,
+                    jittered ? truth[k].gain : Vec3{1, 1, 1}});
   for (size_t k = 0; k < test.size(); ++k) jobs.push_back({&test[k], dir + "/test/r_" + std::to_string(k), true});
 
   // Workers take whole views (render + encode + write), which keeps PNG encoding and file
@@ -208,7 +303,7 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   auto worker = [&] {
     for (size_t k = next++; k < jobs.size(); k = next++) {
       try {
-        const ViewImage img = render_view(*jobs[k].cam, 1, environment);
+        const ViewImage img = render_view(*jobs[k].cam, 1, environment, jobs[k].gain);
         const auto rgba =
             torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
         write_png(jobs[k].base + ".png", rgba);
@@ -236,7 +331,15 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
     write_file_atomic(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
     write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
   }
-  write_file_atomic(dir + "/scene.json", scene_json(o).dump(2) + "\n");
+  json scene = scene_json(o);
+  if (jittered) {
+    scene["train_jitter"] = {{"exposure_stops", o.exposure_jitter},
+                             {"white_balance_stops", o.white_balance_jitter},
+                             {"pose_noise_deg", o.pose_noise_deg},
+                             {"pose_noise_shift", o.pose_noise_shift}};
+    scene["train_view_truth"] = truth_json(truth);
+  }
+  write_file_atomic(dir + "/scene.json", scene.dump(2) + "\n");
 }
 
 }  // namespace ablenerf::synth

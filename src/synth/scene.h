@@ -12,7 +12,9 @@
 //   train/r_K.png, test/r_K.png                  (RGBA 8-bit, straight alpha, sRGB)
 //   test/r_K_depth.pt                            (torch::pickle_save of float32 (H,W) depth)
 //   test/r_K_depth.png                           (greyscale visualisation of that depth)
-//   scene.json                                   (objects, materials, lighting, cameras, seed)
+//   scene.json                                   (objects, materials, lighting, cameras, seed; with
+//                                                 jitter or pose noise, each train view's gains and
+//                                                 true pose under "train_view_truth")
 // ("nerfstudio"): one transforms.json with w, h, fl_x, fl_y, cx, cy, camera_model (PINHOLE or
 // OPENCV with k1 k2 p1 p2), every frame, and the split as train_filenames / test_filenames; the
 // same image, depth and scene.json files.
@@ -39,6 +41,20 @@ struct SynthOptions {
   std::string lens = "pinhole";            // "pinhole" | "opencv"
   std::string background = "transparent";  // "transparent" | "environment"
   std::string layout = "auto";             // "auto" | "blender" | "nerfstudio"
+  // What a phone capture does to its photos, on the train views only, with the truth in scene.json
+  // (seeded by `seed`; the test views stay clean, the look novel views should have):
+  //  - exposure_jitter: each train view's exposure changes by e stops, e uniform in [-s, s] and then
+  //    centred (the views' mean is 0), so the clean look is the views' average look;
+  //  - white_balance_jitter: the red and blue gains likewise, in stops, each centred;
+  //    the gains multiply the linear radiance before the film clamps it;
+  //  - pose_noise_deg / pose_noise_shift: the pose written for each train view is its true pose
+  //    turned by exactly pose_noise_deg about a random axis through the camera centre and moved by
+  //    pose_noise_shift x the camera's distance in a random direction (the image is rendered from the
+  //    true pose).
+  double exposure_jitter = 0;
+  double white_balance_jitter = 0;
+  double pose_noise_deg = 0;
+  double pose_noise_shift = 0;
   // The layout "auto" resolves to: nerfstudio for the lens or background variants, else blender.
   std::string resolved_layout() const;
   // Called after each finished view with (views done, views total); from worker threads,
@@ -47,7 +63,11 @@ struct SynthOptions {
 };
 
 // Throws InputError("synth", "--res" / "--train-views" / "--test-views" / "--lens" /
-// "--background" / "--layout", ...) on bad options.
+// "--background" / "--layout" / "--exposure-jitter" / "--white-balance-jitter" / "--pose-noise-deg" /
+// "--pose-noise-shift", ...) on bad options.
+constexpr double kMaxJitterStops = 4.0;
+constexpr double kMaxPoseNoiseDeg = 45.0;
+constexpr double kMaxPoseNoiseShift = 0.5;
 void validate(const SynthOptions& opts);
 
 // Renders every view and writes the dataset (each file atomically). Deterministic for a seed:
