@@ -126,11 +126,13 @@ std::string mask_in_folder(const std::string& root, const std::string& image, co
   if (!fs::is_directory(masks)) return "";
   const fs::path rel = fs::path(image).lexically_relative(canon_root / "images");
   if (rel.empty() || *rel.begin() == "..") return "";
-  const fs::path cand = same_stem_image(masks / rel.parent_path(), rel.stem().string());
+  // The photo's own stem, or the stem and "_mask" (NeRD's and several photogrammetry tools' naming).
+  fs::path cand = same_stem_image(masks / rel.parent_path(), rel.stem().string());
+  if (cand.empty()) cand = same_stem_image(masks / rel.parent_path(), rel.stem().string() + "_mask");
   if (!cand.empty()) return fs::weakly_canonical(cand, ec).string();
-  throw InputError(
-      masks.string(), field,
-      "no mask for images/" + rel.string() + " (masks/" + (rel.parent_path() / rel.stem()).string() + ".png or .jpg)");
+  throw InputError(masks.string(), field,
+                   "no mask for images/" + rel.string() + " (masks/" + (rel.parent_path() / rel.stem()).string() +
+                       ".png or .jpg, or the same with _mask after the name)");
 }
 
 void split_every_eighth(std::vector<CaptureFrame> all, const std::vector<std::string>& splits, const std::string& file,

@@ -22,6 +22,7 @@
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/image_io.h"
+#include "data/data_config.h"
 
 using namespace ablenerf;
 namespace fs = std::filesystem;
@@ -525,6 +526,20 @@ TEST(Captures, MasksFolderKeepsWhitePixelsAtEveryDownscale) {
   test::expect_input_error([&] { Dataset::load(t.path(), o); }, fs::canonical(bad).string(), "", "not a PNG or JPEG",
                            true);
   fs::remove(bad);
+  // NeRD's naming, the stem and "_mask": found when the stem alone is not there.
+  write_mask(t / "masks/IMG_103_mask.png", W, H, 2);
+  {
+    const Dataset named = Dataset::load(t.path(), o);
+    const Split& train = named.split("train");
+    bool seen = false;
+    for (int64_t i = 0; i < train.size(); ++i)
+      if (name_of(train, i) == "IMG_103.png") {
+        EXPECT_EQ(train.mask[i].sum().item<int64_t>(), 2 * H);
+        seen = true;
+      }
+    EXPECT_TRUE(seen);
+  }
+  fs::remove(t / "masks/IMG_103_mask.png");
   test::expect_input_error([&] { Dataset::load(t.path(), o); }, fs::canonical(t / "masks").string(),
                            "row 3 (IMG_103.png)", "no mask for images/IMG_103.png", true);
 }
