@@ -4,6 +4,7 @@
 
 #include "data/rays.h"
 #include "model/ipe.h"
+#include "model/proposal.h"
 #include "model/view_encoding.h"
 #include "model/model_config.h"
 
@@ -49,11 +50,31 @@ void transformer_block(Tally& t, double lq, double lk, double e, double ff, bool
   t.product(lq, ff, e, kBackwardBothOperands);  // feed-forward out
 }
 
-// The volume-embedding MLP of one pass; its input (the IPE features) needs no gradient.
+// The width of the grid's features (levels x features per level), 0 with the paper's IPE.
+double grid_width(const ModelConfig& c) {
+  return c.embedding == Embedding::Grid ? double(c.grid_levels) * c.grid_features : 0.0;
+}
+
+// The volume-embedding MLP of one pass. Its input is the IPE features (no gradient) or, with the
+// grid front end, the grid's features (whose gradient flows into the table: one more product of
+// their width) beside grid_ipe_degrees IPE bands.
 void volume_embedding(Tally& t, const ModelConfig& c) {
-  const double e = c.width, s = c.samples;
-  t.product(s, static_cast<double>(ipe_width(c.ipe_degrees)), e, kBackwardOneOperand);
+  const double e = c.width, s = c.samples, grid = grid_width(c);
+  const double in = grid > 0 ? grid + static_cast<double>(ipe_width(c.grid_ipe_degrees))
+                             : static_cast<double>(ipe_width(c.ipe_degrees));
+  t.product(s, in, e, kBackwardOneOperand);
+  t.c.backward += kFlopPerMac * s * e * grid;
   for (int64_t i = 0; i < kVolumeEmbeddingHiddenLayers; ++i) t.product(s, e, e, kBackwardBothOperands);
+}
+
+// The proposal field (docs/MODEL.md, "Proposal sampling"): proposal_samples grid reads through a
+// hidden layer of kProposalHidden to one density; the table gets gradients, so both operands of
+// each product do.
+void proposal(Tally& t, const ModelConfig& c) {
+  if (c.proposal_samples <= 0) return;
+  const double p = c.proposal_samples, w = double(c.proposal_levels) * c.grid_features;
+  t.product(p, w, kProposalHidden, kBackwardBothOperands);
+  t.product(p, kProposalHidden, 1, kBackwardBothOperands);
 }
 
 void le_branch(Tally& t, const ModelConfig& c) {
@@ -86,6 +107,7 @@ FlopCount model_flops_per_ray(const ModelConfig& c) {
     t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
     if (le) le_branch(t, c);
   }
+  proposal(t, c);
   return t.c;
 }
 

@@ -33,10 +33,12 @@ torch::Tensor grid_level_weights(const torch::Tensor& sigma2, const torch::Tenso
 }
 
 GridEmbeddingImpl::GridEmbeddingImpl(const ModelConfig& cfg, GridCube cube)
-    : shape_(hash_grid_shape(cfg.grid_levels, cfg.grid_features, cfg.grid_log2_table, cfg.grid_base_resolution,
-                             cfg.grid_max_resolution)),
-      cube_(cube),
-      lr_scale_(cfg.grid_lr_scale) {
+    : GridEmbeddingImpl(hash_grid_shape(cfg.grid_levels, cfg.grid_features, cfg.grid_log2_table,
+                                        cfg.grid_base_resolution, cfg.grid_max_resolution),
+                        cube, cfg.grid_lr_scale) {}
+
+GridEmbeddingImpl::GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, double lr_scale)
+    : shape_(shape), cube_(cube), lr_scale_(lr_scale) {
   table_ = register_parameter(
       "table", (torch::rand({shape_.levels, shape_.table_size, shape_.features}) * 2 - 1) * (kTableInit / lr_scale_));
   std::vector<float> res(shape_.resolution, shape_.resolution + shape_.levels);

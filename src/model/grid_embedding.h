@@ -34,7 +34,10 @@ torch::Tensor grid_level_weights(const torch::Tensor& sigma2, const torch::Tenso
 
 class GridEmbeddingImpl : public torch::nn::Module {
  public:
+  // The front end's grid (model.grid_*).
   GridEmbeddingImpl(const ModelConfig& cfg, GridCube cube);
+  // Any grid of that shape, e.g. the proposal field's (model/proposal.h).
+  GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, double lr_scale);
   // Gaussians (mean, cov: (..., 3), cov the diagonal) -> features (..., levels * features).
   torch::Tensor forward(const torch::Tensor& mean, const torch::Tensor& cov);
   int64_t width() const { return int64_t{shape_.levels} * shape_.features; }

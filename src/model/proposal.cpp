@@ -1,13 +1,12 @@
 #include "model/proposal.h"
 
+#include "kernels/hash_grid.h"
 #include "model/resampler.h"
 #include "model/model_config.h"
 
 namespace ablenerf {
 
 namespace {
-// nerfacto's proposal MLP width (one hidden layer of 16).
-constexpr int64_t kHidden = 16;
 // The density's logit is clamped before exp so that one bad step cannot overflow it (exp(15) is
 // far more than any interval needs to be opaque).
 constexpr double kMaxLogDensity = 15.0;
@@ -30,14 +29,13 @@ torch::Tensor proposal_fence_posts(const torch::Tensor& s, const torch::Tensor& 
 }
 
 ProposalImpl::ProposalImpl(const ModelConfig& cfg, GridCube cube) : samples_(cfg.proposal_samples) {
-  // The front end's grid class with the proposal's sizes.
-  ModelConfig g = cfg;
-  g.grid_levels = cfg.proposal_levels;
-  g.grid_max_resolution = cfg.proposal_max_resolution;
-  g.grid_log2_table = cfg.proposal_log2_table;
-  grid_ = register_module("grid", GridEmbedding(g, cube));
-  hidden_ = register_module("hidden", torch::nn::Linear(grid_->width(), kHidden));
-  out_ = register_module("out", torch::nn::Linear(kHidden, 1));
+  // The front end's grid class with the proposal's sizes (features per level and base resolution
+  // as the front end's).
+  const HashGridShape shape = hash_grid_shape(cfg.proposal_levels, cfg.grid_features, cfg.proposal_log2_table,
+                                              cfg.grid_base_resolution, cfg.proposal_max_resolution);
+  grid_ = register_module("grid", GridEmbedding(shape, cube, cfg.grid_lr_scale));
+  hidden_ = register_module("hidden", torch::nn::Linear(grid_->width(), kProposalHidden));
+  out_ = register_module("out", torch::nn::Linear(kProposalHidden, 1));
 }
 
 torch::Tensor ProposalImpl::density(const Gaussians& g) {

@@ -24,6 +24,9 @@
 
 namespace ablenerf {
 
+// The field's hidden layer: nerfacto's proposal MLP width (one hidden layer of 16).
+constexpr int64_t kProposalHidden = 16;
+
 // Volume-rendering weights of densities sigma (B,N) over intervals with fence-posts s (B,N+1):
 // w_i = T_i (1 - exp(-sigma_i (s_i+1 - s_i))), T_i = exp(-sum_j<i sigma_j (s_j+1 - s_j)).
 torch::Tensor density_weights(const torch::Tensor& sigma, const torch::Tensor& s);

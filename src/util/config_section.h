@@ -93,10 +93,10 @@ struct SectionType {
   std::type_index type;
   const char* name;
   int order;
-  std::function<std::shared_ptr<void>()> make;                      // its defaults
-  std::function<std::shared_ptr<void>(const void*)> copy;           // a deep copy
-  std::function<void(void*, const FieldVisitor&)> visit;            // its keys
-  std::function<void(const void*, const SectionCheck&)> validate;   // its rules
+  std::function<std::shared_ptr<void>()> make;                     // its defaults
+  std::function<std::shared_ptr<void>(const void*)> copy;          // a deep copy
+  std::function<void(void*, const FieldVisitor&)> visit;           // its keys
+  std::function<void(const void*, const SectionCheck&)> validate;  // its rules
 };
 
 // Every registered section, by order (inline, so that a section header needs no library to
@@ -126,13 +126,13 @@ struct SectionSlot {
 
 template <class S>
 bool register_section_type() {
-  return register_section(SectionType{
-      std::type_index(typeid(S)), S::kName, S::kOrder, [] { return std::make_shared<S>(); },
-      [](const void* p) { return std::make_shared<S>(*static_cast<const S*>(p)); },
-      [](void* p, const FieldVisitor& f) {
-        static_cast<S*>(p)->visit([&](const char* key, auto* field_ptr) { f(key, field(field_ptr)); });
-      },
-      [](const void* p, const SectionCheck& need) { static_cast<const S*>(p)->validate(need); }});
+  return register_section(
+      SectionType{std::type_index(typeid(S)), S::kName, S::kOrder, [] { return std::make_shared<S>(); },
+                  [](const void* p) { return std::make_shared<S>(*static_cast<const S*>(p)); },
+                  [](void* p, const FieldVisitor& f) {
+                    static_cast<S*>(p)->visit([&](const char* key, auto* field_ptr) { f(key, field(field_ptr)); });
+                  },
+                  [](const void* p, const SectionCheck& need) { static_cast<const S*>(p)->validate(need); }});
 }
 
 }  // namespace config_detail

@@ -55,8 +55,32 @@ TEST(BenchFlops, NoLeDropsTheLeBranch) {
   EXPECT_DOUBLE_EQ(model_flops_per_ray(m).forward, 2 * 1248.0);
 }
 
+// The grid front end: the volume MLP's input is the grid's L x F features beside the IPE bands, and
+// the grid's features take a gradient (one more product of their width); the proposal field adds
+// its two products per proposal interval, both with gradients.
+TEST(BenchFlops, GridAndProposalAddTheirProducts) {
+  ModelConfig m = hand_config();
+  m.le_count = 0;
+  m.embedding = Embedding::Grid;
+  m.grid_levels = 3;
+  m.grid_features = 2;     // G = 6 grid features
+  m.grid_ipe_degrees = 1;  // beside P = 6 IPE features: 12 inputs
+  // Per pass: volume MLP 2*2*12*4 + 192 = 384 (forward), the rest as without LE (960).
+  const FlopCount g = model_flops_per_ray(m);
+  EXPECT_DOUBLE_EQ(g.forward, 2 * (384 + 960.0));
+  // Backward: 2 x forward less the constant-input products (2*2*12*4 = 192 per pass) and the probes
+  // (2 x 24 per pass: no backward), plus the grid features' gradient 2*2*4*6 = 96 per pass.
+  EXPECT_DOUBLE_EQ(g.backward, 2 * g.forward - 2 * 192 - 2 * 48 + 2 * 96);
+  m.proposal_samples = 5;
+  m.proposal_levels = 2;  // 4 features per proposal read
+  const FlopCount p = model_flops_per_ray(m);
+  const double proposal = 2 * 5 * 4 * 16 + 2 * 5 * 16 * 1;  // 640 + 160
+  EXPECT_DOUBLE_EQ(p.forward, g.forward + proposal);
+  EXPECT_DOUBLE_EQ(p.backward, g.backward + 2 * proposal);
+}
+
 TEST(BenchFlops, BlenderPresetMatchesSpecEstimate) {
-  // Spec 10.1: ~0.43 G multiply-adds (~0.86 GFLOP) forward, ~2.6 GFLOP forward+backward per ray.
+  // docs/MODEL.md, section 11: ~0.43 G multiply-adds (~0.86 GFLOP) forward, ~2.6 GFLOP forward+backward per ray.
   const FlopCount f =
       model_flops_per_ray(Config::load(test::source_dir() + "/configs/blender.toml").get<ModelConfig>());
   EXPECT_NEAR(f.forward, 0.86e9, 0.03 * 0.86e9);
