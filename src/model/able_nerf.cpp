@@ -1,5 +1,7 @@
 #include "model/able_nerf.h"
 
+#include <stdexcept>
+
 #include <ATen/CPUGeneratorImpl.h>
 
 #include "kernels/cpu_parallel.h"
@@ -81,6 +83,13 @@ void AbleNerfImpl::set_compute(const Compute& c) {
 int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const {
   if (!ray_token_.device().is_cpu() || compute_.cpu_split != CpuSplit::Rays || draws_randomness) return 1;
   return ray_workers(rays);
+}
+
+void AbleNerfImpl::enable_photo_colour(int64_t photos) {
+  if (photo_colour_) throw std::logic_error("AbleNerf: per-photo colour enabled twice");
+  const auto device = ray_token_.device();
+  photo_colour_ = register_module("photo_colour", PhotoColour(photos));
+  photo_colour_->to(device);
 }
 
 int64_t AbleNerfImpl::parameter_count() const {

@@ -14,6 +14,7 @@
 #include "model/grid_embedding.h"
 #include "model/le_transformer.h"
 #include "model/ndc.h"
+#include "model/photo_colour.h"
 #include "model/proposal.h"
 #include "model/volume_embedding.h"
 #include "data/data_config.h"
@@ -88,6 +89,10 @@ class AbleNerfImpl : public torch::nn::Module {
   const GridEmbeddingImpl* grid() const { return grid_ ? grid_.get() : nullptr; }
   // The proposal field, or nullptr without one (model.proposal_samples = 0, the paper).
   const ProposalImpl* proposal() const { return proposal_ ? proposal_.get() : nullptr; }
+  // Per-photo colour (model/photo_colour.h): registered by the trainer (train.photo_colour) before
+  // its optimiser is made, or by load_weights when the weights carry it; never read by forward().
+  void enable_photo_colour(int64_t photos);
+  PhotoColourImpl* photo_colour() { return photo_colour_ ? photo_colour_.get() : nullptr; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
@@ -118,10 +123,11 @@ class AbleNerfImpl : public torch::nn::Module {
   bool ndc_ = false;
   NdcProjection ndc_projection_;
   Compute compute_;
-  torch::Tensor ray_token_;      // (1,1,E) initial ray token
-  torch::Tensor mask_;           // (S+1,S+1) additive mask buffer; undefined when model.mask is off
-  GridEmbedding grid_{nullptr};  // model.embedding = "grid" only
-  Proposal proposal_{nullptr};   // model.proposal_samples > 0 only
+  torch::Tensor ray_token_;            // (1,1,E) initial ray token
+  torch::Tensor mask_;                 // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  GridEmbedding grid_{nullptr};        // model.embedding = "grid" only
+  Proposal proposal_{nullptr};         // model.proposal_samples > 0 only
+  PhotoColour photo_colour_{nullptr};  // train.photo_colour only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};
   RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};

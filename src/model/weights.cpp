@@ -106,6 +106,8 @@ std::vector<std::pair<std::string, std::string>> release_name_map(const ModelCon
   return m;
 }
 
+const char* const kPhotoColourWeight = "photo_colour.delta";
+
 void save_weights(AbleNerf& model, const std::string& path) {
   c10::Dict<std::string, torch::Tensor> dict;
   for (const auto& p : model->named_parameters()) dict.insert(p.key(), p.value().detach().cpu().contiguous());
@@ -127,9 +129,19 @@ c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path) {
 }
 
 void load_weights(AbleNerf& model, const std::string& path) {
+  const auto dict = read_weights_dict(path);
+  // Weights trained with per-photo colour carry it (model/photo_colour.h): made here with its rows.
+  for (const auto& entry : dict) {
+    if (model->photo_colour() || !entry.key().isString() || entry.key().toStringRef() != kPhotoColourWeight ||
+        !entry.value().isTensor())
+      continue;
+    const auto d = entry.value().toTensor();
+    if (d.dim() != 3 || d.size(0) < 1) throw InputError(path, kPhotoColourWeight, "expected (photos, 3, 4)");
+    model->enable_photo_colour(d.size(0));
+  }
   std::vector<std::pair<std::string, std::string>> identity;
   for (const auto& p : model->named_parameters()) identity.emplace_back(p.key(), p.key());
-  assign_parameters(model, read_weights_dict(path), identity, path, /*release=*/false);
+  assign_parameters(model, dict, identity, path, /*release=*/false);
 }
 
 void import_release_weights(AbleNerf& model, const c10::Dict<c10::IValue, c10::IValue>& dict,

@@ -25,6 +25,20 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
   return {loss, se_f.detach() * inv, ray_se.detach()};
 }
 
+namespace {
+
+// The colours the loss compares, through the ray's photo's colour map (model/photo_colour.h) when
+// the model has one.
+ModelOutput through_photo_colour(AbleNerf& model, ModelOutput out, const torch::Tensor& photo) {
+  PhotoColourImpl* pc = model->photo_colour();
+  if (pc == nullptr || !photo.defined()) return out;
+  out.rgb_fine = pc->forward(out.rgb_fine, photo);
+  if (out.rgb_coarse.defined()) out.rgb_coarse = pc->forward(out.rgb_coarse, photo);
+  return out;
+}
+
+}  // namespace
+
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
                               int64_t global_rays, double near, double far) {
   TORCH_CHECK(micro > 0, "accumulate_gradients: micro-batch must be positive");
@@ -46,7 +60,8 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     opts.weights_grad = tc.distortion_weight > 0;
     const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
-      const LossTerms t = ray_loss(model->forward(mb.rays, near, far, opts), mb.target, tc, global_rays);
+      const LossTerms t = ray_loss(through_photo_colour(model, model->forward(mb.rays, near, far, opts), mb.photo),
+                                   mb.target, tc, global_rays);
       t.loss.backward();
       add(t);
       continue;
@@ -55,7 +70,9 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     std::vector<LossTerms> parts(static_cast<size_t>(workers));
     parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
       const RayBatch s = mb.slice(lo, hi);
-      LossTerms t = ray_loss(model->forward(s.rays, near, far, opts.slice(lo, hi)), s.target, tc, global_rays);
+      LossTerms t =
+          ray_loss(through_photo_colour(model, model->forward(s.rays, near, far, opts.slice(lo, hi)), s.photo),
+                   s.target, tc, global_rays);
       // Gradients returned, not accumulated, so the threads never write the same .grad.
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,
@@ -94,6 +111,20 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     const auto& grid = model->grid();
     const auto decay = add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share);
     sums.loss.add_(decay.to(sums.loss.dtype()));
+  }
+  // The photo colour maps' decay once per step, likewise: photo_colour_decay x the mean over photos
+  // of the squared deviation from the identity, its gradient added directly.
+  if (tc.photo_colour_decay > 0 && model->photo_colour()) {
+    const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
+    const torch::Tensor& d = model->photo_colour()->delta();
+    torch::NoGradGuard no_grad;
+    const double coeff = tc.photo_colour_decay * share / static_cast<double>(d.size(0));
+    sums.loss.add_((d.pow(2).sum() * coeff).to(sums.loss.dtype()));
+    auto& grad = d.mutable_grad();
+    if (grad.defined())
+      grad.add_(d, 2 * coeff);
+    else
+      grad = d * (2 * coeff);
   }
   sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;

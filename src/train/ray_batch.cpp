@@ -30,7 +30,8 @@ RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   auto pix = idx - image * per_image;
   auto row = pix.div(k_.width, "floor");
   auto col = pix - row * k_.width;
-  return {rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image)), images_.index_select(0, idx)};
+  return {rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image)), images_.index_select(0, idx),
+          image};
 }
 
 RayBatch RaySampler::next(int64_t global_size, int rank, int world) {

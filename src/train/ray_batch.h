@@ -16,8 +16,12 @@ namespace ablenerf {
 struct RayBatch {
   Rays rays;
   torch::Tensor target;  // (B,3)
+  torch::Tensor photo;   // (B,) int64: the training photo each ray comes from (undefined when unknown)
   int64_t size() const { return target.size(0); }
-  RayBatch slice(int64_t begin, int64_t end) const { return {rays.slice(begin, end), target.slice(0, begin, end)}; }
+  RayBatch slice(int64_t begin, int64_t end) const {
+    return {rays.slice(begin, end), target.slice(0, begin, end),
+            photo.defined() ? photo.slice(0, begin, end) : torch::Tensor()};
+  }
 };
 
 class RaySampler {

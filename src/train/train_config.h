@@ -42,6 +42,11 @@ struct TrainConfig {
   // Weight of mip-NeRF 360's proposal loss (section 3, eq. 13-14; train/regularisers.h), which trains
   // the proposal field (model.proposal_samples > 0) to bound the fine pass's attention. nerfacto's 1.
   double proposal_weight = 1.0;
+  // Per-photo colour (model/photo_colour.h; docs/MODEL.md, "Per-photo colour"): an affine map of
+  // the rendered colour per training photo for its exposure and white balance, held near the
+  // identity by photo_colour_decay x the photos' mean squared deviation. Off = the paper.
+  bool photo_colour = false;
+  double photo_colour_decay = 1e-4;
   int64_t seed = 4;
   int64_t log_every = 100;    // steps between log.jsonl lines
   int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
@@ -82,6 +87,8 @@ struct TrainConfig {
     f("distortion_weight", &distortion_weight);
     f("grid_decay", &grid_decay);
     f("proposal_weight", &proposal_weight);
+    f("photo_colour", &photo_colour);
+    f("photo_colour_decay", &photo_colour_decay);
     f("seed", &seed);
     f("log_every", &log_every);
     f("eval_every", &eval_every);
@@ -110,6 +117,7 @@ struct TrainConfig {
     need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
     need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
+    need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
     need(log_every >= 1, "log_every", "must be >= 1");
     need(eval_every >= 0, "eval_every", "must be >= 0");
     need(eval_views >= 0, "eval_views", "must be >= 0");

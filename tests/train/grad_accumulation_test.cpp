@@ -132,3 +132,64 @@ TEST(GradAccumulation, ReportedFineMseIsTheBatchMse) {
 
 }  // namespace
 }  // namespace ablenerf
+
+namespace ablenerf {
+namespace {
+
+// Per-photo colour (model/photo_colour.h): the loss compares (I + A_p) rgb + b_p with the target,
+// written out here with einsum over the maps of each ray's photo; the ray split and micro-batches
+// give the reference's gradients, only the drawn photos' maps get data gradients, and the decay adds
+// exactly 2 x decay x share / photos x delta.
+TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(9);
+  AbleNerf model(test::two_head_model());
+  model->enable_photo_colour(4);
+  model->to(torch::kDouble);
+  model->train();
+  {
+    torch::NoGradGuard no_grad;
+    model->photo_colour()->delta().copy_(torch::randn({4, 3, 4}, torch::kDouble) * 0.1);
+  }
+  TrainConfig tc;
+  tc.coarse_weight = 0.3;
+  tc.photo_colour_decay = 0;
+  const int64_t n = 48;
+  RayBatch batch = some_batch(n);
+  batch.photo = (torch::arange(n) % 2) * 2;  // photos 0 and 2 only
+
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const auto out = model->forward(batch.rays, 2.0, 6.0);
+  const auto d = model->photo_colour()->delta().index_select(0, batch.photo);
+  const auto map = [&](const torch::Tensor& rgb) {
+    const auto eye = torch::eye(3, torch::TensorOptions().dtype(torch::kDouble));
+    return torch::einsum("bij,bj->bi", {d.slice(2, 0, 3) + eye, rgb.to(torch::kDouble)}) + d.select(2, 3);
+  };
+  const auto ref_loss_t = tc.coarse_weight * (map(out.rgb_coarse) - batch.target).pow(2).mean() +
+                          tc.fine_weight * (map(out.rgb_fine) - batch.target).pow(2).mean();
+  ref_loss_t.backward();
+  std::vector<torch::Tensor> ref;
+  for (auto& p : model->parameters()) ref.push_back(p.grad().clone());
+
+  for (const int64_t micro : {n, int64_t{16}}) {
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
+    EXPECT_NEAR(s.loss.item<double>(), ref_loss_t.item<double>(), 1e-12) << micro;
+    expect_gradients_equal(model, ref, "photo colour, micro-batch " + std::to_string(micro));
+  }
+  const auto g = model->photo_colour()->delta().grad();
+  EXPECT_GT(g[0].abs().sum().item<double>(), 1e-6);
+  EXPECT_GT(g[2].abs().sum().item<double>(), 1e-6);
+  EXPECT_EQ(g[1].abs().sum().item<double>(), 0.0);  // photos not drawn: no data gradient
+  EXPECT_EQ(g[3].abs().sum().item<double>(), 0.0);
+
+  tc.photo_colour_decay = 0.5;
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+  const auto delta = model->photo_colour()->delta();
+  EXPECT_NEAR(s.loss.item<double>(), ref_loss_t.item<double>() + 0.5 / 4 * delta.pow(2).sum().item<double>(), 1e-12);
+  EXPECT_TRUE(torch::allclose(model->photo_colour()->delta().grad(), g + 2 * 0.5 / 4 * delta, 0, 1e-12));
+}
+
+}  // namespace
+}  // namespace ablenerf

@@ -1,0 +1,21 @@
+#include "model/photo_colour.h"
+
+#include <stdexcept>
+
+namespace ablenerf {
+
+PhotoColourImpl::PhotoColourImpl(int64_t photos) {
+  if (photos < 1) throw std::invalid_argument("PhotoColour: at least one photo");
+  delta_ = register_parameter("delta", torch::zeros({photos, 3, 4}));
+}
+
+torch::Tensor PhotoColourImpl::forward(const torch::Tensor& rgb, const torch::Tensor& photo) {
+  // In the wider of the two dtypes (the model's colours are float32; a float64 model's maps stay float64).
+  const auto dtype = at::promote_types(rgb.scalar_type(), delta_.scalar_type());
+  const auto c = rgb.to(dtype);
+  const auto d = delta_.index_select(0, photo.to(torch::kLong)).to(dtype);  // (B,3,4)
+  const auto linear = torch::matmul(d.slice(2, 0, 3), c.unsqueeze(-1)).squeeze(-1);
+  return c + linear + d.select(2, 3);
+}
+
+}  // namespace ablenerf

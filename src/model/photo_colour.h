@@ -1,0 +1,29 @@
+#pragma once
+// Per-photo colour (train.photo_colour; docs/MODEL.md, "Per-photo colour"), ablenerf's extension for
+// phone captures: a camera changes exposure and white balance from photo to photo, which the paper's
+// model (one colour per ray and view) can only bake into the scene. Each training photo p gets a 3x4
+// affine map of the rendered sRGB colour, rgb_p = (I + A_p) rgb + b_p (NeRF-W's and nerfacto's
+// per-image appearance in its smallest form, as Zip-NeRF's and gsplat's colour correction), applied
+// to the coarse and fine colours of the photo's rays before the loss. It starts at the identity and is
+// held near it by a small decay (train.photo_colour_decay), which also fixes the one look the scene
+// keeps: the photos' common one. Novel views, eval and the viewer render the scene's own colour (the
+// identity), the look of the average photo.
+#include <torch/torch.h>
+
+namespace ablenerf {
+
+class PhotoColourImpl : public torch::nn::Module {
+ public:
+  explicit PhotoColourImpl(int64_t photos);
+  // rgb (B,3) of rays drawn from photos `photo` (B,) (int64, < photos()) -> (B,3).
+  torch::Tensor forward(const torch::Tensor& rgb, const torch::Tensor& photo);
+  int64_t photos() const { return delta_.size(0); }
+  // The parameter: (photos, 3, 4), [A_p | b_p]; zero = the identity.
+  const torch::Tensor& delta() const { return delta_; }
+
+ private:
+  torch::Tensor delta_;
+};
+TORCH_MODULE(PhotoColour);
+
+}  // namespace ablenerf
