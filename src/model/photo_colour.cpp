@@ -13,7 +13,10 @@ torch::Tensor PhotoColourImpl::forward(const torch::Tensor& rgb, const torch::Te
   // In the wider of the two dtypes (the model's colours are float32; a float64 model's maps stay float64).
   const auto dtype = at::promote_types(rgb.scalar_type(), delta_.scalar_type());
   const auto c = rgb.to(dtype);
-  const auto d = delta_.index_select(0, photo.to(torch::kLong)).to(dtype);  // (B,3,4)
+  // Each map minus the maps' mean: the average photo's map is exactly the identity, so the scene keeps
+  // the photos' common look (a common change of every map would otherwise darken or tint the scene).
+  const auto centred = delta_ - delta_.mean(0, /*keepdim=*/true);
+  const auto d = centred.index_select(0, photo.to(torch::kLong)).to(dtype);  // (B,3,4)
   const auto linear = torch::matmul(d.slice(2, 0, 3), c.unsqueeze(-1)).squeeze(-1);
   return c + linear + d.select(2, 3);
 }

@@ -4,10 +4,10 @@
 // model (one colour per ray and view) can only bake into the scene. Each training photo p gets a 3x4
 // affine map of the rendered sRGB colour, rgb_p = (I + A_p) rgb + b_p (NeRF-W's and nerfacto's
 // per-image appearance in its smallest form, as Zip-NeRF's and gsplat's colour correction), applied
-// to the coarse and fine colours of the photo's rays before the loss. It starts at the identity and is
-// held near it by a small decay (train.photo_colour_decay), which also fixes the one look the scene
-// keeps: the photos' common one. Novel views, eval and the viewer render the scene's own colour (the
-// identity), the look of the average photo.
+// to the coarse and fine colours of the photo's rays before the loss. The maps applied are the
+// parameters minus their mean over the photos, so the average photo's map is the identity and the
+// scene keeps the photos' common look; a small decay (train.photo_colour_decay) bounds their spread.
+// Novel views, eval and the viewer render the scene's own colour, the look of the average photo.
 #include <torch/torch.h>
 
 namespace ablenerf {
@@ -15,10 +15,11 @@ namespace ablenerf {
 class PhotoColourImpl : public torch::nn::Module {
  public:
   explicit PhotoColourImpl(int64_t photos);
-  // rgb (B,3) of rays drawn from photos `photo` (B,) (int64, < photos()) -> (B,3).
+  // rgb (B,3) of rays drawn from photos `photo` (B,) (int64, < photos()) -> (B,3), through each
+  // photo's map minus the maps' mean.
   torch::Tensor forward(const torch::Tensor& rgb, const torch::Tensor& photo);
   int64_t photos() const { return delta_.size(0); }
-  // The parameter: (photos, 3, 4), [A_p | b_p]; zero = the identity.
+  // The parameter: (photos, 3, 4), [A_p | b_p] before centring; all equal = every map the identity.
   const torch::Tensor& delta() const { return delta_; }
 
  private:

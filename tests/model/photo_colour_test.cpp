@@ -1,5 +1,5 @@
 // Per-photo colour (model/photo_colour.h): the identity at the start, each ray mapped by its own
-// photo's affine map (against a hand computation), and weights that carry the maps bring them back
+// photo's affine map minus the maps' mean (against a hand computation), and weights that carry the maps bring them back
 // into a model made without them.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -17,21 +17,33 @@ TEST(PhotoColour, EachRayTakesItsPhotosAffineMap) {
   const auto rgb = torch::tensor({{0.2f, 0.5f, 0.9f}, {0.1f, 0.3f, 0.4f}, {0.7f, 0.6f, 0.5f}, {0.0f, 1.0f, 0.25f}});
   const auto photo = torch::tensor({0, 1, 2, 1}, torch::kLong);
   EXPECT_TRUE(torch::equal(pc(rgb, photo), rgb));  // zero = the identity
-  // Photo 1: red gain 2, green from blue 0.5, blue bias -0.1.
+  // Photo 1: red gain 2, green from blue 0.5, blue bias -0.1; photo 2 the opposite, so that the
+  // maps' mean is zero and photo 0 keeps the identity.
   {
     torch::NoGradGuard no_grad;
     pc->delta()[1][0][0] = 1.0f;
     pc->delta()[1][1][2] = 0.5f;
     pc->delta()[1][2][3] = -0.1f;
+    pc->delta()[2].copy_(-pc->delta()[1]);
   }
   const auto out = pc(rgb, photo);
-  for (const int64_t i : {0, 2}) EXPECT_TRUE(torch::equal(out[i], rgb[i])) << i;
+  EXPECT_TRUE(torch::equal(out[0], rgb[0]));
   for (const int64_t i : {1, 3}) {
     const float r = rgb[i][0].item<float>(), g = rgb[i][1].item<float>(), b = rgb[i][2].item<float>();
     EXPECT_FLOAT_EQ(out[i][0].item<float>(), 2 * r) << i;
     EXPECT_FLOAT_EQ(out[i][1].item<float>(), g + 0.5f * b) << i;
     EXPECT_FLOAT_EQ(out[i][2].item<float>(), b - 0.1f) << i;
   }
+  const float r = rgb[2][0].item<float>(), g = rgb[2][1].item<float>(), b = rgb[2][2].item<float>();
+  EXPECT_FLOAT_EQ(out[2][0].item<float>(), 0 * r);
+  EXPECT_FLOAT_EQ(out[2][1].item<float>(), g - 0.5f * b);
+  EXPECT_FLOAT_EQ(out[2][2].item<float>(), b + 0.1f);
+  // The maps applied are centred: a common change of every map changes nothing.
+  {
+    torch::NoGradGuard no_grad;
+    pc->delta().add_(torch::randn({3, 4}));
+  }
+  EXPECT_TRUE(torch::allclose(pc(rgb, photo), out, 0, 1e-5));
   EXPECT_THROW(PhotoColour(0), std::invalid_argument);
 }
 
