@@ -1,16 +1,21 @@
 // `ablenerf export`: writes every model parameter as a torch.load-able name -> tensor
 // dictionary (save_weights format, names in docs/weights.md), either from a run folder
 // (RUN/config.toml + RUN/weights.pt) or freshly initialised from a config; and, from a run, the
-// scene as geometry: coloured points (--points) and a mesh (--mesh), geometry/export_geometry.h.
+// scene as geometry: coloured points (--points) and a mesh (--mesh), geometry/export_geometry.h;
+// and the training cameras as the run refined them (--poses, train.camera_refine).
 #include <torch/torch.h>
 
+#include <cmath>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
 #include "cli/command.h"
 #include "cli/common.h"
+#include "data/capture.h"
 #include "model/able_nerf.h"
+#include "run/run_folder.h"
 #include "util/errors.h"
+#include "util/fs.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "geometry/export_geometry.h"
 #include "eval/eval_config.h"
@@ -27,6 +32,7 @@ struct ExportArgs {
   int64_t seed = kDefaultSeed;
   ConfigOptions cfg;
   // Geometry.
+  std::string poses;
   std::string points, mesh, method = "tsdf", crop, frame = "capture", device = "auto";
   int64_t num_points = 1'000'000, views = 48;
   int resolution = 0, max_side = 200;
@@ -87,14 +93,79 @@ void run_geometry(const ExportArgs& a) {
 #endif
 }
 
+// The training cameras as the run refined them (model/camera_refine.h), in the capture's own
+// coordinates, as a transforms.json that instant-ngp and nerfstudio read (and `ablenerf train`):
+// each frame's full-size image and camera, its corrected camera-to-world, and the correction's
+// angle (degrees) and shift (capture units).
+void run_export_poses(const ExportArgs& a) {
+  if (a.run.empty()) throw InputError("export", "--run", "--poses exports a trained run's cameras: give --run RUN");
+  const RunFolder run = RunFolder::open(a.run);
+  AbleNerf model(run.config.get<ModelConfig>());
+  load_weights(model, run.path("weights.pt"));
+  CameraRefineImpl* refine = model->camera_refine();
+  if (refine == nullptr)
+    throw InputError(run.path("weights.pt"), "camera_refine.correction",
+                     "the run did not refine its cameras (train with --set train.camera_refine=true)");
+  const SceneFrame scene = run.scene();
+  // The training split, full-size images: the photos the corrections belong to, in training order.
+  const Capture capture = read_capture(run.data_dir, {"train"}, 1);
+  const CaptureSplit* train = nullptr;
+  for (const auto& s : capture.splits)
+    if (s.name == "train") train = &s;
+  if (train == nullptr || static_cast<int64_t>(train->frames.size()) != refine->cameras())
+    throw InputError(run.path("weights.pt"), "camera_refine.correction",
+                     std::to_string(refine->cameras()) + " cameras, but " + run.data_dir + " has " +
+                         std::to_string(train ? train->frames.size() : 0) + " training images");
+  std::vector<torch::Tensor> given;
+  for (const auto& f : train->frames) {
+    const Pose34 p = scene.to_scene(f.pose);
+    given.push_back(torch::from_blob(const_cast<float*>(p.data()), {3, 4}, torch::kFloat).clone());
+  }
+  torch::NoGradGuard no_grad;
+  const auto corrected = refine->corrected(torch::stack(given).to(refine->correction().dtype())).to(torch::kDouble);
+  const auto correction = refine->correction().to(torch::kDouble);
+  nlohmann::json out;
+  out["frames"] = nlohmann::json::array();
+  for (size_t i = 0; i < train->frames.size(); ++i) {
+    const auto& f = train->frames[i];
+    Pose34 p{};
+    for (int k = 0; k < 12; ++k)
+      p[static_cast<size_t>(k)] = corrected[static_cast<int64_t>(i)][k / 4][k % 4].item<float>();
+    const Pose34 back = scene.to_capture(p);
+    nlohmann::json m = nlohmann::json::array();
+    for (int r = 0; r < 3; ++r) m.push_back({back[r * 4], back[r * 4 + 1], back[r * 4 + 2], back[r * 4 + 3]});
+    m.push_back({0, 0, 0, 1});
+    const auto c = correction[static_cast<int64_t>(i)];
+    nlohmann::json fr;
+    fr["file_path"] = f.image;
+    fr["transform_matrix"] = m;
+    fr["fl_x"] = f.camera.fx, fr["fl_y"] = f.camera.fy, fr["cx"] = f.camera.cx, fr["cy"] = f.camera.cy;
+    fr["w"] = f.camera.width, fr["h"] = f.camera.height;
+    fr["refined_rotation_deg"] = c.slice(0, 0, 3).norm().item<double>() * 180.0 / M_PI;
+    fr["refined_shift"] = c.slice(0, 3, 6).norm().item<double>() / scene.scale;
+    out["frames"].push_back(fr);
+  }
+  out["refined_by"] = "ablenerf train.camera_refine, run " + a.run;
+  write_file_atomic(a.poses, out.dump(2) + "\n");
+  nlohmann::json j;
+  j["poses"] = a.poses;
+  j["cameras"] = train->frames.size();
+  std::cout << j.dump() << std::endl;
+}
+
 void run_export(const ExportArgs& a) {
+  if (!a.poses.empty()) {
+    run_export_poses(a);
+    if (a.points.empty() && a.mesh.empty() && a.out.empty()) return;
+  }
   if (!a.points.empty() || !a.mesh.empty()) {
     if (!a.out.empty()) run_export_weights(a);
     run_geometry(a);
     return;
   }
   if (a.out.empty())
-    throw InputError("export", "--out", "give --out FILE.pt (weights), --points FILE.ply or --mesh FILE");
+    throw InputError("export", "--out",
+                     "give --out FILE.pt (weights), --points FILE.ply, --mesh FILE or --poses FILE.json");
   run_export_weights(a);
 }
 
@@ -106,6 +177,8 @@ void setup(CLI::App& app) {
   app.add_option("--out", a->out, "Output .pt file of the weights");
   app.add_option("--points", a->points, "Coloured points with normals from the run's depth, as FILE.ply");
   app.add_option("--mesh", a->mesh, "A mesh of the run's surfaces, as FILE.ply, .obj or .glb");
+  app.add_option("--poses", a->poses,
+                 "The training cameras as refined by the run (train.camera_refine), as a transforms.json");
   app.add_option("--num-points", a->num_points, "Points kept at most, evenly thinned")->capture_default_str();
   app.add_option("--resolution", a->resolution,
                  "TSDF voxels along the crop box's longest side (0: from the rendered pixels' size)")

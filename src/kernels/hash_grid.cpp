@@ -83,18 +83,32 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     const auto &positions = saved[0], &table = saved[1];
     const HashGridShape s = shape_of(table, ctx->saved_data["res"].toIntVector());
     const auto g = grads[0].to(torch::kFloat).contiguous();
-    auto grad_table = torch::zeros_like(table);
     const int64_t n = positions.size(0);
+    torch::Tensor grad_positions, grad_table;
+    // The positions' gradient only where something upstream asks for it (camera refinement); the
+    // table's whenever the table trains.
+    if (ctx->needs_input_grad(0)) grad_positions = torch::empty_like(positions);
+    if (ctx->needs_input_grad(1)) grad_table = torch::zeros_like(table);
     if (positions.is_cpu()) {
-      hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, grad_table.data_ptr<float>());
+      if (grad_table.defined())
+        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, grad_table.data_ptr<float>());
+      if (grad_positions.defined())
+        hash_grid_backward_positions_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), table.data_ptr<float>(),
+                                         s, grad_positions.data_ptr<float>());
     } else {
 #ifdef ABLENERF_CUDA_KERNELS
       const c10::cuda::CUDAGuard device(positions.device());
-      C10_CUDA_CHECK(launch_hash_grid_backward(positions.data_ptr<float>(), n, g.data_ptr<float>(), s,
-                                               grad_table.data_ptr<float>(), at::cuda::getCurrentCUDAStream()));
+      const auto stream = at::cuda::getCurrentCUDAStream();
+      if (grad_table.defined())
+        C10_CUDA_CHECK(launch_hash_grid_backward(positions.data_ptr<float>(), n, g.data_ptr<float>(), s,
+                                                 grad_table.data_ptr<float>(), stream));
+      if (grad_positions.defined())
+        C10_CUDA_CHECK(launch_hash_grid_backward_positions(positions.data_ptr<float>(), n, g.data_ptr<float>(),
+                                                           table.data_ptr<float>(), s, grad_positions.data_ptr<float>(),
+                                                           stream));
 #endif
     }
-    return {torch::Tensor(), grad_table, torch::Tensor()};
+    return {grad_positions, grad_table, torch::Tensor()};
   }
 };
 

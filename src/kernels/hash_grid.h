@@ -20,14 +20,16 @@ constexpr int kHashGridMaxFeatures = 8;
 
 // positions: (N, 3) float32, contiguous, coordinates in [0, 1] (clamped; NaN counts as 0);
 // table: (levels, table_size, features) float32, contiguous, on the positions' device.
-// Returns (N, levels, features) float32. Differentiable in the table only (the positions get no
-// gradient). CPU tensors run the project's loops (the table's gradient is added level by level, one
-// thread per level: no two threads write one row, no lock); CUDA tensors the kernels (atomic adds),
-// or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
+// Returns (N, levels, features) float32. Differentiable in the table and in the positions (the
+// trilinear weights' derivatives, computed only when the positions require a gradient: camera
+// refinement moves the samples; zero along an axis outside [0, 1]). CPU tensors run the project's loops (the table's
+// gradient is added level by level, one thread per level: no two threads write one row, no lock); CUDA tensors the
+// kernels (atomic adds), or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
 // argument on bad input.
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape);
 
-// The same in plain LibTorch ops (index_select and products; autograd gives the table's gradient),
+// The same in plain LibTorch ops (index_select and products; autograd gives the table's and the
+// positions' gradients),
 // on any device, float32 or float64 tables.
 torch::Tensor hash_grid_encode_reference(const torch::Tensor& positions, const torch::Tensor& table,
                                          const HashGridShape& shape);

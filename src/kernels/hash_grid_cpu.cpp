@@ -43,4 +43,25 @@ void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad
   });
 }
 
+void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
+                                      const HashGridShape& s, float* grad_positions) {
+  const int64_t levels = s.levels, features = s.features, rows = s.table_size;
+  at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
+    for (int64_t i = lo; i < hi; ++i) {
+      float acc[3] = {0.f, 0.f, 0.f};
+      for (int l = 0; l < levels; ++l) {
+        const float* g = grad_out + (i * levels + l) * features;
+        const float* level_rows = table + l * rows * features;
+        hash_grid_corners_with_gradient(s, l, positions + 3 * i, [&](uint32_t row, float, const float* dw) {
+          const float* r = level_rows + int64_t{row} * features;
+          float dot = 0.f;
+          for (int64_t f = 0; f < features; ++f) dot += g[f] * r[f];
+          for (int d = 0; d < 3; ++d) acc[d] += dot * dw[d];
+        });
+      }
+      for (int d = 0; d < 3; ++d) grad_positions[3 * i + d] = acc[d];
+    }
+  });
+}
+
 }  // namespace ablenerf

@@ -17,4 +17,10 @@ void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table
 void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
                             float* grad_table);
 
+// grad_positions (n, 3) = the gradient of sum(grad_out * out) with respect to the positions: at
+// every level, each vertex row's dot product with grad_out times its weight's derivative
+// (hash_grid_corners_with_gradient). Points split across threads; each writes only its own row.
+void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
+                                      const HashGridShape& s, float* grad_positions);
+
 }  // namespace ablenerf

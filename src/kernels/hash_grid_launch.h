@@ -19,4 +19,10 @@ cudaError_t launch_hash_grid_forward(const float* positions, int64_t n, const fl
 cudaError_t launch_hash_grid_backward(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
                                       float* grad_table, cudaStream_t stream);
 
+// grad_positions (n, 3) = the positions' gradient (one thread per point, no atomics; every row
+// written).
+cudaError_t launch_hash_grid_backward_positions(const float* positions, int64_t n, const float* grad_out,
+                                                const float* table, const HashGridShape& s, float* grad_positions,
+                                                cudaStream_t stream);
+
 }  // namespace ablenerf

@@ -71,4 +71,31 @@ ABLENERF_HOST_DEVICE inline void hash_grid_corners(const HashGridShape& s, int l
   }
 }
 
+// As hash_grid_corners, also passing each weight's derivative with respect to the point's three
+// coordinates, fn(row, weight, dweight[3]): along an axis where the coordinate lies outside [0, 1]
+// (or is NaN) the derivative is 0, as the clamp's; inside, d frac / d p = resolution.
+template <class Fn>
+ABLENERF_HOST_DEVICE inline void hash_grid_corners_with_gradient(const HashGridShape& s, int level, const float* p,
+                                                                 Fn&& fn) {
+  uint32_t c[3];
+  float f[3], slope[3];
+  for (int d = 0; d < 3; ++d) {
+    hash_grid_cell(p[d], s.resolution[level], c[d], f[d]);
+    slope[d] = (p[d] >= 0.f && p[d] <= 1.f) ? static_cast<float>(s.resolution[level]) : 0.f;
+  }
+  for (int k = 0; k < 8; ++k) {
+    uint32_t v[3];
+    float a[3], sign[3];
+    for (int d = 0; d < 3; ++d) {
+      const uint32_t bit = (k >> d) & 1u;
+      v[d] = c[d] + bit;
+      a[d] = bit ? f[d] : 1.f - f[d];
+      sign[d] = bit ? 1.f : -1.f;
+    }
+    const float dw[3] = {sign[0] * slope[0] * a[1] * a[2], sign[1] * slope[1] * a[0] * a[2],
+                         sign[2] * slope[2] * a[0] * a[1]};
+    fn(hash_grid_row(s, level, v[0], v[1], v[2]), a[0] * a[1] * a[2], dw);
+  }
+}
+
 }  // namespace ablenerf

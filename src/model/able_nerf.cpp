@@ -92,6 +92,13 @@ void AbleNerfImpl::enable_photo_colour(int64_t photos) {
   photo_colour_->to(device);
 }
 
+void AbleNerfImpl::enable_camera_refine(int64_t cameras) {
+  if (camera_refine_) throw std::logic_error("AbleNerf: camera refinement enabled twice");
+  const auto device = ray_token_.device();
+  camera_refine_ = register_module("camera_refine", CameraRefine(cameras));
+  camera_refine_->to(device);
+}
+
 int64_t AbleNerfImpl::parameter_count() const {
   int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
@@ -207,7 +214,10 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     // normalised ray coordinate, and the coarse fence-posts drawn from them.
     proposal_s = coarse_fence_posts(b, 0.0, 1.0, proposal_->samples(), options);
     const auto s_p = unbounded_ ? proposal_s : near + (far - near) * proposal_s;
-    proposal_w = density_weights(proposal_->density(frustums(depths(s_p), rays)), proposal_s);
+    // On the rays detached: the proposal only places samples, so its loss must not move the
+    // cameras that camera refinement corrects (model/camera_refine.h).
+    const Rays fixed{rays.origins.detach(), rays.directions.detach(), rays.radii.detach()};
+    proposal_w = density_weights(proposal_->density(frustums(depths(s_p), fixed)), proposal_s);
     const auto s_unit =
         proposal_fence_posts(proposal_s, proposal_w, cfg_.samples, kProposalPadding, opts.coarse_jitter);
     s_c = unbounded_ ? s_unit : near + (far - near) * s_unit;

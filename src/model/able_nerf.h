@@ -14,6 +14,7 @@
 #include "model/grid_embedding.h"
 #include "model/le_transformer.h"
 #include "model/ndc.h"
+#include "model/camera_refine.h"
 #include "model/photo_colour.h"
 #include "model/proposal.h"
 #include "model/volume_embedding.h"
@@ -93,6 +94,10 @@ class AbleNerfImpl : public torch::nn::Module {
   // its optimiser is made, or by load_weights when the weights carry it; never read by forward().
   void enable_photo_colour(int64_t photos);
   PhotoColourImpl* photo_colour() { return photo_colour_ ? photo_colour_.get() : nullptr; }
+  // Camera refinement (model/camera_refine.h): likewise registered by the trainer
+  // (train.camera_refine) or by load_weights; never read by forward() (the trainer corrects the rays).
+  void enable_camera_refine(int64_t cameras);
+  CameraRefineImpl* camera_refine() { return camera_refine_ ? camera_refine_.get() : nullptr; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
@@ -123,11 +128,12 @@ class AbleNerfImpl : public torch::nn::Module {
   bool ndc_ = false;
   NdcProjection ndc_projection_;
   Compute compute_;
-  torch::Tensor ray_token_;            // (1,1,E) initial ray token
-  torch::Tensor mask_;                 // (S+1,S+1) additive mask buffer; undefined when model.mask is off
-  GridEmbedding grid_{nullptr};        // model.embedding = "grid" only
-  Proposal proposal_{nullptr};         // model.proposal_samples > 0 only
-  PhotoColour photo_colour_{nullptr};  // train.photo_colour only
+  torch::Tensor ray_token_;              // (1,1,E) initial ray token
+  torch::Tensor mask_;                   // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  GridEmbedding grid_{nullptr};          // model.embedding = "grid" only
+  Proposal proposal_{nullptr};           // model.proposal_samples > 0 only
+  PhotoColour photo_colour_{nullptr};    // train.photo_colour only
+  CameraRefine camera_refine_{nullptr};  // train.camera_refine only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};
   RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};

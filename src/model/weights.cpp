@@ -107,6 +107,7 @@ std::vector<std::pair<std::string, std::string>> release_name_map(const ModelCon
 }
 
 const char* const kPhotoColourWeight = "photo_colour.delta";
+const char* const kCameraRefineWeight = "camera_refine.correction";
 
 void save_weights(AbleNerf& model, const std::string& path) {
   c10::Dict<std::string, torch::Tensor> dict;
@@ -130,15 +131,19 @@ c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path) {
 
 void load_weights(AbleNerf& model, const std::string& path) {
   const auto dict = read_weights_dict(path);
-  // Weights trained with per-photo colour carry it (model/photo_colour.h): made here with its rows.
-  for (const auto& entry : dict) {
-    if (model->photo_colour() || !entry.key().isString() || entry.key().toStringRef() != kPhotoColourWeight ||
-        !entry.value().isTensor())
-      continue;
-    const auto d = entry.value().toTensor();
-    if (d.dim() != 3 || d.size(0) < 1) throw InputError(path, kPhotoColourWeight, "expected (photos, 3, 4)");
-    model->enable_photo_colour(d.size(0));
-  }
+  // Weights trained with per-photo colour or camera refinement carry them (model/photo_colour.h,
+  // model/camera_refine.h): made here with their rows.
+  const auto rows_of = [&](const char* key, int64_t dims, int64_t inner, const char* expected) -> int64_t {
+    const auto it = dict.find(c10::IValue(std::string(key)));
+    if (it == dict.end() || !it->value().isTensor()) return 0;
+    const auto t = it->value().toTensor();
+    if (t.dim() != dims || t.size(0) < 1 || t.size(-1) != inner) throw InputError(path, key, expected);
+    return t.size(0);
+  };
+  if (!model->photo_colour())
+    if (const int64_t n = rows_of(kPhotoColourWeight, 3, 4, "expected (photos, 3, 4)")) model->enable_photo_colour(n);
+  if (!model->camera_refine())
+    if (const int64_t n = rows_of(kCameraRefineWeight, 2, 6, "expected (cameras, 6)")) model->enable_camera_refine(n);
   std::vector<std::pair<std::string, std::string>> identity;
   for (const auto& p : model->named_parameters()) identity.emplace_back(p.key(), p.key());
   assign_parameters(model, dict, identity, path, /*release=*/false);

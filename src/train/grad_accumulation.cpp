@@ -37,6 +37,22 @@ ModelOutput through_photo_colour(AbleNerf& model, ModelOutput out, const torch::
   return out;
 }
 
+// The rays as the photos' corrected cameras cast them (model/camera_refine.h) when the model refines
+// its cameras.
+Rays through_camera_refine(AbleNerf& model, const Rays& rays, const torch::Tensor& photo) {
+  CameraRefineImpl* cr = model->camera_refine();
+  if (cr == nullptr || !photo.defined()) return rays;
+  return cr->forward(rays, photo);
+}
+
+// The loss terms of some rays of the step: through the corrected cameras, the model and the photo
+// colour maps.
+LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions& opts, const TrainConfig& tc,
+                     int64_t global_rays, double near, double far) {
+  const ModelOutput out = model->forward(through_camera_refine(model, rays.rays, rays.photo), near, far, opts);
+  return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays);
+}
+
 }  // namespace
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
@@ -60,8 +76,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     opts.weights_grad = tc.distortion_weight > 0;
     const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
-      const LossTerms t = ray_loss(through_photo_colour(model, model->forward(mb.rays, near, far, opts), mb.photo),
-                                   mb.target, tc, global_rays);
+      const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far);
       t.loss.backward();
       add(t);
       continue;
@@ -70,9 +85,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     std::vector<LossTerms> parts(static_cast<size_t>(workers));
     parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
       const RayBatch s = mb.slice(lo, hi);
-      LossTerms t =
-          ray_loss(through_photo_colour(model, model->forward(s.rays, near, far, opts.slice(lo, hi)), s.photo),
-                   s.target, tc, global_rays);
+      LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far);
       // Gradients returned, not accumulated, so the threads never write the same .grad.
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,
@@ -105,26 +118,22 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       }
     }
   }
-  // The table's decay once per step, this process's share of it (ranks add their gradients).
+  // The decays once per step, this process's share of them (ranks add their gradients): the table's,
+  const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
   if (tc.grid_decay > 0 && model->grid()) {
-    const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
     const auto& grid = model->grid();
     const auto decay = add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share);
     sums.loss.add_(decay.to(sums.loss.dtype()));
   }
-  // The photo colour maps' decay once per step, likewise: photo_colour_decay x the mean over photos
-  // of the squared deviation from the identity, its gradient added directly.
-  if (tc.photo_colour_decay > 0 && model->photo_colour()) {
-    const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
-    const torch::Tensor& d = model->photo_colour()->delta();
-    torch::NoGradGuard no_grad;
-    const double coeff = tc.photo_colour_decay * share / static_cast<double>(d.size(0));
-    sums.loss.add_((d.pow(2).sum() * coeff).to(sums.loss.dtype()));
-    auto& grad = d.mutable_grad();
-    if (grad.defined())
-      grad.add_(d, 2 * coeff);
-    else
-      grad = d * (2 * coeff);
+  // and the photo colour maps' and camera corrections': each weight times the mean over photos of the
+  // squared deviation from the identity.
+  if (tc.photo_colour_decay > 0 && model->photo_colour())
+    sums.loss.add_(add_row_decay(model->photo_colour()->delta(), tc.photo_colour_decay * share).to(sums.loss.dtype()));
+  if (tc.camera_refine_decay > 0 && model->camera_refine()) {
+    // On the corrections, scale x the parameter (model/camera_refine.h).
+    const CameraRefineImpl& cr = *model->camera_refine();
+    const double weight = tc.camera_refine_decay * share * cr.lr_scale() * cr.lr_scale();
+    sums.loss.add_(add_row_decay(cr.parameter(), weight).to(sums.loss.dtype()));
   }
   sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;

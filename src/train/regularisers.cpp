@@ -49,11 +49,11 @@ torch::Tensor grid_weight_decay(const torch::Tensor& table) {
   return table.pow(2).mean({1, 2}).sum();
 }
 
-torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight) {
-  TORCH_CHECK(param.dim() == 3, "add_grid_weight_decay: table (levels, rows, features) expected");
+namespace {
+
+// coeff x sum(param^2), with 2 coeff param added into param's .grad.
+torch::Tensor add_squared_norm(const torch::Tensor& param, double coeff) {
   torch::NoGradGuard no_grad;
-  // Every level has rows * features entries, so the sum of level means is one sum over the table.
-  const double coeff = weight * scale * scale / static_cast<double>(param.size(1) * param.size(2));
   // The norm, not a product and a sum: one reduction with no temporary (and float32 under autocast).
   const auto value = torch::linalg_vector_norm(param, 2, c10::nullopt, false, c10::nullopt).square() * coeff;
   auto& grad = param.mutable_grad();
@@ -62,6 +62,19 @@ torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, do
   else
     grad = param * (2 * coeff);
   return value;
+}
+
+}  // namespace
+
+torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight) {
+  TORCH_CHECK(param.dim() == 3, "add_grid_weight_decay: table (levels, rows, features) expected");
+  // Every level has rows * features entries, so the sum of level means is one sum over the table.
+  return add_squared_norm(param, weight * scale * scale / static_cast<double>(param.size(1) * param.size(2)));
+}
+
+torch::Tensor add_row_decay(const torch::Tensor& param, double weight) {
+  TORCH_CHECK(param.dim() >= 1 && param.size(0) > 0, "add_row_decay: at least one row expected");
+  return add_squared_norm(param, weight / static_cast<double>(param.size(0)));
 }
 
 }  // namespace ablenerf

@@ -47,6 +47,11 @@ struct TrainConfig {
   // identity by photo_colour_decay x the photos' mean squared deviation. Off = the paper.
   bool photo_colour = false;
   double photo_colour_decay = 1e-4;
+  // Camera refinement (model/camera_refine.h; docs/MODEL.md, "Camera refinement"): a rigid
+  // correction per training photo learned with the scene, held near zero by camera_refine_decay x
+  // the cameras' mean squared correction. Off = the poses as given (the paper).
+  bool camera_refine = false;
+  double camera_refine_decay = 1e-4;
   int64_t seed = 4;
   int64_t log_every = 100;    // steps between log.jsonl lines
   int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
@@ -89,6 +94,8 @@ struct TrainConfig {
     f("proposal_weight", &proposal_weight);
     f("photo_colour", &photo_colour);
     f("photo_colour_decay", &photo_colour_decay);
+    f("camera_refine", &camera_refine);
+    f("camera_refine_decay", &camera_refine_decay);
     f("seed", &seed);
     f("log_every", &log_every);
     f("eval_every", &eval_every);
@@ -118,6 +125,7 @@ struct TrainConfig {
     need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
     need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
+    need(camera_refine_decay >= 0 && std::isfinite(camera_refine_decay), "camera_refine_decay", "must be >= 0");
     need(log_every >= 1, "log_every", "must be >= 1");
     need(eval_every >= 0, "eval_every", "must be >= 0");
     need(eval_views >= 0, "eval_views", "must be >= 0");

@@ -4,7 +4,6 @@
 #define TOML_EXCEPTIONS 1
 #include <toml++/toml.h>
 
-#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <map>

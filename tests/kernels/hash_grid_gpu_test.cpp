@@ -1,5 +1,5 @@
 // The CUDA hash-grid encoding (kernels/hash_grid.h) against its plain LibTorch reference on the GPU:
-// values and the table's gradient (atomic adds: equal to float rounding, not bit for bit), with a
+// values, the table's gradient and the positions' (atomic adds: equal to float rounding, not bit for bit), with a
 // dense level and hashed ones, at the model's shape, an empty batch, and the input checks.
 #include <gtest/gtest.h>
 
@@ -16,11 +16,13 @@ void compare(const HashGridShape& s, int64_t n, uint64_t seed) {
   const auto table = test::cuda_randn({s.levels, s.table_size, s.features}, seed + 1, torch::kFloat);
   const auto g = test::cuda_randn({n, s.levels, s.features}, seed + 2, torch::kFloat);
   auto t1 = table.clone().requires_grad_(), t2 = table.clone().requires_grad_();
-  const auto got = hash_grid_encode(p, t1, s), want = hash_grid_encode_reference(p, t2, s);
+  auto p1 = p.clone().requires_grad_(), p2 = p.clone().requires_grad_();
+  const auto got = hash_grid_encode(p1, t1, s), want = hash_grid_encode_reference(p2, t2, s);
   EXPECT_LT(test::scaled_error(got, want), 1e-5) << "values, n " << n;
   got.backward(g);
   want.backward(g);
   EXPECT_LT(test::scaled_error(t1.grad(), t2.grad()), 1e-5) << "table gradient, n " << n;
+  EXPECT_LT(test::scaled_error(p1.grad(), p2.grad()), 1e-4) << "positions' gradient, n " << n;
 }
 
 TEST(HashGridGpu, MatchesReferenceDenseAndHashedLevels) {

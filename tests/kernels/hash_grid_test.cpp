@@ -1,7 +1,7 @@
 // The hash-grid encoding (kernels/hash_grid.h) on the CPU: the level resolutions and the spatial hash
 // against their closed forms, exactness on a field that is linear inside a cell, the CPU loops
-// against the plain LibTorch reference (values and the table's gradient), the reference's gradient
-// against finite differences, the loops' gradient the same with one thread and with several, and
+// against the plain LibTorch reference (values, the table's and the positions' gradients), the
+// reference's gradient against finite differences, the loops' gradient the same with one thread and with several, and
 // the input checks.
 #include <gtest/gtest.h>
 
@@ -118,6 +118,55 @@ TEST(HashGrid, ReferenceGradientMatchesFiniteDifferences) {
   f({t}).backward();
   EXPECT_LT(test::max_abs(t.grad() - numeric), 1e-7);
   EXPECT_GT(test::max_abs(numeric), 0.1);
+}
+
+// The positions' gradient (camera refinement): the loops against the reference's autograd, both
+// against central differences of the encoding in the positions (points kept away from the cells'
+// faces, where the encoding has a kink), and nothing computed when the positions need none.
+TEST(HashGrid, PositionGradientMatchesTheReferenceAndFiniteDifferences) {
+  const HashGridShape s = mixed_shape();
+  auto gen = at::detail::createCPUGenerator(21);
+  // Inside the cube, plus two points outside it (their clamped axes get no gradient).
+  auto p = torch::cat({torch::rand({300, 3}, gen, torch::kFloat) * 0.9 + 0.05,
+                       torch::tensor({-0.2f, 0.5f, 0.5f, 0.3f, 1.4f, 0.6f}).view({2, 3})})
+               .contiguous();
+  const auto table = table_for(s, 22);
+  const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 23).to(torch::kFloat);
+  auto p1 = p.clone().requires_grad_(), p2 = p.clone().requires_grad_();
+  hash_grid_encode(p1, table, s).backward(g);
+  hash_grid_encode_reference(p2, table, s).backward(g);
+  const auto got = p1.grad(), want = p2.grad();
+  EXPECT_LT(test::max_abs(got - want), 2e-3 * test::max_abs(want));
+  EXPECT_GT(test::max_abs(want), 1.0);
+  EXPECT_EQ(got[300][0].item<float>(), 0.f);  // x = -0.2: clamped
+  EXPECT_EQ(got[301][1].item<float>(), 0.f);  // y = 1.4: clamped
+  EXPECT_NE(got[300][1].item<float>(), 0.f);
+
+  // Central differences in float64 of the interpolation itself (the reference's arithmetic in
+  // double: cells from the float positions, fractions in double), on points whose step stays in
+  // its cell at every level.
+  const double h = 1e-4;
+  const auto pd = p.to(torch::kDouble), td = table.to(torch::kDouble), gd = g.to(torch::kDouble);
+  const auto encode = [&](const torch::Tensor& q) { return (hash_grid_encode_reference(q, td, s) * gd).sum(); };
+  int checked = 0;
+  for (int64_t i = 0; i < 40; ++i) {
+    for (int d = 0; d < 3; ++d) {
+      const double x = pd[i][d].item<double>();
+      bool inside_cell = true;
+      for (int l = 0; l < s.levels; ++l) {
+        const double q = x * s.resolution[l];
+        inside_cell = inside_cell && std::floor(q - 2 * h * s.resolution[l]) == std::floor(q + 2 * h * s.resolution[l]);
+      }
+      if (!inside_cell) continue;
+      auto plus = pd.clone(), minus = pd.clone();
+      plus[i][d] += h;
+      minus[i][d] -= h;
+      const double numeric = (encode(plus).item<double>() - encode(minus).item<double>()) / (2 * h);
+      EXPECT_NEAR(got[i][d].item<float>(), numeric, 1e-2 * std::max(1.0, std::abs(numeric))) << i << "," << d;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 40);
 }
 
 // The loops' scatter gives the same bits with one thread and with several (levels to threads).

@@ -194,5 +194,69 @@ TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
   EXPECT_TRUE(torch::allclose(model->photo_colour()->delta().grad(), g + 2 * 0.5 / 4 * delta, 0, 1e-12));
 }
 
+// Camera refinement (model/camera_refine.h): the step's rays go through their photos' corrected
+// cameras before the model, so the gradients equal one backward of the loss over the corrected
+// rays, on the ray split and in micro-batches; with the grid front end the corrections' gradient
+// comes through the grid's lookup (the positions' gradient, kernels/hash_grid.h) as well; a photo
+// with no ray in the step gets none but its decay's.
+TEST(GradAccumulation, CameraRefineGradientsEqualOneBackwardOverTheCorrectedRays) {
+  const test::IntraOpThreads threads(2);
+  for (const bool grid : {false, true}) {
+    torch::manual_seed(10);
+    ModelConfig mc = test::two_head_model();
+    if (grid) {
+      mc.embedding = Embedding::Grid;
+      mc.grid_levels = 3;
+      mc.grid_log2_table = 8;
+      mc.grid_base_resolution = 4;
+      mc.grid_max_resolution = 16;
+      mc.grid_bound = 6;
+    }
+    AbleNerf model(mc);
+    model->enable_camera_refine(4);
+    const auto dtype = grid ? torch::kFloat : torch::kDouble;
+    model->to(dtype);
+    model->train();
+    {
+      torch::NoGradGuard no_grad;
+      model->camera_refine()->parameter().copy_(torch::randn({4, 6}, dtype) * 0.5);
+    }
+    TrainConfig tc;
+    tc.coarse_weight = 0.3;
+    tc.camera_refine_decay = 0;
+    const int64_t n = 48;
+    RayBatch batch = some_batch(n);
+    batch.rays = batch.rays.to(torch::kCPU);
+    batch.photo = (torch::arange(n) % 2) * 2;  // photos 0 and 2 only
+    const std::string what = grid ? "grid" : "ipe";
+
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    const auto out = model->forward(model->camera_refine()->forward(batch.rays, batch.photo), 2.0, 6.0);
+    const auto ref_loss = tc.coarse_weight * (out.rgb_coarse.to(torch::kDouble) - batch.target).pow(2).mean() +
+                          tc.fine_weight * (out.rgb_fine.to(torch::kDouble) - batch.target).pow(2).mean();
+    ref_loss.backward();
+    const auto ref = model->camera_refine()->parameter().grad().clone();
+    EXPECT_GT(ref[0].abs().max().item<double>(), 1e-5) << what;
+    EXPECT_GT(ref[2].abs().max().item<double>(), 1e-5) << what;
+
+    const double tol = grid ? 1e-4 : 1e-12;
+    for (const int64_t micro : {n, int64_t{16}}) {
+      for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+      const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
+      EXPECT_NEAR(s.loss.item<double>(), ref_loss.item<double>(), tol * ref_loss.item<double>()) << what << micro;
+      const auto g = model->camera_refine()->parameter().grad();
+      EXPECT_LT((g - ref).abs().max().item<double>(), tol * ref.abs().max().item<double>()) << what << micro;
+      EXPECT_EQ(g[1].abs().max().item<double>(), 0.0) << what;  // no ray from photo 1
+    }
+    tc.camera_refine_decay = 0.5;
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+    // On the corrections, lr_scale x the parameter: d/dparam = 2 x 0.5 / 4 x lr_scale^2 x param.
+    const auto& p = model->camera_refine()->parameter();
+    const double k = model->camera_refine()->lr_scale();
+    EXPECT_TRUE(torch::allclose(p.grad()[1], 2 * 0.5 / 4 * k * k * p[1], 0, 1e-12)) << what;
+  }
+}
+
 }  // namespace
 }  // namespace ablenerf

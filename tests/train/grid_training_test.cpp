@@ -75,6 +75,20 @@ TEST(GridTraining, ResumeWithPhotoColourEqualsUninterrupted) {
     EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
 }
 
+// Camera corrections (train.camera_refine) likewise: parameters with their Adam state, so a resumed
+// run ends bit-exact with the straight one.
+TEST(GridTraining, ResumeWithCameraRefineEqualsUninterrupted) {
+  const test::IntraOpThreads threads(1);
+  test::TempDir t;
+  const Config c = test::config_with(tiny_grid_config(), {"train.camera_refine=true"});
+  test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
+  auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
+  ASSERT_TRUE(a.contains("camera_refine.correction"));
+  EXPECT_GT(a.at("camera_refine.correction").toTensor().abs().max().item<double>(), 0.0);  // it trained
+  for (const auto& kv : a)
+    EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+}
+
 TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
   test::TempDir t;
   const Config c = tiny_grid_config();

@@ -1,0 +1,40 @@
+#include "model/camera_refine.h"
+
+#include <stdexcept>
+
+namespace ablenerf {
+
+CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale) : lr_scale_(lr_scale) {
+  if (cameras < 1) throw std::invalid_argument("CameraRefine: at least one camera");
+  if (!(lr_scale > 0)) throw std::invalid_argument("CameraRefine: the learning-rate scale must be positive");
+  param_ = register_parameter("correction", torch::zeros({cameras, 6}));
+}
+
+torch::Tensor CameraRefineImpl::rotations() const {
+  const auto w = correction().slice(1, 0, 3);
+  const auto zero = torch::zeros_like(w.select(1, 0));
+  const auto x = w.select(1, 0), y = w.select(1, 1), z = w.select(1, 2);
+  // [w]x, the cross-product matrix: [w]x v = w x v.
+  const auto skew = torch::stack({zero, -z, y, z, zero, -x, -y, x, zero}, 1).view({-1, 3, 3});
+  return torch::matrix_exp(skew);
+}
+
+Rays CameraRefineImpl::forward(const Rays& rays, const torch::Tensor& photo) {
+  const auto idx = photo.to(torch::kLong);
+  const auto dtype = at::promote_types(rays.directions.scalar_type(), param_.scalar_type());
+  const auto r = rotations().index_select(0, idx).to(dtype);                   // (B,3,3)
+  const auto t = correction().slice(1, 3, 6).index_select(0, idx).to(dtype);  // (B,3)
+  const auto d = torch::matmul(r, rays.directions.to(dtype).unsqueeze(-1)).squeeze(-1);
+  return {rays.origins.to(dtype) + t, d, rays.radii.to(dtype)};
+}
+
+torch::Tensor CameraRefineImpl::corrected(const torch::Tensor& c2w) const {
+  TORCH_CHECK(c2w.dim() == 3 && c2w.size(0) == cameras() && c2w.size(1) >= 3 && c2w.size(2) == 4,
+              "CameraRefine::corrected: expected (", cameras(), ", 3, 4) camera-to-world matrices, got ", c2w.sizes());
+  const auto pose = c2w.slice(1, 0, 3).to(param_.scalar_type());
+  const auto rotation = torch::matmul(rotations(), pose.slice(2, 0, 3));
+  const auto centre = pose.select(2, 3) + correction().slice(1, 3, 6);
+  return torch::cat({rotation, centre.unsqueeze(-1)}, 2).to(c2w.scalar_type());
+}
+
+}  // namespace ablenerf

@@ -1,0 +1,48 @@
+#pragma once
+// Camera refinement (train.camera_refine; docs/MODEL.md, "Camera refinement"), ablenerf's extension
+// for captures whose poses come from structure from motion and are a little off: each training
+// photo p gets a rigid correction learned with the scene, a rotation exp([w_p]x) about the camera's
+// centre and a shift t_p of the centre, both in the scene frame (nerfstudio's "SO3xR3" camera
+// optimiser; BARF, Lin et al. 2021, learns the same six numbers per camera). A photo's rays become
+//   origin' = origin + t_p,   direction' = exp([w_p]x) direction,
+// which is the ray of the corrected camera-to-world [exp([w_p]x) R | c + t_p]: the samples move
+// with the pose, so the loss reaches w and t through the sample positions (the grid's lookup passes
+// the positions' gradient: kernels/hash_grid.h), the frustums and the view direction. A small decay
+// (train.camera_refine_decay) keeps corrections that the images do not ask for at zero. Held-out
+// views, eval and the viewer use the poses as given.
+#include <torch/torch.h>
+
+#include "data/rays.h"
+
+namespace ablenerf {
+
+// The corrections learn at this fraction of the run's learning rate: each photo has only a few of a
+// step's rays, so its gradient is noisy, and Adam's steps of about the learning rate would make the
+// pose wander (docs/MODEL.md, "Camera refinement").
+constexpr double kCameraRefineLrScale = 0.1;
+
+class CameraRefineImpl : public torch::nn::Module {
+ public:
+  // lr_scale: the corrections' learning rate over the run's; the parameter Adam sees (and weights
+  // files hold) is the corrections over lr_scale.
+  explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale);
+  // The rays of photos `photo` (B,) (int64, < cameras()) as their corrected cameras cast them.
+  Rays forward(const Rays& rays, const torch::Tensor& photo);
+  int64_t cameras() const { return param_.size(0); }
+  // The corrections: (cameras, 6), w (axis times angle, radians) then t; zero = the poses as given.
+  torch::Tensor correction() const { return param_ * lr_scale_; }
+  // The parameter itself (correction() / lr_scale()) and the scale.
+  const torch::Tensor& parameter() const { return param_; }
+  double lr_scale() const { return lr_scale_; }
+  // (cameras, 3, 3): exp([w]x) of every camera (Rodrigues' formula through the matrix exponential).
+  torch::Tensor rotations() const;
+  // The corrected camera-to-world matrices (cameras, 3, 4) of the given ones (cameras, 3 or 4, 4).
+  torch::Tensor corrected(const torch::Tensor& c2w) const;
+
+ private:
+  double lr_scale_;
+  torch::Tensor param_;
+};
+TORCH_MODULE(CameraRefine);
+
+}  // namespace ablenerf

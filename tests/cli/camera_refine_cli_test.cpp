@@ -1,0 +1,94 @@
+// Camera refinement end to end (model/camera_refine.h): `synth` perturbs the training cameras by a
+// known amount (2 degrees about a random axis, a shift of 2% of the distance) and records the truth;
+// the demo preset with train.camera_refine learns the scene and the corrections; `export --poses`
+// writes the refined cameras; their reprojection error on the objects against the truth must be
+// under half of the perturbed cameras'. Measured with these settings (2026-11-26, 2-vCPU VM): 1.57
+// degrees perturbed, 0.38 refined (0.24 of it; the corrections at the run's learning rate: 0.63).
+// Without refinement the export is refused with one line.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "test_util.h"
+#include "util/fs.h"
+
+namespace ablenerf {
+namespace {
+
+using json = nlohmann::json;
+using Pose = std::array<std::array<double, 4>, 3>;
+
+Pose pose_of(const json& m) {
+  Pose p{};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) p[r][c] = m.at(r).at(c).get<double>();
+  return p;
+}
+
+// Mean angle (degrees) between the directions in which cameras a and b see the points of a 3x3x3
+// lattice spanning the demo scene's objects (|x|, |y|, |z| <= 0.8).
+double reprojection_deg(const Pose& a, const Pose& b) {
+  double sum = 0;
+  int n = 0;
+  for (double x : {-0.8, 0.0, 0.8})
+    for (double y : {-0.8, 0.0, 0.8})
+      for (double z : {-0.8, 0.0, 0.8}) {
+        const double p[3] = {x, y, z};
+        double da[3], db[3], na = 0, nb = 0, dot = 0;
+        for (int k = 0; k < 3; ++k) {
+          da[k] = db[k] = 0;
+          for (int r = 0; r < 3; ++r) {
+            da[k] += a[r][k] * (p[r] - a[r][3]);  // R^T (p - c): the camera-frame direction
+            db[k] += b[r][k] * (p[r] - b[r][3]);
+          }
+          na += da[k] * da[k];
+          nb += db[k] * db[k];
+        }
+        for (int k = 0; k < 3; ++k) dot += da[k] * db[k];
+        sum += std::acos(std::min(1.0, dot / std::sqrt(na * nb))) * 180.0 / M_PI;
+        ++n;
+      }
+  return sum / n;
+}
+
+TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
+  test::TempDir t;
+  auto r = test::run_cli("synth --out " + (t / "data") +
+                         " --res 32 --train-views 24 --test-views 2 --pose-noise-deg 2 --pose-noise-shift 0.02 --seed 0");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const std::string common = " --data " + (t / "data") + " --config " + test::source_dir() +
+                             "/configs/demo.toml --set train.steps=1500 --set train.time_budget_s=0"
+                             " --set train.eval_every=0 --set train.ckpt_every=0 --quiet";
+  r = test::run_cli("train" + common + " --set train.camera_refine=true --out " + (t / "run"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = test::run_cli("export --run " + (t / "run") + " --poses " + (t / "poses.json"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+
+  const json truth = json::parse(read_file(t / "data/scene.json")).at("train_view_truth");
+  const json given = json::parse(read_file(t / "data/transforms_train.json")).at("frames");
+  const json refined = json::parse(read_file(t / "poses.json")).at("frames");
+  ASSERT_EQ(truth.size(), 24u);
+  ASSERT_EQ(refined.size(), 24u);
+  double before = 0, after = 0;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const Pose want = pose_of(truth[i].at("true_transform_matrix"));
+    before += reprojection_deg(pose_of(given[i].at("transform_matrix")), want) / 24;
+    after += reprojection_deg(pose_of(refined[i].at("transform_matrix")), want) / 24;
+    EXPECT_GT(refined[i].at("refined_rotation_deg").get<double>(), 0.0);
+  }
+  EXPECT_GT(before, 1.0);  // the perturbation is there
+  EXPECT_LT(after, 0.5 * before) << "perturbed " << before << " deg, refined " << after << " deg";
+
+  // A run that did not refine its cameras: one line naming the weights' field, exit code 2.
+  r = test::run_cli("train" + common + " --set train.steps=5 --out " + (t / "plain"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = test::run_cli("export --run " + (t / "plain") + " --poses " + (t / "none.json"));
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("camera_refine.correction"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(t / "none.json"));
+}
+
+}  // namespace
+}  // namespace ablenerf

@@ -1,0 +1,127 @@
+// Camera refinement (model/camera_refine.h): zero is the poses as given; each rotation is
+// Rodrigues' closed form of its axis-angle; a photo's corrected rays are exactly the rays its
+// corrected camera-to-world casts (against data/rays.h); the gradient against central differences;
+// weights carry the corrections into a model made without them.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+
+#include "kernels/kernel_test_util.h"
+#include "model/able_nerf.h"
+#include "model/camera_refine.h"
+#include "test_util.h"
+
+namespace ablenerf {
+namespace {
+
+// Rodrigues: R = I + sin(a) K + (1 - cos(a)) K^2 for the unit axis's cross-product matrix K.
+torch::Tensor rodrigues(double x, double y, double z) {
+  const double a = std::sqrt(x * x + y * y + z * z);
+  const auto opts = torch::TensorOptions().dtype(torch::kDouble);
+  const auto k = torch::tensor({0.0, -z, y, z, 0.0, -x, -y, x, 0.0}, opts).view({3, 3}) / a;
+  return torch::eye(3, opts) + std::sin(a) * k + (1 - std::cos(a)) * torch::matmul(k, k);
+}
+
+CameraRefine with_corrections(const torch::Tensor& c) {
+  CameraRefine cr(c.size(0));
+  cr->to(torch::kDouble);
+  torch::NoGradGuard no_grad;
+  cr->parameter().copy_(c / cr->lr_scale());
+  return cr;
+}
+
+TEST(CameraRefine, ZeroIsThePosesAsGivenAndRotationsAreRodrigues) {
+  const Rays rays = test::random_rays(5, 1, torch::kDouble);
+  const auto photo = torch::tensor({0, 1, 1, 0, 1}, torch::kLong);
+  CameraRefine zero(2);
+  zero->to(torch::kDouble);
+  const Rays same = zero(rays, photo);
+  EXPECT_TRUE(torch::equal(same.origins, rays.origins));
+  EXPECT_TRUE(torch::equal(same.directions, rays.directions));
+  EXPECT_TRUE(torch::equal(same.radii, rays.radii));
+
+  const auto c = torch::tensor({{0.3, -0.2, 0.5, 0.0, 0.0, 0.0}, {-0.01, 0.02, 0.005, 0.0, 0.0, 0.0}}, torch::kDouble);
+  const auto r = with_corrections(c)->rotations();
+  EXPECT_LT(test::max_abs(r[0] - rodrigues(0.3, -0.2, 0.5)), 1e-12);
+  EXPECT_LT(test::max_abs(r[1] - rodrigues(-0.01, 0.02, 0.005)), 1e-10);  // 1 - cos cancels at small angles
+  EXPECT_THROW(CameraRefine(0), std::invalid_argument);
+  EXPECT_THROW(CameraRefine(2, 0.0), std::invalid_argument);
+}
+
+// The corrected rays of a photo are the rays of its corrected camera: the same pixels cast through
+// CameraRefine::corrected(c2w) by rays_for_pixels (a pinhole and a fisheye camera).
+TEST(CameraRefine, CorrectedRaysAreTheCorrectedCamerasRays) {
+  Intrinsics pin;
+  pin.fx = 50, pin.fy = 55, pin.cx = 16, pin.cy = 12, pin.width = 32, pin.height = 24;
+  Intrinsics fish = pin;
+  fish.model = LensModel::Fisheye;
+  fish.dist = {0.05, -0.01, 0, 0, 0, 0};
+  const auto c2w = torch::tensor({{0.0, -0.6, 0.8, 2.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.8, 0.6, 3.0},
+                                  {1.0, 0.0, 0.0, 0.5, 0.0, 1.0, 0.0, 0.25, 0.0, 0.0, 1.0, 4.0}},
+                                 torch::kDouble)
+                       .view({2, 3, 4});
+  auto refine = with_corrections(
+      torch::tensor({{0.04, -0.03, 0.02, 0.1, -0.05, 0.2}, {-0.02, 0.05, 0.01, -0.3, 0.1, 0.0}}, torch::kDouble));
+  const auto photo = torch::tensor({0, 1, 0, 1, 1, 0}, torch::kLong);
+  const auto col = torch::tensor({0, 5, 31, 16, 7, 20}, torch::kLong);
+  const auto row = torch::tensor({0, 23, 11, 12, 3, 19}, torch::kLong);
+  const auto cams = CameraTable::of({pin, fish}).index(photo);
+  const Rays given = rays_for_pixels(c2w.index_select(0, photo), col, row, cams);
+  torch::NoGradGuard no_grad;
+  const Rays got = refine->forward(given, photo);
+  const Rays want = rays_for_pixels(refine->corrected(c2w).index_select(0, photo), col, row, cams);
+  // rays_for_pixels casts in float32.
+  EXPECT_LT(test::max_abs(got.origins - want.origins), 1e-6);
+  EXPECT_LT(test::max_abs(got.directions - want.directions), 1e-6);
+  EXPECT_LT(test::max_abs(got.radii - want.radii), 1e-9);
+  EXPECT_GT(test::max_abs(got.directions - given.directions), 0.01);  // it moved them
+  // The corrected rotation is still a rotation.
+  const auto r = refine->corrected(c2w).slice(2, 0, 3);
+  EXPECT_LT(test::max_abs(torch::matmul(r, r.transpose(1, 2)) - torch::eye(3, torch::kDouble)), 1e-12);
+}
+
+TEST(CameraRefine, GradientMatchesFiniteDifferences) {
+  const Rays rays = test::random_rays(7, 2, torch::kDouble);
+  const auto photo = torch::tensor({2, 0, 2, 1, 0, 2, 2}, torch::kLong);
+  const auto go = test::seeded_randn({7, 3}, 3), gd = test::seeded_randn({7, 3}, 4);
+  // The scalar at corrections in[0] (central differences run without autograd).
+  const test::ScalarFunction f = [&](const std::vector<torch::Tensor>& in) {
+    const Rays moved = with_corrections(in[0])(rays, photo);
+    return (moved.origins * go).sum() + (moved.directions * gd).sum();
+  };
+  const auto c0 = test::seeded_randn({3, 6}, 5) * 0.2;
+  const auto numeric = test::numeric_gradient(f, {c0}, 0);
+  // The module's own gradient, through its parameter.
+  CameraRefine cr = with_corrections(c0);
+  const Rays moved = cr(rays, photo);
+  ((moved.origins * go).sum() + (moved.directions * gd).sum()).backward();
+  // The parameter is the corrections over the learning-rate scale.
+  const auto grad = cr->parameter().grad() / cr->lr_scale();
+  EXPECT_LT(test::max_abs(grad - numeric), 1e-7);
+  EXPECT_GT(test::max_abs(numeric.slice(1, 0, 3)), 0.1);
+  // A photo's shift gets the sum of its rays' origin gradients (photo 1 has ray 3 alone).
+  EXPECT_LT(test::max_abs(grad[1].slice(0, 3, 6) - go[3]), 1e-12);
+}
+
+TEST(CameraRefine, WeightsCarryTheCorrectionsIntoAModelMadeWithoutThem) {
+  test::TempDir dir;
+  const ModelConfig cfg = test::tiny_model_config().get<ModelConfig>();
+  AbleNerf a(cfg);
+  a->enable_camera_refine(4);
+  {
+    torch::NoGradGuard no_grad;
+    a->camera_refine()->parameter().copy_(torch::randn({4, 6}));
+  }
+  EXPECT_THROW(a->enable_camera_refine(4), std::logic_error);
+  save_weights(a, dir / "w.pt");
+  AbleNerf b(cfg);
+  ASSERT_EQ(b->camera_refine(), nullptr);
+  load_weights(b, dir / "w.pt");
+  ASSERT_NE(b->camera_refine(), nullptr);
+  EXPECT_TRUE(torch::equal(b->camera_refine()->correction(), a->camera_refine()->correction()));
+  EXPECT_GT(test::max_abs(b->camera_refine()->correction()), 0.0);
+}
+
+}  // namespace
+}  // namespace ablenerf
