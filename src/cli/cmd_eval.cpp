@@ -17,6 +17,7 @@ struct EvalArgs {
   std::string run, split = "test", data, ssim, lpips_weights, device = "auto";
   int64_t max_images = -1, chunk = 0;  // -1: every view; chunk and downscale only when given
   int downscale = 0;
+  bool align_cameras = false;
 };
 
 void setup(CLI::App& app) {
@@ -37,6 +38,9 @@ void setup(CLI::App& app) {
   auto* chunk = app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
                     ->check(CLI::PositiveNumber);
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
+  app.add_flag("--align-cameras", a->align_cameras,
+               "Fit each held-out camera to its photo with the model frozen before scoring (after "
+               "train.camera_refine; default: the run's eval.align_cameras)");
   app.callback([a, downscale, chunk] {
     const torch::Device device = parse_device(a->device);
     const RunFolder run = RunFolder::open(a->run);
@@ -48,6 +52,7 @@ void setup(CLI::App& app) {
     o.ssim = a->ssim;
     o.lpips_weights = a->lpips_weights;
     if (chunk->count()) o.chunk = a->chunk;
+    if (a->align_cameras) o.align_cameras = true;
     o.device = device;
     const auto m = evaluate_run(run, o);
     write_report(run);

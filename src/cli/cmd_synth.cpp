@@ -56,6 +56,9 @@ void setup(CLI::App& app) {
   app.add_option("--pose-noise-shift", a->opts.pose_noise_shift,
                  "Train views only: the written camera centre moved by this fraction of its distance")
       ->capture_default_str();
+  app.add_flag(
+      "--distractor", a->opts.distractor,
+      "Train views only: a magenta ball at a new place in every photo, with masks (mask_path) that leave it out");
   app.callback([a] {
     synth::validate(a->opts);  // fail before creating any folder
     const auto start = std::chrono::steady_clock::now();

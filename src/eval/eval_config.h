@@ -28,13 +28,22 @@ struct EvalConfig {
 
   int64_t chunk = 4096;                      // rays per forward when rendering
   SsimVariant ssim = SsimVariant::Standard;  // "standard" (valid 11x11 Gaussian) | "release" (zero-padded)
+  // Held-out cameras aligned against the frozen model before scoring (eval/camera_align.h): off =
+  // the plain protocol; align_steps Adam steps of 512 rays per view.
+  bool align_cameras = false;
+  int64_t align_steps = 100;
 
   template <class F>
   void visit(F&& f) {
     f("chunk", &chunk);
     f("ssim", &ssim);
+    f("align_cameras", &align_cameras);
+    f("align_steps", &align_steps);
   }
-  void validate(const SectionCheck& need) const { need(chunk >= 1, "chunk", "must be >= 1"); }
+  void validate(const SectionCheck& need) const {
+    need(chunk >= 1, "chunk", "must be >= 1");
+    need(align_steps >= 1, "align_steps", "must be >= 1");
+  }
 };
 ABLENERF_CONFIG_SECTION(EvalConfig);
 

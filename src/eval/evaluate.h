@@ -27,12 +27,13 @@ constexpr double kDepthAlphaThreshold = 0.5;
 
 struct EvalOptions {
   std::string split = "test";
-  int64_t max_images = -1;       // < 0: every view of the split
-  std::optional<int> downscale;  // unset: the run's data.downscale
-  std::string data_dir;          // "": the run's dataset (run.json)
-  std::string ssim;              // "standard" | "release" | "": the run's eval.ssim
-  std::string lpips_weights;     // "": default_lpips_weights_path(); none found -> LPIPS skipped
-  std::optional<int64_t> chunk;  // rays per forward; unset: the run's eval.chunk
+  int64_t max_images = -1;            // < 0: every view of the split
+  std::optional<int> downscale;       // unset: the run's data.downscale
+  std::string data_dir;               // "": the run's dataset (run.json)
+  std::string ssim;                   // "standard" | "release" | "": the run's eval.ssim
+  std::string lpips_weights;          // "": default_lpips_weights_path(); none found -> LPIPS skipped
+  std::optional<int64_t> chunk;       // rays per forward; unset: the run's eval.chunk
+  std::optional<bool> align_cameras;  // unset: the run's eval.align_cameras (eval/camera_align.h)
   torch::Device device = torch::kCPU;
   bool progress = true;  // progress line with ETA on stderr
   // One-line notes for the user (LPIPS skipped, ...); default: stderr.
@@ -46,7 +47,9 @@ std::string eval_dir(const RunFolder& run, const std::string& split);
 // {"split", "images": [{"index", "file", "render", "psnr", "ssim", "lpips", "seconds"
 //   [, "depth_mae", "depth_mae_argmax"]}], "mean": {"psnr", "ssim", "lpips" [, "depth_mae",
 //   "depth_mae_argmax"]}, "seconds_per_image", "lpips_weights", "ssim_variant", "step",
-//   "width", "height", "near", "far", "error_map_max", "data"}.
+//   "width", "height", "near", "far", "error_map_max", "data", "protocol"}; with aligned cameras
+// ("protocol": "aligned cameras", else "plain") each image also has "aligned_rotation_deg" and
+// "aligned_shift", and "camera_alignment" says how they were fitted.
 // Scores that could not be computed (no LPIPS weights, image too small, infinite PSNR) are null.
 // Throws InputError for a bad run folder, dataset, split or option.
 nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts);

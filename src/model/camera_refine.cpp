@@ -4,10 +4,15 @@
 
 namespace ablenerf {
 
-CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale) : lr_scale_(lr_scale) {
+CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale, bool centred)
+    : lr_scale_(lr_scale), centred_(centred) {
   if (cameras < 1) throw std::invalid_argument("CameraRefine: at least one camera");
   if (!(lr_scale > 0)) throw std::invalid_argument("CameraRefine: the learning-rate scale must be positive");
   param_ = register_parameter("correction", torch::zeros({cameras, 6}));
+}
+
+torch::Tensor CameraRefineImpl::correction() const {
+  return (centred_ ? param_ - param_.mean(0, /*keepdim=*/true) : param_) * lr_scale_;
 }
 
 torch::Tensor CameraRefineImpl::rotations() const {
@@ -22,7 +27,7 @@ torch::Tensor CameraRefineImpl::rotations() const {
 Rays CameraRefineImpl::forward(const Rays& rays, const torch::Tensor& photo) {
   const auto idx = photo.to(torch::kLong);
   const auto dtype = at::promote_types(rays.directions.scalar_type(), param_.scalar_type());
-  const auto r = rotations().index_select(0, idx).to(dtype);                   // (B,3,3)
+  const auto r = rotations().index_select(0, idx).to(dtype);                  // (B,3,3)
   const auto t = correction().slice(1, 3, 6).index_select(0, idx).to(dtype);  // (B,3)
   const auto d = torch::matmul(r, rays.directions.to(dtype).unsqueeze(-1)).squeeze(-1);
   return {rays.origins.to(dtype) + t, d, rays.radii.to(dtype)};

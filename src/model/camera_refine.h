@@ -7,9 +7,11 @@
 //   origin' = origin + t_p,   direction' = exp([w_p]x) direction,
 // which is the ray of the corrected camera-to-world [exp([w_p]x) R | c + t_p]: the samples move
 // with the pose, so the loss reaches w and t through the sample positions (the grid's lookup passes
-// the positions' gradient: kernels/hash_grid.h), the frustums and the view direction. A small decay
-// (train.camera_refine_decay) keeps corrections that the images do not ask for at zero. Held-out
-// views, eval and the viewer use the poses as given.
+// the positions' gradient: kernels/hash_grid.h), the frustums and the view direction. Moving every
+// camera alike and the scene with them fits the photos as well, so the corrections applied are the
+// parameters minus their mean over the cameras (the common shift and turn stay zero: the scene stays
+// where the poses put it, and held-out cameras still see it), and a small decay
+// (train.camera_refine_decay) keeps corrections that the images do not ask for at zero.
 #include <torch/torch.h>
 
 #include "data/rays.h"
@@ -24,13 +26,16 @@ constexpr double kCameraRefineLrScale = 0.1;
 class CameraRefineImpl : public torch::nn::Module {
  public:
   // lr_scale: the corrections' learning rate over the run's; the parameter Adam sees (and weights
-  // files hold) is the corrections over lr_scale.
-  explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale);
+  // files hold) is the corrections over lr_scale. centred: the corrections applied are the
+  // parameter minus its mean over the cameras (training: see above); not for a lone camera fitted
+  // on its own (eval/camera_align.h).
+  explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale, bool centred = true);
   // The rays of photos `photo` (B,) (int64, < cameras()) as their corrected cameras cast them.
   Rays forward(const Rays& rays, const torch::Tensor& photo);
   int64_t cameras() const { return param_.size(0); }
-  // The corrections: (cameras, 6), w (axis times angle, radians) then t; zero = the poses as given.
-  torch::Tensor correction() const { return param_ * lr_scale_; }
+  // The corrections applied: (cameras, 6), w (axis times angle, radians) then t; zero = the poses as
+  // given.
+  torch::Tensor correction() const;
   // The parameter itself (correction() / lr_scale()) and the scale.
   const torch::Tensor& parameter() const { return param_; }
   double lr_scale() const { return lr_scale_; }
@@ -41,6 +46,7 @@ class CameraRefineImpl : public torch::nn::Module {
 
  private:
   double lr_scale_;
+  bool centred_;
   torch::Tensor param_;
 };
 TORCH_MODULE(CameraRefine);

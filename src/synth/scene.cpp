@@ -34,20 +34,21 @@ json pose_json(const Camera& cam) {
   return m;
 }
 
-json transforms_json(const std::vector<Camera>& cams, const std::string& split, bool with_depth) {
+json transforms_json(const std::vector<Camera>& cams, const std::string& split, bool with_depth, bool with_masks) {
   json frames = json::array();
   for (size_t k = 0; k < cams.size(); ++k) {
     json f;
     f["file_path"] = "./" + split + "/r_" + std::to_string(k);
     f["transform_matrix"] = pose_json(cams[k]);
     if (with_depth) f["depth_file_path"] = "./" + split + "/r_" + std::to_string(k) + "_depth.pt";
+    if (with_masks) f["mask_path"] = "./" + split + "/r_" + std::to_string(k) + "_mask.png";
     frames.push_back(f);
   }
   return json{{"camera_angle_x", kCameraAngleX}, {"frames", frames}};
 }
 
 // nerfstudio's layout: one transforms.json, every frame, the split as file lists.
-json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>& test) {
+json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>& test, bool train_masks) {
   const Camera& c = train.front();
   json j{{"w", c.width},
          {"h", c.height},
@@ -65,7 +66,9 @@ json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>
   json frames = json::array(), train_files = json::array(), test_files = json::array();
   for (size_t k = 0; k < train.size(); ++k) {
     const std::string path = "train/r_" + std::to_string(k) + ".png";
-    frames.push_back({{"file_path", path}, {"transform_matrix", pose_json(train[k])}});
+    json f{{"file_path", path}, {"transform_matrix", pose_json(train[k])}};
+    if (train_masks) f["mask_path"] = "train/r_" + std::to_string(k) + "_mask.png";
+    frames.push_back(f);
     train_files.push_back(path);
   }
   for (size_t k = 0; k < test.size(); ++k) {
@@ -159,6 +162,7 @@ struct Job {
   std::string base;  // path without extension
   bool depth;
   Vec3 gain{1, 1, 1};
+  const Distractor* distractor = nullptr;  // with one, the mask is written too
 };
 
 // What the train views' photos went through (SynthOptions): per view, the colour gains and the
@@ -226,6 +230,23 @@ std::vector<ViewTruth> jitter_train_views(std::vector<Camera>& cams, const Synth
   return truth;
 }
 
+constexpr uint64_t kDistractorSeedSalt = 0xbb67ae8584caa73bULL;
+
+// Each train view's ball: on the line from the camera to the origin, 50-65% of the way from the
+// origin (clear of the objects, which lie within kSceneBound), moved sideways by up to 0.3.
+std::vector<Distractor> place_distractors(const std::vector<Camera>& cams, uint64_t seed) {
+  std::mt19937_64 rng(seed ^ kDistractorSeedSalt);
+  std::vector<Distractor> out;
+  for (const Camera& c : cams) {
+    const double along = 0.575 + uniform_pm(rng, 0.075);
+    Vec3 side = random_direction(rng);
+    const Vec3 axis = c.centre() / length(c.centre());
+    side = side - axis * dot(side, axis);
+    out.push_back({c.centre() * along + side * 0.3, kDistractorRadius});
+  }
+  return out;
+}
+
 json truth_json(const std::vector<ViewTruth>& truth) {
   json views = json::array();
   for (const ViewTruth& t : truth)
@@ -286,10 +307,12 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   // The images are rendered from the true cameras; `train` then holds the poses written.
   std::vector<ViewTruth> truth;
   if (jittered) truth = jitter_train_views(train, o);
+  std::vector<Distractor> balls;
+  if (o.distractor) balls = place_distractors(train, o.seed);
   std::vector<Job> jobs;
   for (size_t k = 0; k < train.size(); ++k)
     jobs.push_back({jittered ? &truth[k].true_camera : &train[k], dir + "/train/r_" + std::to_string(k), false,
-                    jittered ? truth[k].gain : Vec3{1, 1, 1}});
+                    jittered ? truth[k].gain : Vec3{1, 1, 1}, o.distractor ? &balls[k] : nullptr});
   for (size_t k = 0; k < test.size(); ++k) jobs.push_back({&test[k], dir + "/test/r_" + std::to_string(k), true});
 
   // Workers take whole views (render + encode + write), which keeps PNG encoding and file
@@ -303,10 +326,15 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   auto worker = [&] {
     for (size_t k = next++; k < jobs.size(); k = next++) {
       try {
-        const ViewImage img = render_view(*jobs[k].cam, 1, environment, jobs[k].gain);
+        const ViewImage img = render_view(*jobs[k].cam, 1, environment, jobs[k].gain, jobs[k].distractor);
         const auto rgba =
             torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
         write_png(jobs[k].base + ".png", rgba);
+        if (jobs[k].distractor) {
+          const auto ball =
+              torch::from_blob(const_cast<uint8_t*>(img.distractor.data()), {img.height, img.width, 1}, torch::kUInt8);
+          write_png(jobs[k].base + "_mask.png", (1 - ball.to(torch::kFloat)).expand({-1, -1, 3}).contiguous());
+        }
         if (jobs[k].depth) write_depth(jobs[k].base, img);
       } catch (...) {
         std::lock_guard<std::mutex> lock(mu);
@@ -326,10 +354,11 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
 
   // The json files go last, so a readable transforms file implies its images exist.
   if (o.resolved_layout() == "nerfstudio") {
-    write_file_atomic(dir + "/transforms.json", nerfstudio_json(train, test).dump(2) + "\n");
+    write_file_atomic(dir + "/transforms.json", nerfstudio_json(train, test, o.distractor).dump(2) + "\n");
   } else {
-    write_file_atomic(dir + "/transforms_train.json", transforms_json(train, "train", false).dump(2) + "\n");
-    write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true).dump(2) + "\n");
+    write_file_atomic(dir + "/transforms_train.json",
+                      transforms_json(train, "train", false, o.distractor).dump(2) + "\n");
+    write_file_atomic(dir + "/transforms_test.json", transforms_json(test, "test", true, false).dump(2) + "\n");
   }
   json scene = scene_json(o);
   if (jittered) {
@@ -338,6 +367,11 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
                              {"pose_noise_deg", o.pose_noise_deg},
                              {"pose_noise_shift", o.pose_noise_shift}};
     scene["train_view_truth"] = truth_json(truth);
+  }
+  if (o.distractor) {
+    json list = json::array();
+    for (const Distractor& b : balls) list.push_back({{"centre", vec_json(b.centre)}, {"radius", b.radius}});
+    scene["train_distractors"] = {{"colour_linear", vec_json(distractor_colour())}, {"balls", list}};
   }
   write_file_atomic(dir + "/scene.json", scene.dump(2) + "\n");
 }

@@ -14,7 +14,9 @@
 //   test/r_K_depth.png                           (greyscale visualisation of that depth)
 //   scene.json                                   (objects, materials, lighting, cameras, seed; with
 //                                                 jitter or pose noise, each train view's gains and
-//                                                 true pose under "train_view_truth")
+//                                                 true pose under "train_view_truth"; with a
+//                                                 distractor, each train view's ball)
+//   train/r_K_mask.png                           (with a distractor: white keeps, black is the ball)
 // ("nerfstudio"): one transforms.json with w, h, fl_x, fl_y, cx, cy, camera_model (PINHOLE or
 // OPENCV with k1 k2 p1 p2), every frame, and the split as train_filenames / test_filenames; the
 // same image, depth and scene.json files.
@@ -55,6 +57,10 @@ struct SynthOptions {
   double white_balance_jitter = 0;
   double pose_noise_deg = 0;
   double pose_noise_shift = 0;
+  //  - distractor: each train view also sees a flat magenta ball (radius kDistractorRadius) at a
+  //    place of its own between the camera and the objects, and gets a mask beside its photo
+  //    (train/r_K_mask.png, white = keep, black = the ball) named by its frame's mask_path.
+  bool distractor = false;
   // The layout "auto" resolves to: nerfstudio for the lens or background variants, else blender.
   std::string resolved_layout() const;
   // Called after each finished view with (views done, views total); from worker threads,
@@ -68,6 +74,7 @@ struct SynthOptions {
 constexpr double kMaxJitterStops = 4.0;
 constexpr double kMaxPoseNoiseDeg = 45.0;
 constexpr double kMaxPoseNoiseShift = 0.5;
+constexpr double kDistractorRadius = 0.25;
 void validate(const SynthOptions& opts);
 
 // Renders every view and writes the dataset (each file atomically). Deterministic for a seed:

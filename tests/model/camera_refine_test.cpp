@@ -1,5 +1,6 @@
 // Camera refinement (model/camera_refine.h): zero is the poses as given; each rotation is
-// Rodrigues' closed form of its axis-angle; a photo's corrected rays are exactly the rays its
+// Rodrigues' closed form of its axis-angle; centred corrections ignore a common change; a photo's
+// corrected rays are exactly the rays its
 // corrected camera-to-world casts (against data/rays.h); the gradient against central differences;
 // weights carry the corrections into a model made without them.
 #include <gtest/gtest.h>
@@ -23,8 +24,9 @@ torch::Tensor rodrigues(double x, double y, double z) {
   return torch::eye(3, opts) + std::sin(a) * k + (1 - std::cos(a)) * torch::matmul(k, k);
 }
 
-CameraRefine with_corrections(const torch::Tensor& c) {
-  CameraRefine cr(c.size(0));
+// Parameters c over the learning-rate scale: uncentred, the corrections are c.
+CameraRefine with_corrections(const torch::Tensor& c, bool centred = false) {
+  CameraRefine cr(c.size(0), kCameraRefineLrScale, centred);
   cr->to(torch::kDouble);
   torch::NoGradGuard no_grad;
   cr->parameter().copy_(c / cr->lr_scale());
@@ -47,6 +49,21 @@ TEST(CameraRefine, ZeroIsThePosesAsGivenAndRotationsAreRodrigues) {
   EXPECT_LT(test::max_abs(r[1] - rodrigues(-0.01, 0.02, 0.005)), 1e-10);  // 1 - cos cancels at small angles
   EXPECT_THROW(CameraRefine(0), std::invalid_argument);
   EXPECT_THROW(CameraRefine(2, 0.0), std::invalid_argument);
+}
+
+// In training the corrections applied are the parameters minus their mean: the same shift and turn
+// added to every camera's parameters changes no ray.
+TEST(CameraRefine, CentredCorrectionsIgnoreACommonChange) {
+  const Rays rays = test::random_rays(6, 5, torch::kDouble);
+  const auto photo = torch::tensor({0, 1, 2, 2, 1, 0}, torch::kLong);
+  const auto c = test::seeded_randn({3, 6}, 6) * 0.1;
+  auto a = with_corrections(c, true), b = with_corrections(c + test::seeded_randn({1, 6}, 7) * 0.1, true);
+  torch::NoGradGuard no_grad;
+  const Rays ra = a(rays, photo), rb = b(rays, photo);
+  EXPECT_LT(test::max_abs(ra.origins - rb.origins), 1e-12);
+  EXPECT_LT(test::max_abs(ra.directions - rb.directions), 1e-12);
+  EXPECT_LT(test::max_abs(a->correction().sum(0)), 1e-12);
+  EXPECT_LT(test::max_abs(a->correction() - (c - c.mean(0, true))), 1e-12);
 }
 
 // The corrected rays of a photo are the rays of its corrected camera: the same pixels cast through
@@ -85,23 +102,25 @@ TEST(CameraRefine, GradientMatchesFiniteDifferences) {
   const Rays rays = test::random_rays(7, 2, torch::kDouble);
   const auto photo = torch::tensor({2, 0, 2, 1, 0, 2, 2}, torch::kLong);
   const auto go = test::seeded_randn({7, 3}, 3), gd = test::seeded_randn({7, 3}, 4);
-  // The scalar at corrections in[0] (central differences run without autograd).
+  // The scalar at parameters in[0] (central differences run without autograd), centred as in training.
   const test::ScalarFunction f = [&](const std::vector<torch::Tensor>& in) {
-    const Rays moved = with_corrections(in[0])(rays, photo);
+    const Rays moved = with_corrections(in[0], true)(rays, photo);
     return (moved.origins * go).sum() + (moved.directions * gd).sum();
   };
   const auto c0 = test::seeded_randn({3, 6}, 5) * 0.2;
   const auto numeric = test::numeric_gradient(f, {c0}, 0);
   // The module's own gradient, through its parameter.
-  CameraRefine cr = with_corrections(c0);
+  CameraRefine cr = with_corrections(c0, true);
   const Rays moved = cr(rays, photo);
   ((moved.origins * go).sum() + (moved.directions * gd).sum()).backward();
   // The parameter is the corrections over the learning-rate scale.
   const auto grad = cr->parameter().grad() / cr->lr_scale();
   EXPECT_LT(test::max_abs(grad - numeric), 1e-7);
   EXPECT_GT(test::max_abs(numeric.slice(1, 0, 3)), 0.1);
-  // A photo's shift gets the sum of its rays' origin gradients (photo 1 has ray 3 alone).
-  EXPECT_LT(test::max_abs(grad[1].slice(0, 3, 6) - go[3]), 1e-12);
+  // Centred: a common change of every camera's parameters moves no ray, so the gradients sum to
+  // zero over the cameras; photo 1's shift gets its ray's origin gradient minus a third of all of them.
+  EXPECT_LT(test::max_abs(grad.sum(0)), 1e-12);
+  EXPECT_LT(test::max_abs(grad[1].slice(0, 3, 6) - (go[3] - go.sum(0) / 3)), 1e-12);
 }
 
 TEST(CameraRefine, WeightsCarryTheCorrectionsIntoAModelMadeWithoutThem) {

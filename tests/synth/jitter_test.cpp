@@ -1,7 +1,8 @@
 // The demo scene as a phone capture (`synth --exposure-jitter / --white-balance-jitter /
 // --pose-noise-deg / --pose-noise-shift`): the train photos carry exactly the gains and the poses
 // scene.json records, checked against the clean dataset of the same seed (the gains in linear
-// light, the rotation angle and the shift by their closed forms); the test views stay clean.
+// light, the rotation angle and the shift by their closed forms); the test views stay clean; a
+// distractor ball sits exactly where the written masks leave out.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -31,6 +32,9 @@ SynthOptions small(uint64_t seed) {
   o.layout = "blender";
   return o;
 }
+
+// IEC 61966-2-1's encoding of one linear value, written out.
+double linear_to_srgb_for_test(double x) { return x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1 / 2.4) - 0.055; }
 
 // IEC 61966-2-1's inverse, the decoder of what synth encodes.
 torch::Tensor srgb_to_linear(const torch::Tensor& s) {
@@ -127,4 +131,46 @@ TEST(SynthJitter, OutOfRangeOptionsNameTheFlag) {
   o = small(1);
   o.pose_noise_shift = 0.6;
   test::expect_input_error([&] { synth::validate(o); }, "synth", "--pose-noise-shift", "0.5", true);
+}
+
+// A distractor (`synth --distractor`): every train photo differs from the clean one exactly where
+// its mask is black, and there the photo is the ball's magenta; the ball's pixels move from photo to
+// photo; frames name their masks; the ball sits between its camera and the objects; the test views
+// are the clean ones.
+TEST(SynthJitter, TheDistractorIsWhereTheMaskLeavesOut) {
+  test::TempDir clean_dir, ball_dir;
+  write_synthetic_dataset(clean_dir.path(), small(9));
+  SynthOptions o = small(9);
+  o.distractor = true;
+  write_synthetic_dataset(ball_dir.path(), o);
+  const json frames = json::parse(read_file(ball_dir / "transforms_train.json")).at("frames");
+  const json balls = json::parse(read_file(ball_dir / "scene.json")).at("train_distractors").at("balls");
+  ASSERT_EQ(balls.size(), 6u);
+  const double magenta[3] = {linear_to_srgb_for_test(0.9), linear_to_srgb_for_test(0.02), linear_to_srgb_for_test(0.7)};
+  torch::Tensor previous;
+  for (size_t k = 0; k < 6; ++k) {
+    const std::string stem = "/train/r_" + std::to_string(k);
+    EXPECT_EQ(frames[k].at("mask_path").get<std::string>(), "." + stem + "_mask.png");
+    const auto mask = read_png(ball_dir.path() + stem + "_mask.png").to(torch::kDouble).select(2, 0) / 255.0;
+    const auto a = read_png(clean_dir.path() + stem + ".png").to(torch::kDouble).slice(2, 0, 3) / 255.0;
+    const auto b = read_png(ball_dir.path() + stem + ".png").to(torch::kDouble).slice(2, 0, 3) / 255.0;
+    const auto left_out = mask < 0.5;
+    const int64_t n = left_out.sum().item<int64_t>();
+    EXPECT_GT(n, 3) << "view " << k;            // the ball is in the picture
+    EXPECT_LT(n, 24 * 24 / 2) << "view " << k;  // and small
+    // Outside the mask the photo is the clean one, byte for byte.
+    EXPECT_EQ((a - b).abs().sum(-1).masked_select(~left_out).max().item<double>(), 0.0) << "view " << k;
+    // Where every sub-sample saw the ball (the pixel differs most from the clean one), it is magenta.
+    for (int c = 0; c < 3; ++c)
+      EXPECT_NEAR(b.select(2, c).masked_select(left_out).median().item<double>(), magenta[c], 0.25) << k << c;
+    if (previous.defined()) EXPECT_FALSE(torch::equal(left_out, previous)) << "view " << k;
+    previous = left_out;
+    // Between its camera and the objects (which lie within 1.3 of the origin).
+    const json& c = balls[k].at("centre");
+    const double r =
+        std::sqrt(std::pow(c[0].get<double>(), 2) + std::pow(c[1].get<double>(), 2) + std::pow(c[2].get<double>(), 2));
+    EXPECT_GT(r, 1.3 + 0.25);
+  }
+  for (const std::string f : {"/test/r_0.png", "/test/r_1.png", "/transforms_test.json"})
+    EXPECT_EQ(read_file(clean_dir.path() + f), read_file(ball_dir.path() + f)) << f;
 }
