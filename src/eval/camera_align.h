@@ -16,16 +16,16 @@
 namespace ablenerf {
 
 struct CameraAlignOptions {
-  int64_t steps = 100;    // Adam steps on the correction
-  int64_t rays = 512;     // pixels per step, drawn uniformly from the photo's kept pixels
-  double lr = 1e-3;       // on the correction itself (radians, scene units)
-  uint64_t seed = 0;      // the pixel draws
+  int64_t steps = 100;  // Adam steps on the correction
+  int64_t rays = 512;   // pixels per step, drawn uniformly from the photo's kept pixels
+  double lr = 1e-3;     // on the correction itself (radians, scene units)
+  uint64_t seed = 0;    // the pixel draws
 };
 
 struct CameraAlignment {
-  torch::Tensor c2w;          // (3,4) the corrected camera-to-world
-  double rotation_deg = 0;    // the correction's angle
-  double shift = 0;           // and its shift, in scene units
+  torch::Tensor c2w;                     // (3,4) the corrected camera-to-world
+  double rotation_deg = 0;               // the correction's angle
+  double shift = 0;                      // and its shift, in scene units
   double mse_before = 0, mse_after = 0;  // the fine colour's MSE on the first and the last step's pixels
 };
 
