@@ -12,11 +12,13 @@
 #include "cli/command.h"
 #include "cli/common.h"
 #include "data/capture.h"
+#include "data/dataset.h"
 #include "model/able_nerf.h"
 #include "run/run_folder.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
+#include "eval/report.h"
 #include "geometry/export_geometry.h"
 #include "eval/eval_config.h"
 #include "model/model_config.h"
@@ -36,7 +38,7 @@ struct ExportArgs {
   std::string points, mesh, method = "tsdf", crop, frame = "capture", device = "auto";
   int64_t num_points = 1'000'000, views = 48;
   int resolution = 0, max_side = 200;
-  std::string mask = "alpha";
+  std::string mask = "alpha", depth = "auto";
 };
 
 void run_export_weights(const ExportArgs& a) {
@@ -70,6 +72,8 @@ void run_geometry(const ExportArgs& a) {
     throw InputError("export", "--frame", "'" + a.frame + "' (expected capture or scene)");
   if (a.mask != "alpha" && a.mask != "none")
     throw InputError("export", "--mask", "'" + a.mask + "' (expected alpha or none)");
+  if (a.depth != "auto" && a.depth != "front" && a.depth != "mean")
+    throw InputError("export", "--depth", "'" + a.depth + "' (expected auto, front or mean)");
   if (a.num_points < 1) throw InputError("export", "--num-points", "must be >= 1");
 #ifdef ABLENERF_HAVE_GEOMETRY
   GeometryOptions o;
@@ -83,10 +87,15 @@ void run_geometry(const ExportArgs& a) {
   o.views = a.views;
   o.max_side = a.max_side;
   o.alpha_mask = a.mask == "alpha";
+  o.depth = a.depth == "mean" ? DepthEstimate::Mean : a.depth == "front" ? DepthEstimate::Front : DepthEstimate::Auto;
   o.device = parse_device(a.device);
   const RunFolder run = RunFolder::open(a.run);
   o.chunk = run.config.get<EvalConfig>().chunk;
-  std::cout << export_geometry(run, o).dump() << std::endl;
+  const nlohmann::json result = export_geometry(run, o);
+  // The run's report lists what was exported (RUN/exports.json).
+  record_export(run, result);
+  write_report(run);
+  std::cout << result.dump() << std::endl;
 #else
   throw EnvironmentError("export", "this build has no geometry export",
                          "install Open3D: apt-get install libopen3d-dev, then rebuild with scripts/setup.sh");
@@ -118,8 +127,7 @@ void run_export_poses(const ExportArgs& a) {
                          std::to_string(train ? train->frames.size() : 0) + " training images");
   std::vector<torch::Tensor> given;
   for (const auto& f : train->frames) {
-    const Pose34 p = scene.to_scene(f.pose);
-    given.push_back(torch::from_blob(const_cast<float*>(p.data()), {3, 4}, torch::kFloat).clone());
+    given.push_back(pose_tensor(scene.to_scene(f.pose)));
   }
   torch::NoGradGuard no_grad;
   const auto corrected = refine->corrected(torch::stack(given).to(refine->correction().dtype())).to(torch::kDouble);
@@ -192,6 +200,10 @@ void setup(CLI::App& app) {
   app.add_option("--views", a->views, "Cameras of the capture rendered at most")->capture_default_str();
   app.add_option("--max-side", a->max_side, "Rendered images' longest side at most (pixels)")->capture_default_str();
   app.add_option("--mask", a->mask, "alpha: the photos' transparent pixels give no geometry; none")
+      ->capture_default_str();
+  app.add_option("--depth", a->depth,
+                 "The attention depth that becomes the surface: front (where its first 15% lie nearer), mean, or "
+                 "auto (front; mean for forward-facing runs)")
       ->capture_default_str();
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
   app.callback([a] { run_export(*a); });

@@ -209,10 +209,12 @@ void run_render(const RenderArgs& a) {
     write_png(stem + ".png", r.rgb);
     if (a.raw) save_tensor(stem + ".pt", r.rgb);
     if (a.depth) {
-      write_png(stem + "_depth.png", colormap(r.depth_mean, near, depth_far));
+      write_png(stem + "_depth.png", colormap(r.depth_front, near, depth_far));
+      write_png(stem + "_depth_mean.png", colormap(r.depth_mean, near, depth_far));
       write_png(stem + "_depth_argmax.png", colormap(r.depth_argmax, near, depth_far));
       if (a.raw) {
-        save_tensor(stem + "_depth.pt", r.depth_mean);
+        save_tensor(stem + "_depth.pt", r.depth_front);
+        save_tensor(stem + "_depth_mean.pt", r.depth_mean);
         save_tensor(stem + "_depth_argmax.pt", r.depth_argmax);
       }
     }
@@ -249,8 +251,9 @@ void setup(CLI::App& app) {
                "Also write frame_NNNN.pt: float32 (H,W,3) colours before 8-bit rounding (torch.load-able); "
                "with --depth/--branches also their tensors");
   app.add_flag("--depth", a->depth,
-               "Also write depth from the fine attention: frame_NNNN_depth.png (weighted mean of the "
-               "interval mid-points) and _depth_argmax.png (most-attended volume), colour-mapped near..far");
+               "Also write depth from the fine attention: frame_NNNN_depth.png (the attention's front, where "
+               "the surfaces are), _depth_mean.png (weighted mean of the interval mid-points) and "
+               "_depth_argmax.png (most-attended volume), colour-mapped near..far");
   app.add_flag("--branches", a->branches,
                "Also write the fine ray-token and LE branch colours (_ray.png, _le.png): they are LINEAR "
                "values, shown through the sRGB curve and clipped for viewing (the .pt files keep them linear)");

@@ -38,13 +38,6 @@ int64_t available_memory_bytes() {
   return static_cast<int64_t>(pages) * page;
 }
 
-// A pose as a (3,4) float tensor.
-torch::Tensor pose_tensor(const Pose34& pose) {
-  auto t = torch::empty({3, 4}, torch::kFloat);
-  std::memcpy(t.data_ptr<float>(), pose.data(), sizeof(float) * pose.size());
-  return t;
-}
-
 // The reduction libjpeg makes while decoding (1/2, 1/4 or 1/8, the largest that divides the
 // downscale `f`): a JPEG loaded at 1/f never exists at full size. The rest of `f` is a box filter.
 int jpeg_reduction(int f) {
@@ -303,6 +296,12 @@ CameraList capture_cameras(const Capture& js, const SceneFrame& scene, int downs
   cl.intrinsics = k.scaled(static_cast<double>(w) / k.width, w, h);
   cl.c2w = torch::stack(poses);
   return cl;
+}
+
+torch::Tensor pose_tensor(const Pose34& pose) {
+  auto t = torch::empty({3, 4}, torch::kFloat);
+  std::memcpy(t.data_ptr<float>(), pose.data(), sizeof(float) * pose.size());
+  return t;
 }
 
 torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene) {

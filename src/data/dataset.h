@@ -99,6 +99,9 @@ CameraList capture_cameras(const Capture& capture, const SceneFrame& scene, int 
 // images_N copy cropped. Bad image: InputError naming the file and its json field.
 torch::Tensor frame_photo_rgba(const CaptureFrame& frame, int full_h, int full_w, int downscale);
 
+// A pose as a (3,4) float32 tensor.
+torch::Tensor pose_tensor(const Pose34& pose);
+
 // Poses (N,3,4) given in a capture's own coordinates, moved into its scene frame.
 torch::Tensor poses_to_scene(const torch::Tensor& c2w, const SceneFrame& scene);
 

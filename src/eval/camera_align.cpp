@@ -29,7 +29,7 @@ CameraAlignment align_camera(AbleNerf& model, const torch::Tensor& c2w, const In
   model->eval();
   for (int64_t step = 0; step < o.steps; ++step) {
     const auto pick = candidates.index_select(0, torch::randint(candidates.numel(), {o.rays}, gen, torch::kLong));
-    const auto row = pick.div(w, "floor"), col = pick - pick.div(w, "floor") * w;
+    const auto row = pick.div(w, "floor"), col = pick - row * w;
     const auto rows_dev = row.to(device), cols_dev = col.to(device);
     const auto zero = torch::zeros({o.rays}, torch::TensorOptions().dtype(torch::kLong).device(device));
     const Rays given = rays_for_pixels(pose.expand({o.rays, 3, 4}), cols_dev, rows_dev, table.index(zero));

@@ -145,9 +145,10 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     write_png(stem + "_error.png", colormap((r.rgb - gt).abs().mean(-1), 0.0, kErrorMapMax));
     // Unbounded scenes reach 1e6: their depth maps span near to the image's 98th percentile.
     const double depth_far = ds.scene.kind == SceneKind::Unbounded
-                                 ? std::max(ds.near * 1.01, r.depth_mean.flatten().quantile(0.98).item<double>())
+                                 ? std::max(ds.near * 1.01, r.depth_front.flatten().quantile(0.98).item<double>())
                                  : ds.far;
-    write_png(stem + "_depth.png", colormap(r.depth_mean, ds.near, depth_far));
+    // The attention's front: where the surfaces are (docs/MODEL.md, section 9).
+    write_png(stem + "_depth.png", colormap(r.depth_front, ds.near, depth_far));
 
     nlohmann::json im;
     im["index"] = i;
@@ -176,6 +177,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
       };
       im["depth_mae"] = mae(r.depth_mean);
       im["depth_mae_argmax"] = mae(r.depth_argmax);
+      im["depth_mae_front"] = mae(r.depth_front);
     }
     images.push_back(im);
   }
@@ -190,7 +192,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   if (split.mask.defined())
     for (const char* key : {"psnr_unmasked", "ssim_unmasked", "unmasked_share"}) mean[key] = mean_of(images, key);
   if (has_depth)
-    for (const char* key : {"depth_mae", "depth_mae_argmax"}) mean[key] = mean_of(images, key);
+    for (const char* key : {"depth_mae", "depth_mae_argmax", "depth_mae_front"}) mean[key] = mean_of(images, key);
   m["mean"] = mean;
   m["seconds_per_image"] = count ? nlohmann::json(total_seconds / static_cast<double>(count)) : nlohmann::json();
   m["lpips_weights"] = lpips ? nlohmann::json(lpips_path) : nlohmann::json();

@@ -5,7 +5,7 @@
 //   r_K.png        the render (sRGB, 8-bit)
 //   r_K_gt.png     the dataset image as the model sees it (downscaled, composited)
 //   r_K_error.png  mean-over-channels |render - gt|, colour-mapped on [0, kErrorMapMax]
-//   r_K_depth.png  attention mean depth, colour-mapped on [near, far] (no alpha)
+//   r_K_depth.png  the attention front's depth (renderer.h), colour-mapped on [near, far] (no alpha)
 //   metrics.json   per-image and mean scores (see evaluate_run)
 #include <torch/torch.h>
 

@@ -17,7 +17,26 @@ AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::T
   AttentionDepth d;
   d.mean = (w * mid).sum(1) / w.sum(1).clamp_min(kMinAttentionMass);
   d.argmax = mid.gather(1, w.argmax(1, /*keepdim=*/true)).squeeze(1);
+  d.front = depth_at_attention_share(weights, t, kAttentionFrontShare);
   return d;
+}
+
+torch::Tensor depth_at_attention_share(const torch::Tensor& weights, const torch::Tensor& t, double share) {
+  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) && t.size(1) == weights.size(1) + 1,
+              "depth_at_attention_share: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ",
+              t.sizes());
+  TORCH_CHECK(share > 0 && share < 1, "depth_at_attention_share: share must lie in (0, 1), got ", share);
+  const auto w = weights.to(t.scalar_type());
+  // The interval i whose cumulative share first reaches `share`, then linearly inside it.
+  const auto part = w / w.sum(1, /*keepdim=*/true).clamp_min(kMinAttentionMass);
+  const auto cdf = part.cumsum(1).contiguous();  // (B,S)
+  const auto level = torch::full({w.size(0), 1}, share, cdf.options());
+  const auto i = torch::searchsorted(cdf, level).clamp_max(w.size(1) - 1);  // (B,1)
+  const auto before = (cdf.gather(1, (i - 1).clamp_min(0)) * (i > 0)).squeeze(1);
+  const auto own = part.gather(1, i).squeeze(1);
+  const auto frac = ((share - before) / own.clamp_min(kMinAttentionMass)).clamp(0.0, 1.0);
+  const auto t0 = t.gather(1, i).squeeze(1), t1 = t.gather(1, i + 1).squeeze(1);
+  return t0 + frac * (t1 - t0);
 }
 
 RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near, double far,
@@ -34,6 +53,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
   RenderResult out;
   out.rgb = torch::empty({n, 3}, f32);
   out.depth_mean = torch::empty({n}, f32);
+  out.depth_front = torch::empty({n}, f32);
   out.depth_argmax = torch::empty({n}, f32);
   if (opts.branches) {
     out.ray_colour = torch::empty({n, 3}, f32);
@@ -58,6 +78,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
     const auto depth = depth_from_attention(m.fine_weights, m.fine_t);
     out.depth_mean.slice(0, begin, end).copy_(depth.mean);
     out.depth_argmax.slice(0, begin, end).copy_(depth.argmax);
+    out.depth_front.slice(0, begin, end).copy_(depth.front);
     if (opts.branches) {
       out.ray_colour.slice(0, begin, end).copy_(m.ray_colour_fine);
       out.le_colour.slice(0, begin, end).copy_(m.le_colour_fine);
@@ -67,6 +88,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
   out.rgb = out.rgb.view({h, w, 3}).cpu();
   out.depth_mean = out.depth_mean.view({h, w}).cpu();
   out.depth_argmax = out.depth_argmax.view({h, w}).cpu();
+  out.depth_front = out.depth_front.view({h, w}).cpu();
   if (opts.branches) {
     out.ray_colour = out.ray_colour.view({h, w, 3}).cpu();
     out.le_colour = out.le_colour.view({h, w, 3}).cpu();

@@ -131,6 +131,53 @@ std::string summary_section(const RunFolder& run, const RunLog& log) {
   return s.str();
 }
 
+// What `export --points / --mesh` wrote (RUN/exports.json, geometry/export_geometry.h), newest
+// last: the files, their sizes and times. Nothing when the run has no exports; a file that cannot
+// be read is said in one line instead of failing the report.
+std::string exports_section(const RunFolder& run) {
+  if (!fs::exists(run.exports_path())) return "";
+  nlohmann::json all;
+  try {
+    all = nlohmann::json::parse(read_file(run.exports_path()));
+  } catch (const std::exception&) {
+    return "<h2>Exports</h2><p class=\"note\">" + html_escape(run.exports_path()) + " is not readable JSON.</p>";
+  }
+  if (!all.is_array() || all.empty()) return "";
+  std::ostringstream s;
+  s << "<h2>Exports</h2><table><tr><th>when</th><th>file</th><th>what</th><th>frame</th><th>seconds</th></tr>";
+  const auto cell = [](const nlohmann::json& e, const char* key) {
+    return e.is_object() && e.contains(key) ? fmt_json(e[key]) : std::string("");
+  };
+  for (const auto& e : all) {
+    if (!e.is_object()) continue;
+    const std::string when = e.value("when", ""), frame = e.value("frame", "");
+    if (e.contains("points") && e["points"].is_object()) {
+      const auto& p = e["points"];
+      s << "<tr><td>" << html_escape(when) << "</td><td>" << html_escape(p.value("path", "")) << "</td><td>"
+        << cell(p, "count") << " points (of " << cell(p, "raw") << " from " << cell(e, "views") << " views at "
+        << html_escape(e.value("image", "")) << ")</td><td>" << html_escape(frame) << "</td><td>" << cell(p, "seconds")
+        << "</td></tr>";
+    }
+    if (e.contains("mesh") && e["mesh"].is_object()) {
+      const auto& m = e["mesh"];
+      s << "<tr><td>" << html_escape(when) << "</td><td>" << html_escape(m.value("path", "")) << "</td><td>"
+        << html_escape(m.value("method", "")) << " mesh, " << cell(m, "vertices") << " vertices, "
+        << cell(m, "triangles") << " triangles</td><td>" << html_escape(frame) << "</td><td>" << cell(m, "seconds")
+        << "</td></tr>";
+    }
+  }
+  s << "</table>";
+  return s.str();
+}
+
+// The depth errors of a metrics object: the attention front's and the mean's (docs/MODEL.md, section
+// 9); metrics from before the front show the mean's alone.
+std::string depth_cell(const nlohmann::json& m) {
+  const auto mean = fmt_json(m.value("depth_mae", nlohmann::json()));
+  if (!m.contains("depth_mae_front")) return mean;
+  return fmt_json(m["depth_mae_front"]) + " / " + mean;
+}
+
 std::string metrics_section(const std::vector<SplitMetrics>& all) {
   std::ostringstream s;
   s << "<h2>Metrics</h2>";
@@ -139,15 +186,14 @@ std::string metrics_section(const std::vector<SplitMetrics>& all) {
     return s.str();
   }
   s << "<table><tr><th>split</th><th>views</th><th>PSNR (dB)</th><th>SSIM</th><th>LPIPS (Alex)</th>"
-       "<th>depth MAE</th><th>s / image</th><th>step</th><th>SSIM variant</th></tr>";
+       "<th>depth MAE (front / mean)</th><th>s / image</th><th>step</th><th>SSIM variant</th></tr>";
   for (const auto& sm : all) {
     const auto& m = sm.m;
     const auto mean = m.value("mean", nlohmann::json::object());
     s << "<tr><td>" << html_escape(sm.split) << "</td><td>" << m.value("images", nlohmann::json::array()).size()
       << "</td><td>" << fmt_json(mean.value("psnr", nlohmann::json())) << "</td><td>"
       << fmt_json(mean.value("ssim", nlohmann::json())) << "</td><td>"
-      << fmt_json(mean.value("lpips", nlohmann::json())) << "</td><td>"
-      << fmt_json(mean.value("depth_mae", nlohmann::json())) << "</td><td>"
+      << fmt_json(mean.value("lpips", nlohmann::json())) << "</td><td>" << depth_cell(mean) << "</td><td>"
       << fmt_json(m.value("seconds_per_image", nlohmann::json()), 3) << "</td><td>"
       << fmt_json(m.value("step", nlohmann::json())) << "</td><td>"
       << fmt_json(m.value("ssim_variant", nlohmann::json())) << "</td></tr>";
@@ -155,13 +201,12 @@ std::string metrics_section(const std::vector<SplitMetrics>& all) {
   s << "</table>";
   for (const auto& sm : all) {
     s << "<details><summary>Per image: " << html_escape(sm.split) << "</summary><table><tr><th>#</th><th>file</th>"
-      << "<th>PSNR</th><th>SSIM</th><th>LPIPS</th><th>depth MAE</th><th>seconds</th></tr>";
+      << "<th>PSNR</th><th>SSIM</th><th>LPIPS</th><th>depth MAE (front / mean)</th><th>seconds</th></tr>";
     for (const auto& im : sm.m.value("images", nlohmann::json::array())) {
       s << "<tr><td>" << fmt_json(im.value("index", nlohmann::json())) << "</td><td>"
         << html_escape(fs::path(im.value("file", std::string())).filename().string()) << "</td><td>"
         << fmt_json(im.value("psnr", nlohmann::json())) << "</td><td>" << fmt_json(im.value("ssim", nlohmann::json()))
-        << "</td><td>" << fmt_json(im.value("lpips", nlohmann::json())) << "</td><td>"
-        << fmt_json(im.value("depth_mae", nlohmann::json())) << "</td><td>"
+        << "</td><td>" << fmt_json(im.value("lpips", nlohmann::json())) << "</td><td>" << depth_cell(im) << "</td><td>"
         << fmt_json(im.value("seconds", nlohmann::json()), 3) << "</td></tr>";
     }
     s << "</table></details>";
@@ -408,7 +453,7 @@ void write_report(const RunFolder& run) {
     << "<h1>ABLE-NeRF run " << html_escape(fs::path(run.dir).filename().string()) << "</h1>"
     << "<p class=\"note\">Written " << when << " by ablenerf " << ABLENERF_VERSION << ".</p>"
     << summary_section(run, log) << metrics_section(metrics) << views_section(metrics) << curves_section(log)
-    << config_section(run) << "</body></html>\n";
+    << exports_section(run) << config_section(run) << "</body></html>\n";
   write_file_atomic(run.report_path(), h.str());
 }
 

@@ -1,5 +1,6 @@
 #include "geometry/depth_points.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -26,6 +27,24 @@ double CropBox::diagonal() const {
   double s = 0;
   for (size_t i = 0; i < 3; ++i) s += (hi[i] - lo[i]) * (hi[i] - lo[i]);
   return std::sqrt(s);
+}
+
+CropBox CropBox::around(const torch::Tensor& xyz, double share, double margin) {
+  TORCH_CHECK(xyz.dim() == 2 && xyz.size(1) == 3 && xyz.size(0) > 0, "CropBox::around: expected (N>0,3) points");
+  // Quantiles of an even subset of at most 2^20 rows (torch::quantile sorts its whole input).
+  const int64_t stride = std::max<int64_t>(1, (xyz.size(0) + (int64_t{1} << 20) - 1) >> 20);
+  const auto p = xyz.slice(0, 0, xyz.size(0), stride).to(torch::kDouble);
+  const auto q = torch::tensor({(1 - share) / 2, (1 + share) / 2}, torch::kDouble);
+  const auto bounds = torch::quantile(p, q, 0);  // (2,3)
+  CropBox b;
+  for (size_t i = 0; i < 3; ++i) {
+    const double lo = bounds[0][static_cast<int64_t>(i)].item<double>();
+    const double hi = bounds[1][static_cast<int64_t>(i)].item<double>();
+    const double pad = std::max(margin * (hi - lo), 1e-9);
+    b.lo[i] = lo - pad;
+    b.hi[i] = hi + pad;
+  }
+  return b;
 }
 
 CropBox CropBox::parse(const std::string& text, const std::string& option) {

@@ -19,6 +19,10 @@ struct CropBox {
   // Which rows of xyz (N,3) lie inside the box: (N) bool.
   torch::Tensor inside(const torch::Tensor& xyz) const;
   double diagonal() const;
+  // The box holding the `share` of the points (N,3) between each axis's (1 - share) / 2 and
+  // (1 + share) / 2 quantiles, widened by `margin` of its size on every side: a crop for scenes
+  // whose extent only the geometry itself tells (forward-facing captures). N > 0.
+  static CropBox around(const torch::Tensor& xyz, double share, double margin);
   // "xmin,ymin,zmin,xmax,ymax,zmax"; InputError naming `option` on anything else (or an empty box).
   static CropBox parse(const std::string& text, const std::string& option);
 };

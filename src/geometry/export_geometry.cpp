@@ -1,13 +1,17 @@
 #include "geometry/export_geometry.h"
 
 #include <chrono>
+#include <ctime>
 #include <cmath>
 #include <filesystem>
 
 #include "data/dataset.h"
 #include "eval/renderer.h"
 #include "geometry/fuse.h"
+#include "model/ndc.h"
+#include "data/rays.h"
 #include "util/errors.h"
+#include "util/fs.h"
 #include "util/progress.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
@@ -30,6 +34,11 @@ constexpr double kAutoFootprints = 1.5;
 constexpr double kMaxAutoResolution = 512;
 // TSDF truncation in voxels.
 constexpr double kTruncationVoxels = 4.0;
+// Forward-facing runs: NDC depths are read no farther than t' = 0.999 (1000 near planes away), and
+// the default crop is the box of the central 98% of the points per axis, 5% wider on every side.
+constexpr double kMaxNdcT = 0.999;
+constexpr double kForwardBoxShare = 0.98;
+constexpr double kForwardBoxMargin = 0.05;
 
 double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -75,6 +84,19 @@ torch::Tensor photo_alpha(const CaptureFrame& frame, const Capture& capture, con
       .squeeze(0);
 }
 
+// Refuses a TSDF resolution whose volume over `box` would not fit (before anything is allocated).
+void check_tsdf_volume(const GeometryOptions& opts, const CropBox& box) {
+  if (opts.mesh_path.empty() || opts.method != MeshMethod::Tsdf || opts.resolution == 0) return;
+  const double longest = std::max({box.hi[0] - box.lo[0], box.hi[1] - box.lo[1], box.hi[2] - box.lo[2]});
+  const double voxel = longest / std::max(opts.resolution, 1);
+  double voxels = 1;
+  for (size_t i = 0; i < 3; ++i) voxels *= std::ceil((box.hi[i] - box.lo[i]) / voxel);
+  if (opts.resolution < 8 || voxels > kMaxTsdfVoxels)
+    throw InputError("export", "--resolution",
+                     std::to_string(opts.resolution) + " gives a volume of " + std::to_string(voxels) +
+                         " voxels; use 8 to " + std::to_string(static_cast<int>(std::cbrt(kMaxTsdfVoxels))));
+}
+
 }  // namespace
 
 CropBox default_crop(const RunFolder& run, const SceneFrame& scene) {
@@ -96,21 +118,16 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   if (run.data_dir.empty())
     throw InputError(run.path("run.json"), "data", "no dataset recorded: its cameras are needed");
   const SceneFrame scene = run.scene();
-  if (scene.kind == SceneKind::ForwardFacing)
-    throw InputError(run.path("scene.json"), "kind",
-                     "forward-facing runs are not exported yet (their attention depth is NDC's, not metric)");
-  const CropBox scene_box = opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
-  const double longest = std::max(
-      {scene_box.hi[0] - scene_box.lo[0], scene_box.hi[1] - scene_box.lo[1], scene_box.hi[2] - scene_box.lo[2]});
-  double voxel = longest / std::max(opts.resolution, 1);
-  if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf && opts.resolution != 0) {
-    double voxels = 1;
-    for (size_t i = 0; i < 3; ++i) voxels *= std::ceil((scene_box.hi[i] - scene_box.lo[i]) / voxel);
-    if (opts.resolution < 8 || voxels > kMaxTsdfVoxels)
-      throw InputError("export", "--resolution",
-                       std::to_string(opts.resolution) + " gives a volume of " + std::to_string(voxels) +
-                           " voxels; use 8 to " + std::to_string(static_cast<int>(std::cbrt(kMaxTsdfVoxels))));
-  }
+  // Forward-facing runs see depth as the NDC ray's t' (model/ndc.h): turned into metric depth per
+  // pixel below, and their crop box, unless given, is the one that holds the geometry itself.
+  const bool forward = scene.kind == SceneKind::ForwardFacing;
+  const bool box_from_points = forward && !opts.crop;
+  const bool use_front = opts.depth == DepthEstimate::Front || (opts.depth == DepthEstimate::Auto && !forward);
+  CropBox scene_box = opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
+  if (box_from_points)
+    scene_box =
+        CropBox{{-kUnboundedFar, -kUnboundedFar, -kUnboundedFar}, {kUnboundedFar, kUnboundedFar, kUnboundedFar}};
+  if (!box_from_points) check_tsdf_volume(opts, scene_box);
 
   // The cameras: every one of the capture's (all splits), evenly thinned to opts.views.
   const Capture capture = read_capture(run.data_dir, {}, 1);
@@ -140,25 +157,58 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     const int64_t i = n == n_all ? v : v * n_all / n;
     const auto c2w = cams.c2w[i];
     const int64_t before = v * k.width * k.height;
-    const RenderResult r =
+    RenderResult r =
         render_image(model, c2w, k, scene.near, scene.far, opts.chunk, {}, opts.device, [&](int64_t done, int64_t) {
           if (progress) progress->update(before + done);
         });
+    double near = scene.near, far = scene.far;
+    if (forward) {
+      const Rays rays = rays_for_image(c2w.to(torch::kDouble), k);
+      // t' = 1 is infinity: pixels beyond kMaxNdcT (the sky) get depth 0, which gives no point.
+      const auto metric = [&](const torch::Tensor& t) {
+        const auto tc = t.reshape({-1}).to(torch::kDouble);
+        const auto d = depth_from_ndc(rays, tc.clamp(0.0, kMaxNdcT));
+        return torch::where(tc <= kMaxNdcT, d, torch::zeros_like(d)).reshape(t.sizes()).to(torch::kFloat);
+      };
+      r.depth_mean = metric(r.depth_mean);
+      r.depth_argmax = metric(r.depth_argmax);
+      r.depth_front = metric(r.depth_front);
+      near = 0;
+      far = kUnboundedFar;
+    }
     // A pixel counts where the attention's mean and argmax depths agree (it looked at one place)
     // and, with alpha masks, where the photo is opaque.
     auto agree = (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
+    const auto& depth = use_front ? r.depth_front : r.depth_mean;
     if (opts.alpha_mask) {
       const auto alpha = photo_alpha(*frames[static_cast<size_t>(i)], capture, k);
       if (alpha.defined()) agree = agree & (alpha > 0.5);
     }
-    PointSet p = points_from_depth(c2w, k, r.depth_mean, r.rgb, scene.near, scene.far, scene_box, agree);
+    PointSet p = points_from_depth(c2w, k, depth, r.rgb, near, far, scene_box, agree);
     eyes.push_back(c2w.slice(1, 3, 4).reshape({1, 3}).to(torch::kFloat).expand({p.size(), 3}));
     sets.push_back(std::move(p));
     if (!opts.mesh_path.empty() && opts.method == MeshMethod::Tsdf)
-      views.push_back({c2w, torch::where(agree, r.depth_mean, torch::zeros_like(r.depth_mean)), r.rgb, k});
+      views.push_back({c2w, torch::where(agree, depth, torch::zeros_like(depth)), r.rgb, k});
   }
   if (progress) progress->finish();
   const double render_s = seconds_since(render_start);
+  if (box_from_points) {
+    // The box of the central 98% of the points on each axis, 5% wider on every side.
+    const PointSet raw = concat_points(sets);
+    if (raw.size() == 0) throw InputError("export", "--crop", "the run's depth gave no point to export");
+    scene_box = CropBox::around(raw.xyz, kForwardBoxShare, kForwardBoxMargin);
+    for (auto& set : sets) {
+      const auto keep = scene_box.inside(set.xyz).nonzero().squeeze(-1);
+      set = PointSet{set.xyz.index_select(0, keep), set.rgb.index_select(0, keep),
+                     set.normals.defined() ? set.normals.index_select(0, keep) : torch::Tensor()};
+    }
+    // Each view's rows of `eyes` are its camera centre repeated: as many as its points left.
+    for (size_t v = 0; v < sets.size(); ++v) eyes[v] = eyes[v].slice(0, 0, sets[v].size());
+    check_tsdf_volume(opts, scene_box);
+  }
+  const double longest = std::max(
+      {scene_box.hi[0] - scene_box.lo[0], scene_box.hi[1] - scene_box.lo[1], scene_box.hi[2] - scene_box.lo[2]});
+  double voxel = longest / std::max(opts.resolution, 1);
   if (opts.resolution == 0) {
     // Auto: 1.5 pixel footprints at the median depth of the points, no finer than longest / 512.
     std::vector<torch::Tensor> depths;
@@ -174,6 +224,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   out["image"] = std::to_string(k.width) + "x" + std::to_string(k.height);
   out["render_s"] = render_s;
   out["frame"] = opts.scene_frame ? "scene" : "capture";
+  out["depth"] = use_front ? "front" : "mean";
   const auto to_output = [&](torch::Tensor xyz) { return opts.scene_frame ? xyz : points_to_capture(xyz, scene); };
   const auto to_output_normals = [&](const torch::Tensor& nrm) {
     return opts.scene_frame || !nrm.defined() ? nrm : normals_to_capture(nrm, scene);
@@ -231,6 +282,25 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   }
   out["seconds"] = seconds_since(start);
   return out;
+}
+
+void record_export(const RunFolder& run, const nlohmann::json& result) {
+  nlohmann::json all = nlohmann::json::array();
+  if (fs::exists(run.exports_path())) {
+    try {
+      all = nlohmann::json::parse(read_file(run.exports_path()));
+    } catch (const nlohmann::json::exception&) {
+      throw InputError(run.exports_path(), "", "invalid JSON (move it away to start a new list)");
+    }
+    if (!all.is_array()) throw InputError(run.exports_path(), "", "expected a JSON array of exports");
+  }
+  nlohmann::json entry = result;
+  const std::time_t now = std::time(nullptr);
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S UTC", std::gmtime(&now));
+  entry["when"] = when;
+  all.push_back(entry);
+  write_file_atomic(run.exports_path(), all.dump(2) + "\n");
 }
 
 }  // namespace ablenerf

@@ -2,6 +2,9 @@
 
 #include "kernels/small_gemm.h"
 
+#include <algorithm>
+#include <vector>
+
 namespace ablenerf {
 
 namespace {
@@ -19,6 +22,32 @@ torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weigh
       for (int64_t j = 0; j < n; ++j) out[i * n + j] += b[j];
   }
   return y;
+}
+
+// Column sums of dy (M, N), contiguous: the bias gradient. Rows are added into a block's partial sums
+// kRowsPerBlock at a time, and the blocks' partials into the total (two levels, so the rounding
+// grows with kRowsPerBlock + M / kRowsPerBlock, not M); the inner loop runs along a row and
+// vectorises. Why not dy.sum(0): over the model's narrow token matrices (a 128-ray slice is 2,176
+// rows of 48-144 features) ATen's reduction over the outer dimension took ~80 us per call, ~4x this
+// loop, 44 calls per training step at the capture preset (docs/BENCHMARKS.md).
+torch::Tensor column_sums(const torch::Tensor& dy) {
+  constexpr int64_t kRowsPerBlock = 256;
+  const int64_t m = dy.size(0), n = dy.size(1);
+  auto total = torch::zeros({n}, dy.options());
+  std::vector<float> block(static_cast<size_t>(n));
+  const float* y = dy.data_ptr<float>();
+  float* out = total.data_ptr<float>();
+  for (int64_t lo = 0; lo < m; lo += kRowsPerBlock) {
+    std::fill(block.begin(), block.end(), 0.0f);
+    float* b = block.data();
+    const int64_t hi = std::min(m, lo + kRowsPerBlock);
+    for (int64_t i = lo; i < hi; ++i) {
+      const float* row = y + i * n;
+      for (int64_t j = 0; j < n; ++j) b[j] += row[j];
+    }
+    for (int64_t j = 0; j < n; ++j) out[j] += b[j];
+  }
+  return total;
 }
 
 class LinearFunction : public torch::autograd::Function<LinearFunction> {
@@ -43,7 +72,7 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
       small_gemm(false, m, k, n, 1.0f, dy.data_ptr<float>(), n, weight.data_ptr<float>(), k, dx.data_ptr<float>(), k);
     }
     if (ctx->needs_input_grad(1)) dw = dy.t().mm(x);
-    if (ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(2)) db = dy.sum(0);
+    if (ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(2)) db = column_sums(dy);
     return {dx, dw, db};
   }
 };

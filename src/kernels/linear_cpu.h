@@ -5,7 +5,7 @@
 //                                  per row;
 //   backward     dx = dy W         the same loops;
 //                dW = dy^T x       BLAS (a reduction over all tokens, where BLAS is faster);
-//                db = column sums of dy.
+//                db = column sums of dy, a block of rows at a time (linear_cpu.cpp).
 // Why: at the demo preset (2,176 tokens per 128-ray slice, 48-144 features) OpenBLAS's sgemm spends
 // a large share of each call packing operands (measured ~1.4x slower than the loops for x W^T), and
 // LibTorch's addmm path adds reshape / t / view nodes to every layer's forward and backward.

@@ -62,4 +62,15 @@ Rays rays_to_ndc(const Rays& rays, const NdcProjection& p) {
   return out;
 }
 
+torch::Tensor depth_from_ndc(const Rays& rays, const torch::Tensor& t_ndc) {
+  // The NDC ray's origin is the image of the point on z = -near, so o'_z = 1 + 2 near / (-near) = -1,
+  // and d'_z = -2 near / o_z = 2 (ndc_ray): z' = -1 + 2 t'. The map z' = 1 + 2 near / z inverts
+  // to z = 2 near / (z' - 1) = -near / (1 - t'), and the scene-frame ray reaches that z at
+  // t = (z - o_z) / d_z.
+  const auto t = t_ndc.reshape({-1}).to(rays.origins.scalar_type());
+  const auto z = -kNdcNear / (1.0 - t);
+  const auto depth = (z - rays.origins.select(-1, 2)) / rays.directions.select(-1, 2);
+  return depth.reshape(t_ndc.sizes()).to(t_ndc.scalar_type());
+}
+
 }  // namespace ablenerf

@@ -32,4 +32,11 @@ Rays rays_to_ndc(const Rays& rays, const NdcProjection& p);
 // The point map alone, for tests: (..., 3) points with z < 0 -> NDC.
 torch::Tensor points_to_ndc(const torch::Tensor& x, const NdcProjection& p);
 
+// The metric depth (the scene-frame ray's own t, so depth along the optical axis: data/rays.h) of
+// the point at NDC parameter t_ndc on each ray's NDC image (rays_to_ndc). The NDC ray meets the
+// scene-frame point whose z is -near / (1 - t_ndc) (near: the NDC near plane, 1), whatever the
+// projection's focal factors; infinity at t_ndc = 1. rays: the scene-frame rays (B,3);
+// t_ndc: (B) or (B,1) in [0, 1); the result has t_ndc's shape.
+torch::Tensor depth_from_ndc(const Rays& rays, const torch::Tensor& t_ndc);
+
 }  // namespace ablenerf

@@ -10,6 +10,7 @@
 //                       elapsed_s} or {"type":"eval", step, psnr, views, split}; see run/run_log.h
 //   RUN/eval/SPLIT/     eval outputs (images, error and depth maps, metrics.json)
 //   RUN/report.html     the self-contained report
+//   RUN/exports.json    what `export --points / --mesh` wrote, one object per export (geometry/export_geometry.h)
 #include <torch/torch.h>
 
 #include <string>
@@ -36,6 +37,7 @@ struct RunFolder {
   std::string log_path() const { return path("log.jsonl"); }
   std::string report_path() const { return path("report.html"); }
   std::string scene_path() const { return path("scene.json"); }
+  std::string exports_path() const { return path("exports.json"); }
 
   // RUN/scene.json, written atomically by `train`.
   void write_scene(const SceneFrame& scene) const;

@@ -179,7 +179,7 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
     } else {
       // As eval's depth maps: unbounded scenes up to twice the cameras' sphere.
       const double far = scene_.kind == SceneKind::Unbounded ? 2.0 : scene_.far;
-      image = colormap(r.depth_mean, scene_.near, far);
+      image = colormap(r.depth_front, scene_.near, far);  // the attention's front (docs/MODEL.md, section 9)
     }
   }
   const auto u8 = to_uint8(image.to(torch::kCPU)).contiguous();

@@ -10,7 +10,9 @@
 // returns, so a drag on a slow CPU never queues stale renders on the server. For tests: the current pose is kept in
 // <pre id="pose">, body's data-images counts the images drawn and data-drawn lists their sizes (data-first-image-ms and
 // data-first-full-ms time the first ones), #drag=DX,DY in the address plays a drag through the
-// mouse handlers once the cameras are in, and #size=WxH fixes the image size.
+// mouse handlers once the cameras are in, and #size=WxH fixes the image size (data-display gives
+// the size shown). The view fills the window by default, rendered at a fraction of that size
+// ("render": 1/4, 1/2, 1) and drawn scaled up; or it is shown at the camera's size times 1/2, 1, 2.
 #include "view/view_server.h"
 
 namespace ablenerf {
@@ -22,7 +24,7 @@ const char* viewer_page_html() {
 body { margin: 0; font: 14px sans-serif; background: #202124; color: #e8eaed; }
 #bar { padding: 6px 10px; display: flex; gap: 12px; align-items: center; flex-wrap: wrap; }
 #view { display: block; margin: 0 auto; background: #000; image-rendering: auto; cursor: grab; }
-#status { color: #9aa0a6; }
+#status { color: #9aa0a6; flex-basis: 100%; }  /* a line of its own: its text never reflows the bar */
 select, button { font: inherit; }
 </style></head>
 <body>
@@ -30,7 +32,8 @@ select, button { font: inherit; }
   <b>ablenerf view</b>
   <label>camera <select id="cams"></select></label>
   <label>mode <select id="mode"><option>rgb</option><option>depth</option><option>error</option></select></label>
-  <label>size <select id="size"><option value="0.5">1/2</option><option value="1" selected>1</option><option value="2">2x</option></select></label>
+  <label>size <select id="size"><option value="window" selected>window</option><option value="0.5">camera 1/2</option><option value="1">camera</option><option value="2">camera 2x</option></select></label>
+  <label>render <select id="fraction"><option value="0.25">1/4</option><option value="0.5" selected>1/2</option><option value="1">1</option></select></label>
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
 </div>
@@ -40,7 +43,7 @@ select, button { font: inherit; }
   <label><input type="checkbox" id="follow"> follow training (re-render every 5 s)</label>
   <svg id="curves" width="360" height="90" style="background:#303134"></svg>
 </div>
-<canvas id="view" width="400" height="400"></canvas>
+<canvas id="view" width="0" height="0"></canvas>  <!-- sized by the first image: no scroll bar meanwhile -->
 <pre id="pose" hidden></pre>
 <script>
 "use strict";
@@ -69,14 +72,31 @@ function rotatePose(k, t) {
   setCol(p, 3, add(target, rot(sub(col(pose, 3), target), k, t)));
   pose = p;
 }
-function size() {
-  const fixed = /size=([0-9]+)x([0-9]+)/.exec(location.hash);  // #size=WxH: a fixed size (benchmarks)
-  if (fixed) return [parseInt(fixed[1]), parseInt(fixed[2])];
-  const s = parseFloat(document.getElementById("size").value);
-  let w = Math.round(info.width * s), h = Math.round(info.height * s);
-  const big = Math.max(w, h);
-  if (big > 800) { w = Math.round(w * 800 / big); h = Math.round(h * 800 / big); }
+// The size the view is shown at: the window's (the largest of the camera's shape that fits under
+// the bar), or the camera's times 1/2, 1 or 2 (at most 800 pixels a side).
+function display() {
+  const choice = document.getElementById("size").value;
+  let w, h;
+  if (choice === "window") {
+    const bar = document.getElementById("view").getBoundingClientRect().top + window.scrollY;
+    const aw = Math.max(8, window.innerWidth - 4), ah = Math.max(8, window.innerHeight - bar - 4);
+    const s = Math.min(aw / info.width, ah / info.height);
+    w = Math.floor(info.width * s); h = Math.floor(info.height * s);
+  } else {
+    const s = parseFloat(choice);
+    w = Math.round(info.width * s); h = Math.round(info.height * s);
+    const big = Math.max(w, h);
+    if (big > 800) { w = Math.round(w * 800 / big); h = Math.round(h * 800 / big); }
+  }
   return [Math.max(8, w), Math.max(8, h)];
+}
+// The size of the full image rendered for it: the shown size times the "render" fraction (drawn
+// scaled up to the shown size). #size=WxH in the address fixes both (benchmarks, tests).
+function size() {
+  const fixed = /size=([0-9]+)x([0-9]+)/.exec(location.hash);
+  if (fixed) return [parseInt(fixed[1]), parseInt(fixed[2])];
+  const [dw, dh] = display(), f = parseFloat(document.getElementById("fraction").value);
+  return [Math.max(8, Math.round(dw * f)), Math.max(8, Math.round(dh * f))];
 }
 // A PNG blob as an <img> (loaded through the page's resource loader, like any image).
 function loadImage(blob) {
@@ -113,6 +133,9 @@ function send(scale, my) {
       .then(b => loadImage(b)).then(img => {
     if (my !== seq) return;  // a newer view is on its way
     canvas.width = w; canvas.height = h;
+    const fixed = /size=([0-9]+)x([0-9]+)/.test(location.hash), [dw, dh] = fixed ? [w, h] : display();
+    canvas.style.width = dw + "px"; canvas.style.height = dh + "px";
+    document.body.dataset.display = dw + "x" + dh;
     ctx.imageSmoothingEnabled = scale < 1;
     ctx.drawImage(img, 0, 0, w, h);
     drawMarkers(w, h);
@@ -245,6 +268,13 @@ window.addEventListener("keydown", e => {
 });
 document.getElementById("mode").addEventListener("change", changed);
 document.getElementById("size").addEventListener("change", changed);
+document.getElementById("fraction").addEventListener("change", changed);
+let resizeTimer = null;  // a window resize re-renders once it settles
+window.addEventListener("resize", () => {
+  if (!info || document.getElementById("size").value !== "window") return;
+  clearTimeout(resizeTimer);
+  resizeTimer = setTimeout(changed, 150);
+});
 document.getElementById("cams").addEventListener("change", e => jump(parseInt(e.target.value)));
 // A run being trained (`train --view`): state, buttons and the loss / held-out PSNR curves.
 function polyline(points, w, h, colour) {

@@ -80,8 +80,9 @@ TEST(CliRender, RawTensorsMatchThePngsAndExtrasAreWritten) {
                                " --le-noise 0.5 --seed 3 --out " +
                                t / "frames");
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  for (const char* f : {"frame_0000.png", "frame_0001.png", "frame_0000_depth.png", "frame_0000_depth_argmax.png",
-                        "frame_0000_ray.png", "frame_0000_le.png", "frame_0001.pt", "frame_0001_ray.pt"})
+  for (const char* f :
+       {"frame_0000.png", "frame_0001.png", "frame_0000_depth.png", "frame_0000_depth_mean.png",
+        "frame_0000_depth_argmax.png", "frame_0000_ray.png", "frame_0000_le.png", "frame_0001.pt", "frame_0001_ray.pt"})
     EXPECT_TRUE(fs::exists(t / "frames/" + std::string(f))) << f;
   const auto raw = load_pt(t / "frames/frame_0001.pt");
   ASSERT_EQ(raw.sizes(), (std::vector<int64_t>{6, 10, 3}));

@@ -51,6 +51,33 @@ TEST(DepthFromAttention, HandComputedMeanAndArgmax) {
   EXPECT_DOUBLE_EQ(d.argmax[1].item<double>(), 5.25);
 }
 
+TEST(DepthFromAttention, HandComputedShareCrossingsAndTheFront) {
+  // Where the normalised attention's cumulative sum reaches a share, linearly inside its interval.
+  // Row 0: shares 0.1, 0.6, 0.3 (cumulative 0.1, 0.7, 1): one half is reached in [3, 5], (0.5 - 0.1)
+  //        / 0.6 = 2/3 of the way: 3 + 2 * 2/3.
+  // Row 1: shares 0.25, 0.125, 0.625 (of 0.4): reached in [4.5, 6], (0.5 - 0.375) / 0.625 = 0.2 of
+  //        the way: 4.8.
+  // Row 2: shares 0.8, 0.1, 0.1: reached in the first interval [2, 3], 0.5 / 0.8 of the way.
+  const auto w = torch::tensor({{0.1, 0.6, 0.3}, {0.1, 0.05, 0.25}, {0.8, 0.1, 0.1}}, torch::kDouble);
+  const auto t = torch::tensor({{2.0, 3.0, 5.0, 6.0}, {2.0, 4.0, 4.5, 6.0}, {2.0, 3.0, 5.0, 6.0}}, torch::kDouble);
+  const auto half = depth_at_attention_share(w, t, 0.5);
+  EXPECT_NEAR(half[0].item<double>(), 3.0 + 2.0 * 2.0 / 3.0, 1e-12);
+  EXPECT_NEAR(half[1].item<double>(), 4.8, 1e-12);
+  EXPECT_NEAR(half[2].item<double>(), 2.625, 1e-12);
+  // The front (a share of 0.15): row 0 in [3, 5], (0.15 - 0.1) / 0.6 of the way; row 1 in [2, 4],
+  // 0.15 / 0.25 of the way; row 2 in [2, 3], 0.15 / 0.8 of the way.
+  ASSERT_DOUBLE_EQ(kAttentionFrontShare, 0.15);
+  const auto d = depth_from_attention(w, t);
+  EXPECT_NEAR(d.front[0].item<double>(), 3.0 + 2.0 * 0.05 / 0.6, 1e-12);
+  EXPECT_NEAR(d.front[1].item<double>(), 2.0 + 2.0 * 0.6, 1e-12);
+  EXPECT_NEAR(d.front[2].item<double>(), 2.0 + 0.15 / 0.8, 1e-12);
+  // No attention on the volumes: finite, inside the fence-posts.
+  const auto z = depth_from_attention(torch::zeros({1, 3}, torch::kDouble), t.slice(0, 0, 1));
+  EXPECT_TRUE(std::isfinite(z.front[0].item<double>()));
+  EXPECT_GE(z.front[0].item<double>(), 2.0);
+  EXPECT_LE(z.front[0].item<double>(), 6.0);
+}
+
 TEST(DepthFromAttention, ArgmaxPicksThePeakAndMeanStaysInsideTheFenceposts) {
   // A sharp peak at volume 5 of 10 equal intervals on [2, 6]: argmax = its mid-point 2 + 0.4*5.5.
   auto w = torch::full({1, 10}, 0.01);
@@ -83,6 +110,7 @@ TEST(RenderImage, EqualsDirectForwardOverEveryRay) {
   const auto d = depth_from_attention(ref.fine_weights, ref.fine_t);
   EXPECT_TRUE(torch::allclose(r.depth_mean.view({-1}), d.mean, 0, 1e-5));
   EXPECT_TRUE(torch::allclose(r.depth_argmax.view({-1}), d.argmax, 0, 1e-5));
+  EXPECT_TRUE(torch::allclose(r.depth_front.view({-1}), d.front, 0, 1e-5));
   EXPECT_TRUE(torch::allclose(r.ray_colour.view({-1, 3}), ref.ray_colour_fine, 0, 1e-6));
   EXPECT_TRUE(torch::allclose(r.le_colour.view({-1, 3}), ref.le_colour_fine, 0, 1e-6));
   // Depths lie inside [near, far].

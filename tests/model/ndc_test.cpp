@@ -6,6 +6,7 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <vector>
 
 #include "data/rays.h"
 #include "model/ndc.h"
@@ -77,4 +78,33 @@ TEST(Ndc, RadiusIsTheNdcOffsetBetweenNeighbouringPixels) {
   // a * 1.2 / fx = 2.4 / W in x (and 2.4 / H in y).
   EXPECT_NEAR((o[15][39][0] - o[15][38][0]).item<double>(), 2.4 / 40, 1e-6);
   EXPECT_NEAR((o[14][20][1] - o[15][20][1]).item<double>(), 2.4 / 30, 1e-6);
+}
+
+// depth_from_ndc inverts the map: a point at a known depth along a scene-frame ray, projected by
+// hand and read off its NDC ray as t', comes back as that depth (for rays starting before and
+// behind the near plane, tilted, and at every depth from the near plane to far away).
+TEST(Ndc, DepthFromNdcRecoversTheDepthOfAPointOnTheRay) {
+  const NdcProjection p{1.3, 0.9};
+  const auto origins = torch::tensor({{0.1, -0.2, 0.05}, {-0.3, 0.1, -0.2}, {0.4, 0.2, -0.5}}, torch::kFloat64);
+  const auto dirs = torch::tensor({{0.2, 0.1, -1.0}, {-0.1, 0.25, -1.0}, {0.05, -0.3, -1.0}}, torch::kFloat64);
+  const Rays in{origins, dirs, torch::full({3, 1}, 1e-3, torch::kFloat64)};
+  const Rays r = rays_to_ndc(in, p);
+  for (double depth : {1.2, 2.0, 7.5, 40.0, 900.0}) {
+    std::vector<double> t_ndc;
+    for (int64_t i = 0; i < 3; ++i) {
+      const auto x = origins[i] + depth * dirs[i];
+      const auto q = ndc_point(x[0].item<double>(), x[1].item<double>(), x[2].item<double>(), p.a, p.b);
+      t_ndc.push_back((q[2] - r.origins[i][2].item<double>()) / r.directions[i][2].item<double>());
+    }
+    const auto back = depth_from_ndc(in, torch::tensor(t_ndc, torch::kFloat64));
+    ASSERT_EQ(back.sizes(), torch::IntArrayRef({3}));
+    for (int64_t i = 0; i < 3; ++i) EXPECT_NEAR(back[i].item<double>(), depth, 1e-9 * depth) << "ray " << i;
+  }
+  // Shape (B,1) is kept; t' = 0 is the near plane z = -1.
+  const auto at_near = depth_from_ndc(in, torch::zeros({3, 1}, torch::kFloat64));
+  ASSERT_EQ(at_near.sizes(), torch::IntArrayRef({3, 1}));
+  for (int64_t i = 0; i < 3; ++i) {
+    const double want = (-1 - origins[i][2].item<double>()) / dirs[i][2].item<double>();
+    EXPECT_NEAR(at_near[i][0].item<double>(), want, 1e-12);
+  }
 }

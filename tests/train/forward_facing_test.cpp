@@ -1,24 +1,34 @@
 // Forward-facing captures end to end: the demo scene photographed LLFF-style (a grid of cameras on
 // one side, all looking at it, the sky and ground at infinity behind it), written as an LLFF
 // capture (poses_bounds.npy + images/), picked as "forward" by data.scene = auto, trained in NDC,
-// evaluated, and rendered along the forward-facing path.
+// evaluated, exported as points (metric depth from NDC) and rendered along the forward-facing path.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 
 #include "eval/camera_path.h"
 #include "eval/evaluate.h"
 #include "run/run_folder.h"
+#include "data/ply.h"
 #include "synth/render.h"
+#include "synth/world.h"
 #include "train_fixture.h"
+#include "util/fs.h"
 #include "util/image_io.h"
 #include "data/data_config.h"
 
 using namespace ablenerf;
 
 namespace {
+
+// Median distance of the exported points to the nearest sphere's surface, scene units of the synth
+// world (the cameras stand 4 away; the spheres' radii are 0.45-0.48).
+constexpr double kForwardExportTolerance = 0.25;
 
 // Writes an LLFF capture of `res` x `res` views from a 4x3 grid of cameras 4 units in front of the
 // scene (-y side), each looking at the origin.
@@ -69,6 +79,45 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   // Measured (2026-11-25, 2-vCPU VM): NDC 22.53 dB, unbounded 22.62 dB.
   EXPECT_GT(psnr, 17.0);  // learnt (an untrained model gives ~10 dB)
   EXPECT_GT(psnr, unbounded - 1.0);
+  // Geometry out: the attention depth (the NDC ray's t') turned back into metric depth lands the
+  // points on the scene's spheres in the capture's own coordinates (the synth world here); read
+  // as metric depth untouched, t' < 1 would put every point within one unit of its camera.
+  const auto exported = test::run_cli("export --run " + t / "run" + " --points " + t / "points.ply" +
+                                      " --views 12 --max-side 32 --quiet");
+  if (exported.output.find("libopen3d-dev") == std::string::npos) {
+    ASSERT_EQ(exported.exit_code, 0) << exported.output;
+    const auto pts = read_ply_points(t / "points.ply");
+    ASSERT_GT(pts.size(), 100u);
+    std::vector<double> gap;
+    for (const auto& p : pts) {
+      double best = 1e300;
+      for (const auto& sph : synth::scene_spheres()) {
+        const double dx = p[0] - sph.centre.x, dy = p[1] - sph.centre.y, dz = p[2] - sph.centre.z;
+        best = std::min(best, std::abs(std::sqrt(dx * dx + dy * dy + dz * dz) - sph.radius));
+      }
+      gap.push_back(best);
+    }
+    std::nth_element(gap.begin(), gap.begin() + static_cast<std::ptrdiff_t>(gap.size() / 2), gap.end());
+    const double median = gap[gap.size() / 2];
+    std::cout << "forward-facing export: " << pts.size() << " points, median distance to a sphere " << median
+              << std::endl;
+    EXPECT_LT(median, kForwardExportTolerance);
+    // The export is named in the command's last line, listed in RUN/exports.json and in the rewritten
+    // report's "Exports" table.
+    std::string out = exported.output;
+    while (!out.empty() && out.back() == '\n') out.pop_back();
+    const auto last = nlohmann::json::parse(out.substr(out.rfind('\n') + 1));
+    EXPECT_EQ(last["points"]["path"], t / "points.ply");
+    EXPECT_EQ(last["points"]["count"], static_cast<int64_t>(pts.size()));
+    const auto listed = nlohmann::json::parse(read_file(t / "run/exports.json"));
+    ASSERT_EQ(listed.size(), 1u) << listed.dump();
+    EXPECT_EQ(listed[0]["points"]["path"], t / "points.ply");
+    EXPECT_EQ(listed[0]["depth"], "mean");  // --depth auto: the mean for forward-facing runs
+    EXPECT_TRUE(listed[0].contains("when"));
+    const std::string report = read_file(t / "run/report.html");
+    EXPECT_NE(report.find("<h2>Exports</h2>"), std::string::npos);
+    EXPECT_NE(report.find(t / "points.ply"), std::string::npos);
+  }
   // The video path: eyes in the cameras' plane within their spread, looking at the focus point.
   const Dataset ds = Dataset::load(t / "data");
   const auto c2w = torch::cat({ds.split("train").c2w, ds.split("test").c2w});

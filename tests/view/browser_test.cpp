@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <regex>
@@ -41,7 +42,8 @@ int chromium(const std::string& args, const std::string& url, const std::string&
 struct PageState {
   std::string pose;
   int images = 0;
-  std::string drawn;  // the sizes drawn, in order
+  std::string drawn;             // the sizes drawn, in order
+  int shown_w = 0, shown_h = 0;  // the size the view is shown at (data-display)
 };
 
 PageState page_state(const std::string& dom) {
@@ -50,6 +52,10 @@ PageState page_state(const std::string& dom) {
   if (std::regex_search(dom, m, std::regex("<pre id=\"pose\"[^>]*>([^<]*)</pre>"))) s.pose = m[1];
   if (std::regex_search(dom, m, std::regex("data-images=\"([0-9]+)\""))) s.images = std::stoi(m[1]);
   if (std::regex_search(dom, m, std::regex("data-drawn=\"([0-9x ]*)\""))) s.drawn = m[1];
+  if (std::regex_search(dom, m, std::regex("data-display=\"([0-9]+)x([0-9]+)\""))) {
+    s.shown_w = std::stoi(m[1]);
+    s.shown_h = std::stoi(m[2]);
+  }
   return s;
 }
 
@@ -68,11 +74,16 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
 
   // #half=never|always: whether the page refines through half size (it predicts the full image's
   // render time otherwise, which headless Chromium's virtual clock does not give).
-  ASSERT_EQ(chromium("--dump-dom", url + "#half=never", t / "plain.html"), 0) << read_file(t / "plain.html.log");
+  // #size=32x32 renders the run's own size (the default fills the window: below).
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=never,size=32x32", t / "plain.html"), 0)
+      << read_file(t / "plain.html.log");
   const PageState plain = page_state(read_file(t / "plain.html"));
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=never", t / "window.html"), 0) << read_file(t / "window.html.log");
+  const PageState window = page_state(read_file(t / "window.html"));
   ASSERT_EQ(chromium("--dump-dom", url + "#drag=60,20", t / "drag.html"), 0) << read_file(t / "drag.html.log");
   const PageState dragged = page_state(read_file(t / "drag.html"));
-  ASSERT_EQ(chromium("--dump-dom", url + "#half=always", t / "half.html"), 0) << read_file(t / "half.html.log");
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=always,size=32x32", t / "half.html"), 0)
+      << read_file(t / "half.html.log");
   const PageState half = page_state(read_file(t / "half.html"));
   fs::create_directories("artifacts");
   const std::string shot = fs::absolute("artifacts/viewer.png").string();
@@ -94,6 +105,15 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   // then full.
   EXPECT_EQ(plain.drawn, "8x8 32x32");
   EXPECT_EQ(half.drawn, "8x8 16x16 32x32");
+  // By default the view fills the window (420x360, less the bar: square like the run's camera) and
+  // is rendered at half that size, quarter first, then drawn scaled up.
+  EXPECT_EQ(window.shown_w, window.shown_h);
+  EXPECT_GT(window.shown_w, 100);
+  EXPECT_LE(window.shown_w, 420);
+  const int full = static_cast<int>(std::lround(window.shown_w * 0.5)),
+            quarter = std::max(8, static_cast<int>(std::lround(full * 0.25)));
+  EXPECT_EQ(window.drawn, std::to_string(quarter) + "x" + std::to_string(quarter) + " " + std::to_string(full) + "x" +
+                              std::to_string(full));
   // A finished run: the training bar stays hidden (it was once shown by a CSS display that
   // overrode the hidden attribute).
   EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"),
