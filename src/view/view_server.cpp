@@ -103,6 +103,9 @@ ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveCon
   s.Get("/api/cameras", [this](const httplib::Request&, httplib::Response& res) {
     res.set_content(session_.cameras_json().dump(), "application/json");
   });
+  s.Get("/api/points", [this](const httplib::Request&, httplib::Response& res) {
+    res.set_content(session_.points_json(kViewMaxPoints).dump(), "application/json");
+  });
   s.Get("/api/render", [this](const httplib::Request& req, httplib::Response& res) {
     try {
       const auto pose = pose_param(req);

@@ -4,16 +4,21 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 
+#include "data/ply.h"
 #include "eval/colormap.h"
 #include "eval/evaluate.h"
 #include "eval/renderer.h"
 #include "train/trainer.h"
+#include "util/fs.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
 #include "eval/eval_config.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
+
+namespace fs = std::filesystem;
 
 namespace ablenerf {
 
@@ -112,6 +117,34 @@ nlohmann::json ViewSession::cameras_json() const {
   j["cameras"] = list;
   j["live"] = live_;
   return j;
+}
+
+nlohmann::json ViewSession::points_json(int64_t max_points) const {
+  nlohmann::json out{{"count", 0}, {"points", nlohmann::json::array()}};
+  if (!fs::exists(run_.exports_path())) return out;
+  try {
+    const auto all = nlohmann::json::parse(read_file(run_.exports_path()));
+    for (auto e = all.rbegin(); e != all.rend(); ++e) {
+      if (!e->is_object() || !e->contains("points") || !(*e)["points"].contains("path")) continue;
+      const std::string path = (*e)["points"]["path"].get<std::string>();
+      const bool capture_frame = e->value("frame", std::string("capture")) == "capture";
+      const auto pts = read_ply_points(path);
+      const int64_t n = static_cast<int64_t>(pts.size());
+      const int64_t stride = std::max<int64_t>(1, (n + max_points - 1) / std::max<int64_t>(max_points, 1));
+      std::vector<float> flat;
+      for (int64_t i = 0; i < n; i += stride) {
+        const auto p = capture_frame ? scene_.point_to_scene(pts[static_cast<size_t>(i)]) : pts[static_cast<size_t>(i)];
+        for (const double x : p) flat.push_back(static_cast<float>(x));
+      }
+      out["file"] = path;
+      out["count"] = n;
+      out["points"] = flat;
+      return out;
+    }
+  } catch (const std::exception& e) {
+    out["note"] = std::string("exported points not read: ") + e.what();
+  }
+  return out;
 }
 
 int ViewSession::nearest_camera(const std::array<float, 12>& c2w) const {

@@ -23,6 +23,8 @@ namespace ablenerf {
 // Image sides the viewer renders, in pixels.
 constexpr int kViewMinSide = 8;
 constexpr int kViewMaxSide = 2048;
+// Exported points the page draws over the view at most (a few milliseconds a frame in a browser).
+constexpr int64_t kViewMaxPoints = 20000;
 
 // Rgb: the render; Depth: attention depth, colour-mapped as eval's maps; Error: the render from
 // the dataset camera nearest the asked pose (its pose and camera, at the asked size) against that
@@ -77,6 +79,12 @@ class ViewSession {
   // {"scene", "near", "far", "width", "height", "fx", "fy", "cameras": [[12 numbers, row-major
   // camera-to-world 3x4 in the scene frame], ...], "step"}.
   nlohmann::json cameras_json() const;
+
+  // The points of the run's latest points export (RUN/exports.json: `export --points`) in the scene
+  // frame, evenly thinned to at most `max_points`, for the page to draw over the view:
+  // {"file", "count" (points in the file), "points": [x, y, z, x, y, z, ...]}; with no such export,
+  // or when its file cannot be read, "count" 0 and an empty list (and a "note" saying why).
+  nlohmann::json points_json(int64_t max_points) const;
 
   // The PNG of the view from `c2w` (row-major 3x4, scene frame, OpenGL axes) through a pinhole
   // with the dataset's focal length scaled to `width` (principal point at the centre).

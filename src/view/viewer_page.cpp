@@ -11,7 +11,8 @@
 // <pre id="pose">, body's data-images counts the images drawn and data-drawn lists their sizes (data-first-image-ms and
 // data-first-full-ms time the first ones), #drag=DX,DY in the address plays a drag through the
 // mouse handlers once the cameras are in, and #size=WxH fixes the image size (data-display gives
-// the size shown). The view fills the window by default, rendered at a fraction of that size
+// the size shown), #points=on draws the exported points (data-points-drawn counts those in view). The
+// view fills the window by default, rendered at a fraction of that size
 // ("render": 1/4, 1/2, 1) and drawn scaled up; or it is shown at the camera's size times 1/2, 1, 2.
 #include "view/view_server.h"
 
@@ -34,6 +35,7 @@ select, button { font: inherit; }
   <label>mode <select id="mode"><option>rgb</option><option>depth</option><option>error</option></select></label>
   <label>size <select id="size"><option value="window" selected>window</option><option value="0.5">camera 1/2</option><option value="1">camera</option><option value="2">camera 2x</option></select></label>
   <label>render <select id="fraction"><option value="0.25">1/4</option><option value="0.5" selected>1/2</option><option value="1">1</option></select></label>
+  <label id="points-label" hidden><input type="checkbox" id="points"> <span id="points-count">points</span></label>
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
 </div>
@@ -51,6 +53,7 @@ let info = null, pose = null, target = [0, 0, 0], up = [0, 0, 1];
 let seq = 0, restTimer = null, resting = false, recording = false, recorded = [], markers = [];
 let inflight = false, queued = null;  // one render at a time; the newest view asked meanwhile waits
 let drawnScale = 1, drawnMs = 0;  // the scale of the image on screen and how long it took
+let exported = [];  // the run's exported points (scene frame, x y z flat), drawn over the view when asked
 const canvas = document.getElementById("view"), ctx = canvas.getContext("2d");
 const statusEl = document.getElementById("status");
 const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
@@ -163,6 +166,18 @@ function drawMarkers(w, h) {
     const d = sub(p, o), x = dot(d, col(pose, 0)), y = dot(d, col(pose, 1)), z = dot(d, col(pose, 2));
     return z < -1e-3 ? [w / 2 + fx * x / -z, h / 2 - fy * y / -z] : null;
   };
+  if (document.getElementById("points").checked) {
+    // The exported points where they fall in this view (no occlusion: an overlay, as the frusta).
+    ctx.fillStyle = "rgba(52, 168, 83, 0.75)";
+    let drawn = 0;
+    for (let i = 0; i + 2 < exported.length; i += 3) {
+      const at = project([exported[i], exported[i + 1], exported[i + 2]]);
+      if (!at || at[0] < 0 || at[1] < 0 || at[0] > w || at[1] > h) continue;
+      ctx.fillRect(at[0] - 0.75, at[1] - 0.75, 1.5, 1.5);
+      ++drawn;
+    }
+    document.body.dataset.pointsDrawn = drawn.toString();
+  }
   ctx.lineWidth = 1.5;
   info.cameras.forEach((c, i) => {
     const at = project(col(c, 3));
@@ -269,6 +284,7 @@ window.addEventListener("keydown", e => {
 document.getElementById("mode").addEventListener("change", changed);
 document.getElementById("size").addEventListener("change", changed);
 document.getElementById("fraction").addEventListener("change", changed);
+document.getElementById("points").addEventListener("change", changed);
 let resizeTimer = null;  // a window resize re-renders once it settles
 window.addEventListener("resize", () => {
   if (!info || document.getElementById("size").value !== "window") return;
@@ -312,6 +328,14 @@ fetch("/api/cameras").then(r => r.json()).then(j => {
   const sel = document.getElementById("cams");
   j.cameras.forEach((c, i) => { const o = document.createElement("option"); o.value = i; o.textContent = "camera " + i; sel.appendChild(o); });
   statusEl.textContent = j.cameras.length + " cameras, " + j.scene + " scene";
+  // The run's exported points (`ablenerf export --points`), when it has some: a checkbox draws them.
+  fetch("/api/points").then(r => r.json()).then(p => {
+    if (!p.count) return;
+    exported = p.points;
+    document.getElementById("points-count").textContent = "points (" + p.count + ")";
+    document.getElementById("points-label").hidden = false;
+    if (/points=on/.test(location.hash)) { document.getElementById("points").checked = true; changed(); }
+  });
   jump(0);
   // #drag=DX,DY: a scripted drag through the real mouse handlers (the headless-browser test).
   const m = /drag=(-?[0-9.]+),(-?[0-9.]+)/.exec(location.hash);

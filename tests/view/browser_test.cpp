@@ -44,6 +44,7 @@ struct PageState {
   int images = 0;
   std::string drawn;             // the sizes drawn, in order
   int shown_w = 0, shown_h = 0;  // the size the view is shown at (data-display)
+  int points_drawn = -1;         // exported points drawn over the view (data-points-drawn)
 };
 
 PageState page_state(const std::string& dom) {
@@ -52,6 +53,7 @@ PageState page_state(const std::string& dom) {
   if (std::regex_search(dom, m, std::regex("<pre id=\"pose\"[^>]*>([^<]*)</pre>"))) s.pose = m[1];
   if (std::regex_search(dom, m, std::regex("data-images=\"([0-9]+)\""))) s.images = std::stoi(m[1]);
   if (std::regex_search(dom, m, std::regex("data-drawn=\"([0-9x ]*)\""))) s.drawn = m[1];
+  if (std::regex_search(dom, m, std::regex("data-points-drawn=\"([0-9]+)\""))) s.points_drawn = std::stoi(m[1]);
   if (std::regex_search(dom, m, std::regex("data-display=\"([0-9]+)x([0-9]+)\""))) {
     s.shown_w = std::stoi(m[1]);
     s.shown_h = std::stoi(m[2]);
@@ -80,6 +82,19 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
   const PageState plain = page_state(read_file(t / "plain.html"));
   ASSERT_EQ(chromium("--dump-dom", url + "#half=never", t / "window.html"), 0) << read_file(t / "window.html.log");
   const PageState window = page_state(read_file(t / "window.html"));
+  // Exported points (scene frame) around the origin the cameras look at: #points=on draws them.
+  std::string ply =
+      "ply\nformat ascii 1.0\nelement vertex 27\nproperty float x\nproperty float y\nproperty float z\n"
+      "end_header\n";
+  for (int i = 0; i < 27; ++i)
+    ply += std::to_string(0.2 * (i % 3 - 1)) + " " + std::to_string(0.2 * (i / 3 % 3 - 1)) + " " +
+           std::to_string(0.2 * (i / 9 - 1)) + "\n";
+  test::write_file(t / "run/points.ply", ply);
+  test::write_file(t / "run/exports.json",
+                   "[{\"frame\": \"scene\", \"points\": {\"path\": \"" + t / "run/points.ply" + "\"}}]");
+  ASSERT_EQ(chromium("--dump-dom", url + "#half=never,size=32x32,points=on", t / "points.html"), 0)
+      << read_file(t / "points.html.log");
+  const PageState points = page_state(read_file(t / "points.html"));
   ASSERT_EQ(chromium("--dump-dom", url + "#drag=60,20", t / "drag.html"), 0) << read_file(t / "drag.html.log");
   const PageState dragged = page_state(read_file(t / "drag.html"));
   ASSERT_EQ(chromium("--dump-dom", url + "#half=always,size=32x32", t / "half.html"), 0)
@@ -114,6 +129,9 @@ TEST(ViewerPage, LoadsDrawsAndADragMovesTheCamera) {
             quarter = std::max(8, static_cast<int>(std::lround(full * 0.25)));
   EXPECT_EQ(window.drawn, std::to_string(quarter) + "x" + std::to_string(quarter) + " " + std::to_string(full) + "x" +
                               std::to_string(full));
+  // The exported points are drawn over the view: all 27 lie in front of camera 0, within its image.
+  EXPECT_EQ(points.points_drawn, 27);
+  EXPECT_EQ(plain.points_drawn, -1);  // without the checkbox (the plain page had no export yet)
   // A finished run: the training bar stays hidden (it was once shown by a CSS display that
   // overrode the hidden attribute).
   EXPECT_NE(read_file(t / "plain.html").find("id=\"livebar\" style=\"padding: 0 10px 6px; display: none;"),

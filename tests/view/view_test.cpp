@@ -189,3 +189,52 @@ TEST(ViewServer, TwoClientsAndAStalledOne) {
   ASSERT_TRUE(after);
   EXPECT_EQ(after->status, 200);
 }
+
+// The run's latest points export comes back in the scene frame (exports.json says the file is in
+// the capture's coordinates), evenly thinned to the asked count; a run without exports has none,
+// and the endpoint answers the same.
+TEST(ViewServer, ExportedPointsInTheSceneFrame) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 2, 2, 16, 16, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  {
+    const ViewSession none(t / "run", torch::kCPU);
+    EXPECT_EQ(none.points_json(10).at("count"), 0);
+    EXPECT_TRUE(none.points_json(10).at("points").empty());
+  }
+  // A scene frame that is not the identity: x_scene = 2 R (x - c), R a quarter turn about z.
+  SceneFrame frame = RunFolder::open(t / "run").scene();
+  frame.rotation = {0, -1, 0, 1, 0, 0, 0, 0, 1};
+  frame.centre = {1.0, 0.5, -0.25};
+  frame.scale = 2.0;
+  test::write_file(t / "run/scene.json", frame.to_json());
+  const std::vector<std::array<double, 3>> pts{{0, 0, 0}, {1, 2, 3}, {-1, 0.5, 2}, {4, 4, 4}, {0.5, -0.5, 1}};
+  std::string ply =
+      "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+      "end_header\n";
+  for (const auto& p : pts)
+    ply += std::to_string(p[0]) + " " + std::to_string(p[1]) + " " + std::to_string(p[2]) + "\n";
+  test::write_file(t / "run/points.ply", ply);
+  test::write_file(t / "run/exports.json", "[{\"frame\": \"capture\", \"points\": {\"path\": \"" +
+                                               t / "run/points.ply" + "\", \"count\": 5}}]");
+  const ViewSession session(t / "run", torch::kCPU);
+  const auto j = session.points_json(3);  // 5 points to at most 3: every second one
+  EXPECT_EQ(j.at("count"), 5);
+  const auto flat = j.at("points").get<std::vector<float>>();
+  ASSERT_EQ(flat.size(), 9u);
+  for (size_t k = 0; k < 3; ++k) {
+    const auto& p = pts[2 * k];
+    // By hand: d = p - c; R d = (-d_y, d_x, d_z); times 2.
+    const double dx = p[0] - 1.0, dy = p[1] - 0.5, dz = p[2] + 0.25;
+    EXPECT_NEAR(flat[3 * k + 0], 2 * -dy, 1e-5) << k;
+    EXPECT_NEAR(flat[3 * k + 1], 2 * dx, 1e-5) << k;
+    EXPECT_NEAR(flat[3 * k + 2], 2 * dz, 1e-5) << k;
+  }
+  // Over HTTP: a served run without exports answers an empty list.
+  Served s;
+  httplib::Client cli("127.0.0.1", s.port());
+  auto r = cli.Get("/api/points");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200);
+  EXPECT_EQ(nlohmann::json::parse(r->body).at("count"), 0);
+}
