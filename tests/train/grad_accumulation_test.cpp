@@ -204,15 +204,8 @@ TEST(GradAccumulation, CameraRefineGradientsEqualOneBackwardOverTheCorrectedRays
   const test::IntraOpThreads threads(2);
   for (const bool grid : {false, true}) {
     torch::manual_seed(10);
-    ModelConfig mc = test::two_head_model();
-    if (grid) {
-      mc.embedding = Embedding::Grid;
-      mc.grid_levels = 3;
-      mc.grid_log2_table = 8;
-      mc.grid_base_resolution = 4;
-      mc.grid_max_resolution = 16;
-      mc.grid_bound = 6;
-    }
+    // The grid's cube reaches 6 so that the test rays' samples fall inside it.
+    const ModelConfig mc = grid ? test::two_head_grid_model(3, 8, 4, 16, 6.0) : test::two_head_model();
     AbleNerf model(mc);
     model->enable_camera_refine(4);
     const auto dtype = grid ? torch::kFloat : torch::kDouble;

@@ -40,15 +40,9 @@ std::pair<torch::Tensor, torch::Tensor> random_rays_weights(int64_t b, int64_t s
 }
 
 ModelConfig regulariser_model(bool grid) {
-  ModelConfig m = test::two_head_model();
-  if (grid) {
-    m.embedding = Embedding::Grid;
-    m.grid_levels = 3;
-    m.grid_log2_table = 6;
-    m.grid_base_resolution = 2;
-    m.grid_max_resolution = 8;
-    m.grid_lr_scale = 3;
-  }
+  if (!grid) return test::two_head_model();
+  ModelConfig m = test::two_head_grid_model(3, 6, 2, 8, ModelConfig{}.grid_bound);
+  m.grid_lr_scale = 3;
   return m;
 }
 

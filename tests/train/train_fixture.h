@@ -53,6 +53,19 @@ inline ModelConfig two_head_model() {
   return m;
 }
 
+// two_head_model() on a small hash grid front end: `levels` levels from `base` to `max` cells per
+// side, 2^log2_table rows per level, the grid's cube of half-side `bound` (scene units).
+inline ModelConfig two_head_grid_model(int levels, int log2_table, int base, int max, double bound) {
+  ModelConfig m = two_head_model();
+  m.embedding = Embedding::Grid;
+  m.grid_levels = levels;
+  m.grid_log2_table = log2_table;
+  m.grid_base_resolution = base;
+  m.grid_max_resolution = max;
+  m.grid_bound = bound;
+  return m;
+}
+
 // A 16x16 synthetic scene with 4 train and 2 test views, written once per process.
 inline const std::string& tiny_dataset() {
   static TempDir dir("ablenerf_tiny_data");
