@@ -18,6 +18,7 @@ AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::T
   d.mean = (w * mid).sum(1) / w.sum(1).clamp_min(kMinAttentionMass);
   d.argmax = mid.gather(1, w.argmax(1, /*keepdim=*/true)).squeeze(1);
   d.front = depth_at_attention_share(weights, t, kAttentionFrontShare);
+  d.median = depth_at_attention_share(weights, t, 0.5);
   return d;
 }
 
@@ -54,6 +55,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
   out.rgb = torch::empty({n, 3}, f32);
   out.depth_mean = torch::empty({n}, f32);
   out.depth_front = torch::empty({n}, f32);
+  out.depth_median = torch::empty({n}, f32);
   out.depth_argmax = torch::empty({n}, f32);
   if (opts.branches) {
     out.ray_colour = torch::empty({n, 3}, f32);
@@ -79,6 +81,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
     out.depth_mean.slice(0, begin, end).copy_(depth.mean);
     out.depth_argmax.slice(0, begin, end).copy_(depth.argmax);
     out.depth_front.slice(0, begin, end).copy_(depth.front);
+    out.depth_median.slice(0, begin, end).copy_(depth.median);
     if (opts.branches) {
       out.ray_colour.slice(0, begin, end).copy_(m.ray_colour_fine);
       out.le_colour.slice(0, begin, end).copy_(m.le_colour_fine);
@@ -89,6 +92,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
   out.depth_mean = out.depth_mean.view({h, w}).cpu();
   out.depth_argmax = out.depth_argmax.view({h, w}).cpu();
   out.depth_front = out.depth_front.view({h, w}).cpu();
+  out.depth_median = out.depth_median.view({h, w}).cpu();
   if (opts.branches) {
     out.ray_colour = out.ray_colour.view({h, w, 3}).cpu();
     out.le_colour = out.le_colour.view({h, w, 3}).cpu();

@@ -18,6 +18,7 @@ struct RenderResult {
   torch::Tensor depth_mean;    // (H,W) sum_i w_i tmid_i / sum_i w_i over the fine volumes
   torch::Tensor depth_argmax;  // (H,W) mid-point of the most-attended fine volume
   torch::Tensor depth_front;   // (H,W) the fine attention's front (AttentionDepth): the surface
+  torch::Tensor depth_median;  // (H,W) the fine attention's median (AttentionDepth)
   // With ForwardOptions::branches: the fine branch colours before tone mapping (linear, not
   // clipped); undefined otherwise.
   torch::Tensor ray_colour, le_colour;  // (H,W,3)
@@ -35,6 +36,8 @@ struct AttentionDepth {
   // it (docs/MODEL.md, section 4), so the ray token's attention lies at and behind the surface and
   // its front edge, not its mean, is where the surface is (docs/MODEL.md, section 9).
   torch::Tensor front;
+  // (B) where half of it lies nearer (the median); with the front, how concentrated it is.
+  torch::Tensor median;
 };
 // The share of the attention in front of the surface: measured on the demo scene's exact depth,
 // 0.15 gave the least error across an IPE and a grid model (docs/BENCHMARKS.md, "Depth from the

@@ -173,12 +173,17 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
       r.depth_mean = metric(r.depth_mean);
       r.depth_argmax = metric(r.depth_argmax);
       r.depth_front = metric(r.depth_front);
+      r.depth_median = metric(r.depth_median);
       near = 0;
       far = kUnboundedFar;
     }
-    // A pixel counts where the attention's mean and argmax depths agree (it looked at one place)
-    // and, with alpha masks, where the photo is opaque.
-    auto agree = (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
+    // A pixel counts where the attention looked at one place and, with alpha masks, where the photo
+    // is opaque.
+    // Where the attention is concentrated, by the estimate's own pair: the front with the median
+    // (quantiles, so a far tail of unbounded scenes' samples, reaching 1e6, does not count), the
+    // mean with the argmax.
+    auto agree = use_front ? (r.depth_median - r.depth_front).abs() <= opts.agreement * r.depth_front.abs()
+                           : (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
     const auto& depth = use_front ? r.depth_front : r.depth_mean;
     if (opts.alpha_mask) {
       const auto alpha = photo_alpha(*frames[static_cast<size_t>(i)], capture, k);

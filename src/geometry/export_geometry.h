@@ -1,7 +1,7 @@
 #pragma once
 // `ablenerf export --points / --mesh` as a library call (docs/ARCHITECTURE.md, "Geometry out"): the
 // run's model renders colour and depth (attention depth, docs/MODEL.md section 9) from the capture's
-// own cameras; pixels whose mean and argmax depths agree (the attention picked one place) become
+// own cameras; pixels where the attention picked one place (two of its depths agree) become
 // points, which are cleaned and thinned (fuse.h), or their depth maps are fused into a TSDF and
 // meshed, or the oriented points are meshed by Poisson reconstruction. Everything is computed in
 // the run's scene frame and written in the capture's own coordinates (or the scene frame).
@@ -38,7 +38,8 @@ struct GeometryOptions {
   // forward-facing runs, the mean (measured on the forward-facing test capture: the front's points
   // lay 0.54 from the surfaces, the mean's 0.17; the front's case rests on bounded scenes).
   DepthEstimate depth = DepthEstimate::Auto;
-  // Mean and argmax attention depths must agree within this share of the depth for a pixel to count.
+  // A pixel counts where the attention looked at one place: its front and median depths (with the
+  // front) or its mean and argmax depths (with the mean) agree within this share of the depth.
   double agreement = 0.05;
   // Use the photos' alpha where they have one (Blender's RGBA renders): transparent pixels are
   // background and give no geometry.
