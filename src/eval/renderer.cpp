@@ -2,11 +2,35 @@
 
 #include <algorithm>
 #include <optional>
+#include <vector>
 
 namespace ablenerf {
 namespace {
 // Keeps the mean depth finite for a ray whose volume attention underflows to zero everywhere.
 constexpr double kMinAttentionMass = 1e-12;
+
+// Where the normalised attention's cumulative sum reaches each of `shares` (each in (0, 1)),
+// linearly inside the interval that crosses it: (B, shares.size()), from one cumulative sum.
+torch::Tensor depths_at_attention_shares(const torch::Tensor& weights, const torch::Tensor& t,
+                                         const std::vector<double>& shares) {
+  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) && t.size(1) == weights.size(1) + 1,
+              "depth_at_attention_share: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ",
+              t.sizes());
+  for (const double share : shares)
+    TORCH_CHECK(share > 0 && share < 1, "depth_at_attention_share: share must lie in (0, 1), got ", share);
+  const auto w = weights.to(t.scalar_type());
+  // The interval i whose cumulative share first reaches each level, then linearly inside it.
+  const auto part = w / w.sum(1, /*keepdim=*/true).clamp_min(kMinAttentionMass);
+  const auto cdf = part.cumsum(1).contiguous();  // (B,S)
+  const auto level = torch::tensor(shares, cdf.options()).unsqueeze(0).expand({w.size(0), -1}).contiguous();
+  const auto i = torch::searchsorted(cdf, level).clamp_max(w.size(1) - 1);  // (B,K)
+  const auto before = cdf.gather(1, (i - 1).clamp_min(0)) * (i > 0);
+  const auto own = part.gather(1, i);
+  const auto frac = ((level - before) / own.clamp_min(kMinAttentionMass)).clamp(0.0, 1.0);
+  const auto t0 = t.gather(1, i), t1 = t.gather(1, i + 1);
+  return t0 + frac * (t1 - t0);
+}
+
 }  // namespace
 
 AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::Tensor& t) {
@@ -17,27 +41,14 @@ AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::T
   AttentionDepth d;
   d.mean = (w * mid).sum(1) / w.sum(1).clamp_min(kMinAttentionMass);
   d.argmax = mid.gather(1, w.argmax(1, /*keepdim=*/true)).squeeze(1);
-  d.front = depth_at_attention_share(weights, t, kAttentionFrontShare);
-  d.median = depth_at_attention_share(weights, t, 0.5);
+  const auto shares = depths_at_attention_shares(weights, t, {kAttentionFrontShare, 0.5});
+  d.front = shares.select(1, 0);
+  d.median = shares.select(1, 1);
   return d;
 }
 
 torch::Tensor depth_at_attention_share(const torch::Tensor& weights, const torch::Tensor& t, double share) {
-  TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) && t.size(1) == weights.size(1) + 1,
-              "depth_at_attention_share: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ",
-              t.sizes());
-  TORCH_CHECK(share > 0 && share < 1, "depth_at_attention_share: share must lie in (0, 1), got ", share);
-  const auto w = weights.to(t.scalar_type());
-  // The interval i whose cumulative share first reaches `share`, then linearly inside it.
-  const auto part = w / w.sum(1, /*keepdim=*/true).clamp_min(kMinAttentionMass);
-  const auto cdf = part.cumsum(1).contiguous();  // (B,S)
-  const auto level = torch::full({w.size(0), 1}, share, cdf.options());
-  const auto i = torch::searchsorted(cdf, level).clamp_max(w.size(1) - 1);  // (B,1)
-  const auto before = (cdf.gather(1, (i - 1).clamp_min(0)) * (i > 0)).squeeze(1);
-  const auto own = part.gather(1, i).squeeze(1);
-  const auto frac = ((share - before) / own.clamp_min(kMinAttentionMass)).clamp(0.0, 1.0);
-  const auto t0 = t.gather(1, i).squeeze(1), t1 = t.gather(1, i + 1).squeeze(1);
-  return t0 + frac * (t1 - t0);
+  return depths_at_attention_shares(weights, t, {share}).squeeze(1);
 }
 
 RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& k, double near, double far,

@@ -135,14 +135,13 @@ std::string summary_section(const RunFolder& run, const RunLog& log) {
 // last: the files, their sizes and times. Nothing when the run has no exports; a file that cannot
 // be read is said in one line instead of failing the report.
 std::string exports_section(const RunFolder& run) {
-  if (!fs::exists(run.exports_path())) return "";
   nlohmann::json all;
   try {
-    all = nlohmann::json::parse(read_file(run.exports_path()));
-  } catch (const std::exception&) {
-    return "<h2>Exports</h2><p class=\"note\">" + html_escape(run.exports_path()) + " is not readable JSON.</p>";
+    all = run.exports();
+  } catch (const std::exception& e) {
+    return "<h2>Exports</h2><p class=\"note\">" + html_escape(e.what()) + "</p>";
   }
-  if (!all.is_array() || all.empty()) return "";
+  if (all.empty()) return "";
   std::ostringstream s;
   s << "<h2>Exports</h2><table><tr><th>when</th><th>file</th><th>what</th><th>frame</th><th>seconds</th></tr>";
   const auto cell = [](const nlohmann::json& e, const char* key) {

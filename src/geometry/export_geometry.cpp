@@ -123,10 +123,11 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   const bool forward = scene.kind == SceneKind::ForwardFacing;
   const bool box_from_points = forward && !opts.crop;
   const bool use_front = opts.depth == DepthEstimate::Front || (opts.depth == DepthEstimate::Auto && !forward);
-  CropBox scene_box = opts.crop ? scene_box_of(*opts.crop, scene, opts.scene_frame) : default_crop(run, scene);
-  if (box_from_points)
-    scene_box =
-        CropBox{{-kUnboundedFar, -kUnboundedFar, -kUnboundedFar}, {kUnboundedFar, kUnboundedFar, kUnboundedFar}};
+  // (A forward-facing box from the points is set once they are known; until then nothing is cropped.)
+  CropBox scene_box = opts.crop         ? scene_box_of(*opts.crop, scene, opts.scene_frame)
+                      : box_from_points ? CropBox{{-kUnboundedFar, -kUnboundedFar, -kUnboundedFar},
+                                                  {kUnboundedFar, kUnboundedFar, kUnboundedFar}}
+                                        : default_crop(run, scene);
   if (!box_from_points) check_tsdf_volume(opts, scene_box);
 
   // The cameras: every one of the capture's (all splits), evenly thinned to opts.views.
@@ -177,11 +178,9 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
       near = 0;
       far = kUnboundedFar;
     }
-    // A pixel counts where the attention looked at one place and, with alpha masks, where the photo
-    // is opaque.
-    // Where the attention is concentrated, by the estimate's own pair: the front with the median
-    // (quantiles, so a far tail of unbounded scenes' samples, reaching 1e6, does not count), the
-    // mean with the argmax.
+    // A pixel counts where the attention looked at one place, by the estimate's own pair of depths
+    // (the front with the median: quantiles, so a far tail of unbounded scenes' samples, reaching
+    // 1e6, does not count; the mean with the argmax), and, with alpha masks, where the photo is opaque.
     auto agree = use_front ? (r.depth_median - r.depth_front).abs() <= opts.agreement * r.depth_front.abs()
                            : (r.depth_mean - r.depth_argmax).abs() <= opts.agreement * r.depth_mean.abs();
     const auto& depth = use_front ? r.depth_front : r.depth_mean;
@@ -202,11 +201,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     const PointSet raw = concat_points(sets);
     if (raw.size() == 0) throw InputError("export", "--crop", "the run's depth gave no point to export");
     scene_box = CropBox::around(raw.xyz, kForwardBoxShare, kForwardBoxMargin);
-    for (auto& set : sets) {
-      const auto keep = scene_box.inside(set.xyz).nonzero().squeeze(-1);
-      set = PointSet{set.xyz.index_select(0, keep), set.rgb.index_select(0, keep),
-                     set.normals.defined() ? set.normals.index_select(0, keep) : torch::Tensor()};
-    }
+    for (auto& set : sets) set = crop_points(set, scene_box);
     // Each view's rows of `eyes` are its camera centre repeated: as many as its points left.
     for (size_t v = 0; v < sets.size(); ++v) eyes[v] = eyes[v].slice(0, 0, sets[v].size());
     check_tsdf_volume(opts, scene_box);
@@ -290,15 +285,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
 }
 
 void record_export(const RunFolder& run, const nlohmann::json& result) {
-  nlohmann::json all = nlohmann::json::array();
-  if (fs::exists(run.exports_path())) {
-    try {
-      all = nlohmann::json::parse(read_file(run.exports_path()));
-    } catch (const nlohmann::json::exception&) {
-      throw InputError(run.exports_path(), "", "invalid JSON (move it away to start a new list)");
-    }
-    if (!all.is_array()) throw InputError(run.exports_path(), "", "expected a JSON array of exports");
-  }
+  nlohmann::json all = run.exports();
   nlohmann::json entry = result;
   const std::time_t now = std::time(nullptr);
   char when[32];

@@ -66,6 +66,18 @@ void RunFolder::remove_stale_temporaries() const {
 
 void RunFolder::write_scene(const SceneFrame& scene) const { write_file_atomic(scene_path(), scene.to_json()); }
 
+nlohmann::json RunFolder::exports() const {
+  if (!fs::exists(exports_path())) return nlohmann::json::array();
+  nlohmann::json all;
+  try {
+    all = nlohmann::json::parse(read_file(exports_path()));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(exports_path(), "", "invalid JSON (move it away to start a new list)");
+  }
+  if (!all.is_array()) throw InputError(exports_path(), "", "expected a JSON array of exports");
+  return all;
+}
+
 SceneFrame RunFolder::scene() const {
   if (fs::exists(scene_path())) return SceneFrame::from_json(read_file(scene_path()), scene_path());
   SceneFrame f;

@@ -13,6 +13,7 @@
 //   RUN/exports.json    what `export --points / --mesh` wrote, one object per export (geometry/export_geometry.h)
 #include <torch/torch.h>
 
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "data/scene_frame.h"
@@ -38,6 +39,10 @@ struct RunFolder {
   std::string report_path() const { return path("report.html"); }
   std::string scene_path() const { return path("scene.json"); }
   std::string exports_path() const { return path("exports.json"); }
+
+  // RUN/exports.json's list (geometry/export_geometry.h writes it): an empty array when the run
+  // has none; InputError naming the file when it is not JSON or not an array.
+  nlohmann::json exports() const;
 
   // RUN/scene.json, written atomically by `train`.
   void write_scene(const SceneFrame& scene) const;

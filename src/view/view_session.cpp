@@ -4,21 +4,17 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <filesystem>
 
 #include "data/ply.h"
 #include "eval/colormap.h"
 #include "eval/evaluate.h"
 #include "eval/renderer.h"
 #include "train/trainer.h"
-#include "util/fs.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
 #include "eval/eval_config.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
-
-namespace fs = std::filesystem;
 
 namespace ablenerf {
 
@@ -121,9 +117,8 @@ nlohmann::json ViewSession::cameras_json() const {
 
 nlohmann::json ViewSession::points_json(int64_t max_points) const {
   nlohmann::json out{{"count", 0}, {"points", nlohmann::json::array()}};
-  if (!fs::exists(run_.exports_path())) return out;
   try {
-    const auto all = nlohmann::json::parse(read_file(run_.exports_path()));
+    const auto all = run_.exports();
     for (auto e = all.rbegin(); e != all.rend(); ++e) {
       if (!e->is_object() || !e->contains("points") || !(*e)["points"].contains("path")) continue;
       const std::string path = (*e)["points"]["path"].get<std::string>();
