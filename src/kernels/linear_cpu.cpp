@@ -28,8 +28,10 @@ torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weigh
 // kRowsPerBlock at a time, and the blocks' partials into the total (two levels, so the rounding
 // grows with kRowsPerBlock + M / kRowsPerBlock, not M); the inner loop runs along a row and
 // vectorises. Why not dy.sum(0): over the model's narrow token matrices (a 128-ray slice is 2,176
-// rows of 48-144 features) ATen's reduction over the outer dimension took ~80 us per call, ~4x this
-// loop, 44 calls per training step at the capture preset (docs/BENCHMARKS.md).
+// rows of 48-144 features) ATen's reduction over the outer dimension took ~80 us per call, 44 calls
+// and 3.65 ms of a ~46 ms training step at the capture preset (`ablenerf bench --config
+// configs/capture.toml --set data.scene=unbounded --rays 256 --trace T`, 2-vCPU AMD EPYC VM,
+// 2026-11-26); this loop's own time was not measured apart.
 torch::Tensor column_sums(const torch::Tensor& dy) {
   constexpr int64_t kRowsPerBlock = 256;
   const int64_t m = dy.size(0), n = dy.size(1);
