@@ -15,6 +15,8 @@
 #   lego5      ablenerf on lego for $BUDGET seconds with configs/budget.toml, PSNR on test views 0-5
 #              (LEGO5_SET="k=v k=v": extra settings, e.g. LEGO5_SET=train.ray_sampling=error)
 #   capture    real captures (CAPTURES, default .carry/fox4 .carry/fox4_sfm) for $CAPTURE_BUDGET s each + eval
+#              (CAPTURE_CONFIG, default configs/budget.toml; CAPTURE_SET="k=v ..." for all of them,
+#              CAPTURE_SET_<folder name>="k=v ..." for one, e.g. CAPTURE_SET_fox4_sfm=train.camera_refine=true)
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
@@ -117,9 +119,10 @@ stage_test() {
 }
 
 stage_gputest() {
-  (cd build-cuda && ctest -L gpu --output-on-failure --timeout 600) > "$OUT/ctest_gpu.log" 2>&1
+  # Verbose: GoogleTest's own lines show which tests ran and which skipped (a skip passes ctest).
+  (cd build-cuda && ctest -L gpu -V --timeout 600) > "$OUT/ctest_gpu.log" 2>&1
   local rc=$?
-  grep -E "tests passed|tests failed|Failed|Passed|SKIPPED|FAILED" "$OUT/ctest_gpu.log" | tail -15
+  grep -E "tests passed|tests failed|PASSED|SKIPPED|FAILED" "$OUT/ctest_gpu.log" | tail -15
   return $rc
 }
 
@@ -211,15 +214,16 @@ stage_lego5() {
 # CAPTURE_BUDGET seconds (default 120) with configs/budget.toml, then evaluated on its held-out views
 # (every 8th image); CAPTURE_SET="k=v ..." adds settings, DEVICE=cpu makes a dry run here. The run of the first stays in /tmp/cap_<name> for the view stage.
 stage_capture() {
-  local rc=0 dir name run t0 extra=() kv
-  for kv in ${CAPTURE_SET:-}; do extra+=(--set "$kv"); done
+  local rc=0 dir name run t0 extra kv own
   for dir in ${CAPTURES:-.carry/fox4 .carry/fox4_sfm}; do
     [ -d "$dir" ] || { echo "capture: $dir not carried"; rc=1; continue; }
+    own=CAPTURE_SET_$(basename "$dir") extra=()
+    for kv in ${CAPTURE_SET:-} ${!own:-}; do extra+=(--set "$kv"); done
     # fox4_sfm travels without its photos, which are fox4's (scripts/carry.sh).
     [ "$(basename "$dir")" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
     name=$(basename "$dir") run=/tmp/cap_$(basename "$dir") t0=$SECONDS
     rm -rf "$run"
-    $bin train --data "$dir" --config configs/budget.toml --out "$run" --device "${DEVICE:-cuda}" \
+    $bin train --data "$dir" --config "${CAPTURE_CONFIG:-configs/budget.toml}" --out "$run" --device "${DEVICE:-cuda}" \
       --set train.time_budget_s="${CAPTURE_BUDGET:-120}" "${extra[@]}" > "$OUT/cap_${name}_train.log" 2>&1 || {
       rc=1; echo "capture $name: train FAILED"; grep -m3 -E "error|what\(\)" "$OUT/cap_${name}_train.log" | cut -c1-400; continue; }
     echo "capture $name: trained in $((SECONDS - t0)) s wall; $(grep -m1 -iE "unbounded|contract|ndc" "$OUT/cap_${name}_train.log" | cut -c1-200)"

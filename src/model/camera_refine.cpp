@@ -20,8 +20,22 @@ torch::Tensor CameraRefineImpl::rotations() const {
   const auto zero = torch::zeros_like(w.select(1, 0));
   const auto x = w.select(1, 0), y = w.select(1, 1), z = w.select(1, 2);
   // [w]x, the cross-product matrix: [w]x v = w x v.
-  const auto skew = torch::stack({zero, -z, y, z, zero, -x, -y, x, zero}, 1).view({-1, 3, 3});
-  return torch::matrix_exp(skew);
+  const auto k = torch::stack({zero, -z, y, z, zero, -x, -y, x, zero}, 1).view({-1, 3, 3});
+  // Rodrigues' formula in closed form, exp([w]x) = I + a [w]x + b [w]x^2 with a = sin(q)/q and
+  // b = (1 - cos q)/q^2 = sinc(q/2)^2 / 2 for the angle q = |w|, written without 1 - cos q (which
+  // cancels in float32 at small angles). Not torch::matrix_exp: on CUDA it copies the matrices'
+  // norms to the host to choose its degree, a synchronisation that a CUDA graph's capture refuses
+  // (the first GPU run with camera refinement stopped there). At q^2 < 1e-4 (zero included, where
+  // the closed form divides 0 by 0) the series to q^4, whose first dropped term is q^6/5040.
+  const auto q2 = (w * w).sum(1).view({-1, 1, 1});
+  const auto small = q2 < 1e-4;
+  const auto q = torch::where(small, torch::ones_like(q2), q2).sqrt();
+  const auto half = q * 0.5;
+  const auto sinc_half = torch::sin(half) / half;
+  const auto a = torch::where(small, 1 - q2 / 6 + q2 * q2 / 120, torch::sin(q) / q);
+  const auto b = torch::where(small, 0.5 - q2 / 24 + q2 * q2 / 720, 0.5 * sinc_half * sinc_half);
+  const auto eye = torch::eye(3, w.options()).expand_as(k);
+  return eye + a * k + b * torch::matmul(k, k);
 }
 
 Rays CameraRefineImpl::forward(const Rays& rays, const torch::Tensor& photo) {

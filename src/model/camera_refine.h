@@ -39,7 +39,8 @@ class CameraRefineImpl : public torch::nn::Module {
   // The parameter itself (correction() / lr_scale()) and the scale.
   const torch::Tensor& parameter() const { return param_; }
   double lr_scale() const { return lr_scale_; }
-  // (cameras, 3, 3): exp([w]x) of every camera (Rodrigues' formula through the matrix exponential).
+  // (cameras, 3, 3): exp([w]x) of every camera (Rodrigues' formula in closed form, no host copy:
+  // it runs inside a captured CUDA graph).
   torch::Tensor rotations() const;
   // The corrected camera-to-world matrices (cameras, 3, 4) of the given ones (cameras, 3 or 4, 4).
   torch::Tensor corrected(const torch::Tensor& c2w) const;

@@ -123,6 +123,44 @@ TEST(CameraRefine, GradientMatchesFiniteDifferences) {
   EXPECT_LT(test::max_abs(grad[1].slice(0, 3, 6) - (go[3] - go.sum(0) / 3)), 1e-12);
 }
 
+// The closed form against ATen's matrix exponential of the same cross-product matrices, values and
+// gradients, at angles on both sides of the series' threshold (q^2 = 1e-4), zero included; and in
+// float32 against float64 (the closed form has no 1 - cos q to cancel).
+TEST(CameraRefine, RotationsAndGradientsMatchTheMatrixExponential) {
+  const std::vector<double> angles = {0.0, 1e-6, 1e-3, 0.0099, 0.0101, 0.3, 1.5, 3.0};
+  const auto axes = torch::nn::functional::normalize(test::seeded_randn({static_cast<int64_t>(angles.size()), 3}, 11),
+                                                     torch::nn::functional::NormalizeFuncOptions().dim(1));
+  const auto c = torch::zeros({static_cast<int64_t>(angles.size()), 6}, torch::kDouble);
+  c.slice(1, 0, 3).copy_(axes * torch::tensor(angles, torch::kDouble).unsqueeze(1));
+  c.slice(1, 3, 6).copy_(test::seeded_randn({static_cast<int64_t>(angles.size()), 3}, 12));
+  const auto g = test::seeded_randn({static_cast<int64_t>(angles.size()), 3, 3}, 13);
+
+  auto cr = with_corrections(c);
+  const auto r = cr->rotations();
+  (r * g).sum().backward();
+  const auto grad = cr->parameter().grad() / cr->lr_scale();  // d/d(correction) = d/d(parameter) / scale
+
+  const auto w = c.slice(1, 0, 3).clone().requires_grad_(true);
+  const auto zero = torch::zeros_like(w.select(1, 0));
+  const auto x = w.select(1, 0), y = w.select(1, 1), z = w.select(1, 2);
+  const auto k = torch::stack({zero, -z, y, z, zero, -x, -y, x, zero}, 1).view({-1, 3, 3});
+  const auto ref = torch::matrix_exp(k);
+  (ref * g).sum().backward();
+  EXPECT_LT(test::max_abs(r.detach() - ref.detach()), 1e-12);
+  EXPECT_LT(test::max_abs(grad.slice(1, 0, 3) - w.grad()), 1e-12);
+  EXPECT_LT(test::max_abs(grad.slice(1, 3, 6)), 1e-15);  // the shift does not turn the camera
+  // Rotations: orthonormal with determinant one.
+  const auto rrt = torch::matmul(r, r.transpose(1, 2)).detach();
+  EXPECT_LT(test::max_abs(rrt - torch::eye(3, torch::kDouble).expand_as(rrt)), 1e-14);
+
+  CameraRefine f32(c.size(0), kCameraRefineLrScale, false);
+  {
+    torch::NoGradGuard no_grad;
+    f32->parameter().copy_((c / f32->lr_scale()).to(torch::kFloat));
+  }
+  EXPECT_LT(test::max_abs(f32->rotations().to(torch::kDouble) - r.detach()), 1e-6);
+}
+
 TEST(CameraRefine, WeightsCarryTheCorrectionsIntoAModelMadeWithoutThem) {
   test::TempDir dir;
   const ModelConfig cfg = test::tiny_model_config().get<ModelConfig>();

@@ -93,6 +93,28 @@ TEST(TrainerGpu, GraphEqualsEagerThroughALensUnbounded) {
   expect_graph_equals_eager(c, data.path());
 }
 
+// The capture preset's additions and the phone-capture options through the captured step: the hash
+// grid front end and its normalised decay, the proposal sampler, per-photo colour and camera
+// refinement. The first GPU run with camera refinement stopped at the capture: its rotations went
+// through torch::matrix_exp, which copies norms to the host on CUDA (now a closed form).
+TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  test::TempDir data;
+  SynthOptions o;
+  o.res = 16;
+  o.train_views = 4;
+  o.test_views = 1;
+  o.threads = 1;
+  o.lens = "opencv";
+  o.layout = "nerfstudio";
+  write_synthetic_dataset(data.path(), o);
+  const Config c = test::config_with(
+      test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
+                            "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16",
+                            "train.grid_decay=1.0", "train.photo_colour=true", "train.camera_refine=true"});
+  expect_graph_equals_eager(c, data.path());
+}
+
 TEST(TrainerGpu, DeviceAdamSkipsNonFiniteSteps) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   const auto dev = torch::TensorOptions().device(torch::kCUDA, 0);
