@@ -39,6 +39,7 @@ struct ExportArgs {
   int64_t num_points = 1'000'000, views = 48;
   int resolution = 0, max_side = 200;
   std::string mask = "alpha", depth = "auto";
+  std::string preview;  // "" = RUN/geometry_preview.png; "none" = no picture
 };
 
 void run_export_weights(const ExportArgs& a) {
@@ -90,6 +91,7 @@ void run_geometry(const ExportArgs& a) {
   o.depth = a.depth == "mean" ? DepthEstimate::Mean : a.depth == "front" ? DepthEstimate::Front : DepthEstimate::Auto;
   o.device = parse_device(a.device);
   const RunFolder run = RunFolder::open(a.run);
+  if (a.preview != "none") o.preview_path = a.preview.empty() ? run.path(kGeometryPreviewFile) : a.preview;
   o.chunk = run.config.get<EvalConfig>().chunk;
   const nlohmann::json result = export_geometry(run, o);
   // The run's report lists what was exported (RUN/exports.json).
@@ -205,6 +207,9 @@ void setup(CLI::App& app) {
                  "The attention depth that becomes the surface: front (where its first 15% lie nearer), mean, or "
                  "auto (front; mean for forward-facing runs)")
       ->capture_default_str();
+  app.add_option("--preview", a->preview,
+                 "A picture of the points with the cameras that saw them, as FILE.png (default "
+                 "RUN/geometry_preview.png, shown in the run's report; none: no picture)");
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
   app.callback([a] { run_export(*a); });
 }

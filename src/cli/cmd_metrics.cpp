@@ -7,6 +7,7 @@
 // images smaller than AlexNet accepts, "lpips" is null and "lpips_note" says why.
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -15,6 +16,7 @@
 #include "eval/lpips.h"
 #include "eval/metrics.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
+#include "data/capture.h"
 #include "data/dataset.h"
 #include "geometry/fuse.h"
 #include "geometry/surface_score.h"
@@ -27,15 +29,35 @@ namespace cmd_metrics {
 
 struct MetricsArgs {
   std::string ref, img, lpips_weights, ssim = "standard";
-  std::string geometry, truth;  // geometry against a synth scene's spheres
+  std::string geometry, truth;  // geometry against a synth scene's spheres or a capture's sparse points
   double tau = 0;
   int64_t samples = 200000;
 };
 
 // --geometry FILE --truth DATA: the file's points (a mesh sampled on its surface) against the
-// spheres of DATA/scene.json, seen from DATA's cameras (geometry/surface_score.h).
+// spheres of DATA/scene.json, seen from DATA's cameras (geometry/surface_score.h); or, for a
+// capture without a scene.json but with sparse points (COLMAP), those points' distances to the
+// geometry, both in the capture's own frame (export's default --frame).
 void run_geometry(const MetricsArgs& a) {
 #ifdef ABLENERF_HAVE_GEOMETRY
+  if (!std::filesystem::exists(std::filesystem::path(a.truth) / "scene.json")) {
+    const Capture capture = read_capture(a.truth, {}, 1);
+    if (capture.points.empty())
+      throw InputError(a.truth, "scene.json",
+                       "missing, and the capture has no sparse points: --truth takes a scene made by `ablenerf synth` "
+                       "or a COLMAP capture");
+    auto ref = torch::empty({static_cast<int64_t>(capture.points.size()), 3}, torch::kDouble);
+    auto acc = ref.accessor<double, 2>();
+    for (size_t i = 0; i < capture.points.size(); ++i)
+      for (int k = 0; k < 3; ++k) acc[static_cast<int64_t>(i)][k] = capture.points[i][k];
+    const double tau = a.tau > 0 ? a.tau : reference_tau(ref);
+    const PointSet pts = read_geometry_points(a.geometry, a.samples);
+    auto out = score_reference_points(pts.xyz, ref, tau);
+    out["file"] = a.geometry;
+    out["truth"] = capture.format + " sparse points";
+    std::cout << out.dump(2) << std::endl;
+    return;
+  }
   const auto spheres = read_scene_spheres(a.truth + "/scene.json");
   const CameraList cams = capture_cameras(a.truth, SceneFrame{}, 1);
   const auto eyes = cams.c2w.select(2, 3);  // camera centres (N,3)
@@ -63,7 +85,8 @@ std::string size_str(const torch::Tensor& im) { return std::to_string(im.size(1)
 void run(const MetricsArgs& a) {
   if (!a.geometry.empty() || !a.truth.empty()) {
     if (a.geometry.empty() || a.truth.empty())
-      throw InputError("metrics", "--geometry", "give both --geometry FILE and --truth DATA (a synth scene)");
+      throw InputError("metrics", "--geometry",
+                       "give both --geometry FILE and --truth DATA (a synth scene or a COLMAP capture)");
     run_geometry(a);
     return;
   }
@@ -112,8 +135,11 @@ void setup(CLI::App& app) {
   app.add_option("--ref", a->ref, "Reference (ground-truth) PNG");
   app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)");
   app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
-  app.add_option("--truth", a->truth, "A scene made by `ablenerf synth` (its scene.json and cameras)");
-  app.add_option("--tau", a->tau, "Distance threshold of precision / recall (default: 1% of the objects' size)");
+  app.add_option(
+      "--truth", a->truth,
+      "A scene made by `ablenerf synth` (its scene.json and cameras), or a COLMAP capture (its sparse points)");
+  app.add_option("--tau", a->tau,
+                 "Distance threshold (default: 1% of the objects' size, or of the sparse points' central 98%)");
   app.add_option("--samples", a->samples, "Points sampled on a mesh's surface")->capture_default_str();
   app.add_option("--lpips-weights", a->lpips_weights,
                  "LPIPS AlexNet v0.1 weights (default: $ABLENERF_LPIPS_WEIGHTS or ../shared/weights)");

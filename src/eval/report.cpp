@@ -166,6 +166,13 @@ std::string exports_section(const RunFolder& run) {
     }
   }
   s << "</table>";
+  // The newest export's picture of its points and cameras (geometry/preview.h), when it is there.
+  for (auto it = all.rbegin(); it != all.rend(); ++it) {
+    if (!it->is_object() || !it->contains("preview") || !(*it)["preview"].is_string()) continue;
+    const std::string png = (*it)["preview"].get<std::string>();
+    if (fs::exists(png)) s << "<p>" << img_tag(png, "the exported points with the cameras that saw them") << "</p>";
+    break;
+  }
   return s.str();
 }
 

@@ -8,10 +8,12 @@
 #include "data/dataset.h"
 #include "eval/renderer.h"
 #include "geometry/fuse.h"
+#include "geometry/preview.h"
 #include "model/ndc.h"
 #include "data/rays.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/image_io.h"
 #include "util/progress.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
@@ -113,6 +115,8 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     throw InputError("export", "--points", "give --points FILE.ply and/or --mesh FILE.ply|.obj|.glb");
   if (!opts.points_path.empty()) check_points_path(opts.points_path);
   if (!opts.mesh_path.empty()) check_mesh_path(opts.mesh_path);
+  if (!opts.preview_path.empty() && fs::path(opts.preview_path).extension() != ".png")
+    throw InputError("export", "--preview", "'" + opts.preview_path + "': the picture is a .png");
   if (!fs::exists(run.weights_path()))
     throw InputError(run.weights_path(), "", "the run has no weights (train it first)");
   if (run.data_dir.empty())
@@ -231,6 +235,13 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   };
   PointSet all = concat_points(sets);
   const auto eye = eyes.empty() ? torch::zeros({0, 3}) : torch::cat(eyes);
+  if (!opts.preview_path.empty() && all.size() > 0) {
+    // In the scene frame (+z up), before cleaning: the picture shows what the depth maps gave.
+    const auto every = torch::arange(0, all.size(), std::max<int64_t>(1, all.size() / kPreviewMaxPoints));
+    write_png(opts.preview_path,
+              draw_preview(all.xyz.index_select(0, every), all.rgb.index_select(0, every), cams.c2w, k));
+    out["preview"] = opts.preview_path;
+  }
 
   if (!opts.points_path.empty() || opts.method == MeshMethod::Poisson) {
     const auto t = std::chrono::steady_clock::now();

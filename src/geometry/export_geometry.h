@@ -20,8 +20,14 @@ namespace ablenerf {
 enum class MeshMethod { Tsdf, Poisson };
 enum class DepthEstimate { Auto, Front, Mean };
 
+// The picture `export` writes into the run folder by default (geometry/preview.h; the report shows it).
+constexpr const char* kGeometryPreviewFile = "geometry_preview.png";
+// Points drawn in the picture at most (evenly thinned).
+constexpr int64_t kPreviewMaxPoints = 400000;
+
 struct GeometryOptions {
   std::string points_path, mesh_path;  // what to write (at least one)
+  std::string preview_path;            // a picture of the points and the cameras (.png); empty: none
   int64_t num_points = 1'000'000;      // points kept at most (evenly thinned)
   // TSDF voxels along the crop box's longest side; 0 = auto: voxels 1.5 times the rendered pixels'
   // footprint at the median depth (finer voxels than the depth maps resolve fuse their noise into

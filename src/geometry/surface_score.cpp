@@ -139,4 +139,36 @@ nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vec
   return out;
 }
 
+nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch::Tensor& reference, double tau) {
+  const auto g = geometry.to(torch::kDouble).reshape({-1, 3});
+  const auto r = reference.to(torch::kDouble).reshape({-1, 3});
+  nlohmann::json j;
+  j["reference_points"] = r.size(0);
+  j["tau"] = tau;
+  torch::Tensor inside = r.slice(0, 0, 0);
+  if (g.size(0) > 0 && r.size(0) > 0) {
+    const auto lo = std::get<0>(g.min(0)), hi = std::get<0>(g.max(0));
+    const auto pad = 0.05 * (hi - lo).norm();
+    const auto keep = ((r >= lo - pad) & (r <= hi + pad)).all(1);
+    inside = r.index_select(0, keep.nonzero().squeeze(-1));
+  }
+  j["inside"] = inside.size(0);
+  if (inside.size(0) == 0) {
+    j["distance_median"] = j["distance_mean"] = j["within_tau"] = nullptr;
+    return j;
+  }
+  const auto d = nearest_distances(inside, g);
+  j["distance_median"] = d.median().item<double>();
+  j["distance_mean"] = d.mean().item<double>();
+  j["within_tau"] = (d < tau).to(torch::kDouble).mean().item<double>();
+  return j;
+}
+
+double reference_tau(const torch::Tensor& points) {
+  const auto p = points.to(torch::kDouble).reshape({-1, 3});
+  if (p.size(0) == 0) return 0;
+  const auto q = torch::quantile(p, torch::tensor({0.01, 0.99}, torch::kDouble), 0);  // (2,3)
+  return 0.01 * (q[1] - q[0]).norm().item<double>();
+}
+
 }  // namespace ablenerf

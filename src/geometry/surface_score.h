@@ -38,4 +38,18 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
 nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<SphereTruth>& spheres,
                                      const torch::Tensor& eyes, double tau, int64_t per_sphere = 20000);
 
+// Points known to lie on the true surface against exported geometry, for captures without an
+// exact scene: a COLMAP capture's sparse points, each triangulated from several photos. For each
+// reference point inside the geometry's bounding box (grown by 5% of its diagonal on every side: a
+// point outside lies where nothing was exported, e.g. the far background an export's crop leaves
+// out, and is not asked for), the distance to the nearest point of `geometry` (N,3; a mesh sampled
+// on its surface, so distances include up to half the sample spacing). Returns {"reference_points",
+// "inside", "tau", "distance_median", "distance_mean", "within_tau"} (the share of the inside points
+// within tau; null figures when none is inside).
+nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch::Tensor& reference, double tau);
+
+// A default threshold for score_reference_points: 1% of the diagonal of the box that holds the
+// central 98% of `points` (N,3) along each axis (sparse points have stray far ones).
+double reference_tau(const torch::Tensor& points);
+
 }  // namespace ablenerf

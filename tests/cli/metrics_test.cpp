@@ -5,6 +5,7 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <sstream>
 #include <nlohmann/json.hpp>
 
 #include "eval/metrics.h"
@@ -84,6 +85,45 @@ TEST(MetricsCli, BadOptionsExitTwo) {
   r = test::run_cli("metrics --ref " + (dir / "missing.png") + " --img " + (dir / "x.png"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("missing.png"), std::string::npos) << r.output;
+}
+
+// --geometry against a COLMAP capture: its sparse points' distances to the geometry (a plane's grid
+// of points at spacing 0.02 in an ASCII PLY): points over grid nodes at heights 0, 0.02, -0.06, 0.12
+// have exactly those distances; a point far beyond the plane is not asked for. A capture with
+// neither a scene.json nor sparse points is refused with one line naming scene.json.
+TEST(MetricsCli, GeometryAgainstAColmapCapturesSparsePoints) {
+  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
+  test::TempDir t("metrics");
+  std::filesystem::create_directories(t / "cap/sparse/0");
+  std::filesystem::create_directories(t / "cap/images");
+  test::write_file(t / "cap/sparse/0/cameras.txt", "1 PINHOLE 8 6 10 10 4 3\n");
+  test::write_file(t / "cap/sparse/0/images.txt", "1 1 0 0 0 0 0 -3 1 a.png\n\n2 1 0 0 0 0.1 0 -3 1 b.png\n\n");
+  test::write_file(t / "cap/sparse/0/points3D.txt",
+                   "1 0 0 0 255 0 0 0.5\n2 0.5 -0.24 0.02 255 0 0 0.5\n3 -0.7 0.3 -0.06 255 0 0 0.5\n"
+                   "4 0.2 0.9 0.12 255 0 0 0.5\n5 40 0 0 255 0 0 0.5\n");
+  write_png(t / "cap/images/a.png", torch::rand({6, 8, 3}));
+  write_png(t / "cap/images/b.png", torch::rand({6, 8, 3}));
+  std::ostringstream ply;
+  ply << "ply\nformat ascii 1.0\nelement vertex " << 101 * 101
+      << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  for (int i = -50; i <= 50; ++i)
+    for (int k = -50; k <= 50; ++k) ply << 0.02 * i << " " << 0.02 * k << " 0\n";
+  test::write_file(t / "plane.ply", ply.str());
+
+  auto r = test::run_cli("metrics --geometry " + t / "plane.ply" + " --truth " + t / "cap" + " --tau 0.05");
+  if (r.output.find("no geometry scoring") != std::string::npos) GTEST_SKIP() << "built without Open3D";
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output);
+  EXPECT_EQ(j["reference_points"].get<int64_t>(), 5);
+  EXPECT_EQ(j["inside"].get<int64_t>(), 4);
+  EXPECT_NEAR(j["distance_mean"].get<double>(), (0.0 + 0.02 + 0.06 + 0.12) / 4, 1e-6);
+  EXPECT_DOUBLE_EQ(j["within_tau"].get<double>(), 0.5);
+  EXPECT_EQ(j["truth"], "colmap sparse points");
+
+  std::filesystem::remove(t / "cap/sparse/0/points3D.txt");
+  r = test::run_cli("metrics --geometry " + t / "plane.ply" + " --truth " + t / "cap");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("scene.json"), std::string::npos) << r.output;
 }
 
 }  // namespace

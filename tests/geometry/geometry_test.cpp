@@ -13,6 +13,7 @@
 #include "data/ply.h"
 #include "geometry/depth_points.h"
 #include "geometry/fuse.h"
+#include "geometry/preview.h"
 #include "geometry/surface_score.h"
 #include "test_util.h"
 #include "util/errors.h"
@@ -313,6 +314,86 @@ TEST(SurfaceScore, PrecisionRecallAndVisibilityOnKnownSpheres) {
   const int64_t a_seen = (who == 0).sum().item<int64_t>(), b_seen = (who == 1).sum().item<int64_t>();
   EXPECT_NEAR(static_cast<double>(b_seen) / 4000, 0.5 * (1 - 0.5 / 7.0), 0.02);  // the cap seen from 7 units
   EXPECT_LT(a_seen, b_seen / 4);
+}
+
+// Reference points (a COLMAP capture's) against exported geometry: a plane's grid of points at
+// spacing 0.01; reference points over grid nodes at known heights have exactly those distances;
+// points beyond the plane's box grown by 5% of its diagonal are not asked for.
+TEST(SurfaceScore, ReferencePointsDistancesToThePlane) {
+  const auto ticks = torch::arange(-100, 101, torch::kDouble) * 0.01;  // [-1, 1] in steps of 0.01
+  const auto grid = torch::meshgrid({ticks, ticks}, "ij");
+  const auto plane =
+      torch::stack({grid[0].reshape(-1), grid[1].reshape(-1), torch::zeros({201 * 201}, torch::kDouble)}, 1);
+  // Over nodes: heights 0, 0.01, -0.03, 0.1; beyond the grown box (pad 0.05 * 2.83 = 0.141): z = 0.2 and x = 1.5.
+  const auto ref =
+      torch::tensor({0.0, 0.0, 0.0, 0.5, -0.25, 0.01, -0.7, 0.3, -0.03, 0.2, 0.9, 0.1, 0.0, 0.0, 0.2, 1.5, 0.0, 0.0},
+                    torch::kDouble)
+          .reshape({6, 3});
+  const auto j = score_reference_points(plane, ref, 0.02);
+  EXPECT_EQ(j["reference_points"].get<int64_t>(), 6);
+  EXPECT_EQ(j["inside"].get<int64_t>(), 4);
+  EXPECT_NEAR(j["distance_mean"].get<double>(), (0.0 + 0.01 + 0.03 + 0.1) / 4, 1e-12);
+  EXPECT_NEAR(j["distance_median"].get<double>(), 0.01, 1e-12);  // torch's median: the lower of the middle two
+  EXPECT_DOUBLE_EQ(j["within_tau"].get<double>(), 0.5);
+  // Nothing inside: null figures.
+  const auto none = score_reference_points(plane, ref.slice(0, 4, 6), 0.02);
+  EXPECT_EQ(none["inside"].get<int64_t>(), 0);
+  EXPECT_TRUE(none["distance_median"].is_null());
+  // The default threshold: 1% of the central box's diagonal (a far stray point does not count).
+  auto pts = torch::cat({plane, torch::tensor({{1000.0, 1000.0, 1000.0}}, torch::kDouble)});
+  EXPECT_NEAR(reference_tau(pts), 0.01 * std::sqrt(2.0) * 1.96, 0.01 * 0.05);
+}
+
+// The picture of points and cameras (geometry/preview.h): the view's axes are a right-handed
+// orthonormal frame; a cube's eight corners seen along -x put the four nearer ones (x = +1) at the
+// picture's four extreme pixels, computed by hand; a camera at (3,0,0) looking down -x is drawn
+// from the centre pixel; from straight above, the upper corners win.
+TEST(GeometryPreview, NearestPointsInFrontAndCamerasDrawn) {
+  for (const auto& [az, el] : std::vector<std::pair<double, double>>{{0, 0}, {45, 35}, {200, -20}, {0, 90}}) {
+    const auto a = preview_axes(az, el);
+    EXPECT_LT((torch::matmul(a, a.t()) - torch::eye(3, torch::kDouble)).abs().max().item<double>(), 1e-12);
+    EXPECT_LT((torch::cross(a[0], a[1], 0) - a[2]).abs().max().item<double>(),
+              1e-12);  // right x up = towards the viewer
+  }
+  std::vector<double> xyz, rgb;
+  for (int x : {-1, 1})
+    for (int y : {-1, 1})
+      for (int z : {-1, 1}) {
+        xyz.insert(xyz.end(), {double(x), double(y), double(z)});
+        rgb.insert(rgb.end(), {x > 0 ? 1.0 : 0.0, y > 0 ? 1.0 : 0.0, z > 0 ? 1.0 : 0.0});
+      }
+  const auto p = torch::tensor(xyz, torch::kDouble).reshape({8, 3});
+  const auto c = torch::tensor(rgb, torch::kDouble).reshape({8, 3});
+  // A camera at (3,0,0) looking down -x (OpenGL: its +z axis is world +x), image 20x20.
+  const auto c2w =
+      torch::tensor({0.0, 0.0, 1.0, 3.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, torch::kDouble).reshape({1, 3, 4});
+  Intrinsics k;
+  k.fx = k.fy = 20, k.cx = k.cy = 10, k.width = k.height = 20;
+  PreviewOptions o;
+  o.width = o.height = 101;
+  o.azimuth_deg = 0, o.elevation_deg = 0;  // screen right = +y, up = +z, towards the viewer = +x
+  const auto img = draw_preview(p, c, c2w, k, o);
+  ASSERT_EQ(img.sizes(), (std::vector<int64_t>{101, 101, 3}));
+  // Extent [-1,1] on both screen axes, scale 0.9 * 101 / 2; +-1 lands on pixel 95 or 5.
+  const auto px = [&](int row, int col) { return img[row][col]; };
+  for (const auto& [row, col, y, z] :
+       std::vector<std::tuple<int, int, int, int>>{{5, 95, 1, 1}, {5, 5, -1, 1}, {95, 95, 1, -1}, {95, 5, -1, -1}}) {
+    const auto v = px(row, col);
+    EXPECT_EQ(v[0].item<float>(), 1.0f) << row << "," << col;  // the x = +1 corner, nearer the viewer
+    EXPECT_EQ(v[1].item<float>(), y > 0 ? 1.0f : 0.0f);
+    EXPECT_EQ(v[2].item<float>(), z > 0 ? 1.0f : 0.0f);
+  }
+  // The camera's centre is on the view's axis: the middle pixel is the cameras' colour.
+  EXPECT_NEAR(px(50, 50)[0].item<float>(), 1.0f, 1e-6);
+  EXPECT_NEAR(px(50, 50)[1].item<float>(), 0.62f, 1e-6);
+  // Background elsewhere, e.g. between the corners on the top row, away from the camera's pyramid.
+  EXPECT_NEAR(px(5, 30)[0].item<float>(), 0.12f, 1e-6);
+  // From straight above (+z towards the viewer; +x right, +y up on the screen) the z = +1 corners win.
+  o.elevation_deg = 90;
+  const auto top = draw_preview(p, c, torch::zeros({0, 3, 4}, torch::kDouble), k, o);
+  EXPECT_EQ(top[5][95][2].item<float>(), 1.0f);
+  EXPECT_EQ(top[5][95][0].item<float>(), 1.0f);  // x = +1 is right
+  EXPECT_EQ(top[5][95][1].item<float>(), 1.0f);  // y = +1 is up
 }
 
 }  // namespace

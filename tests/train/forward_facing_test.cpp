@@ -117,6 +117,10 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
     const std::string report = read_file(t / "run/report.html");
     EXPECT_NE(report.find("<h2>Exports</h2>"), std::string::npos);
     EXPECT_NE(report.find(t / "points.ply"), std::string::npos);
+    // The picture of the points and cameras, in the run folder by default and in the report.
+    EXPECT_EQ(last["preview"], t / "run/geometry_preview.png");
+    EXPECT_TRUE(std::filesystem::exists(t / "run/geometry_preview.png"));
+    EXPECT_NE(report.find("the exported points with the cameras that saw them"), std::string::npos);
   }
   // The video path: eyes in the cameras' plane within their spread, looking at the focus point.
   const Dataset ds = Dataset::load(t / "data");
