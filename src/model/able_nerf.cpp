@@ -80,6 +80,15 @@ void AbleNerfImpl::set_compute(const Compute& c) {
     if (auto* attn = m->as<MultiHeadAttentionImpl>()) attn->set_kernel(c.attention);
 }
 
+void AbleNerfImpl::set_frequency_window(double alpha) {
+  const int64_t degrees = grid_ ? cfg_.grid_ipe_degrees : cfg_.ipe_degrees;
+  const auto w = frequency_window_weights(alpha, degrees);
+  if (!band_weights_.defined() || band_weights_.device() != ray_token_.device())
+    band_weights_ = w.to(ray_token_.device());
+  else
+    band_weights_.copy_(w);
+}
+
 int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const {
   if (!ray_token_.device().is_cpu() || compute_.cpu_split != CpuSplit::Rays || draws_randomness) return 1;
   return ray_workers(rays);
@@ -126,13 +135,17 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
                                           const torch::Tensor& view_code, bool colour, bool weights_grad) {
   const int64_t b = t.size(0);
   const Gaussians g = frustums(t, rays);
+  const auto ipe = [&](int64_t degrees) {
+    auto f = integrated_pos_enc(g.mean, g.cov, degrees);
+    return band_weights_.defined() ? f * band_weights_ : f;
+  };
   torch::Tensor features;
   if (!grid_)
-    features = integrated_pos_enc(g.mean, g.cov, cfg_.ipe_degrees);
+    features = ipe(cfg_.ipe_degrees);
   else if (cfg_.grid_ipe_degrees == 0)
     features = grid_(g.mean, g.cov);
   else  // the grid's features beside a coarse IPE that says where the sample is
-    features = torch::cat({grid_(g.mean, g.cov), integrated_pos_enc(g.mean, g.cov, cfg_.grid_ipe_degrees)}, -1);
+    features = torch::cat({grid_(g.mean, g.cov), ipe(cfg_.grid_ipe_degrees)}, -1);
   const auto volumes = volume_embedding_(features);
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;

@@ -101,6 +101,11 @@ class AbleNerfImpl : public torch::nn::Module {
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
+  // BARF's coarse-to-fine window over the IPE's bands (model/camera_refine.h, train.camera_refine_c2f_*):
+  // the trainer sets it before each step; the features of the IPE (the grid front end's IPE bands
+  // beside the grid) are scaled by frequency_window_weights(alpha). Kept in one device tensor that
+  // is updated in place, so a captured CUDA graph reads the current window. Never set = no window.
+  void set_frequency_window(double alpha);
   const Compute& compute() const { return compute_; }
   // CPU threads a batch of `rays` runs on with this model's ray split: 1 off the CPU, with
   // cpu_split = ops, or when the work draws random numbers (the draws would depend on the split).
@@ -130,6 +135,7 @@ class AbleNerfImpl : public torch::nn::Module {
   Compute compute_;
   torch::Tensor ray_token_;              // (1,1,E) initial ray token
   torch::Tensor mask_;                   // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  torch::Tensor band_weights_;           // the IPE features' coarse-to-fine weights; undefined = none
   GridEmbedding grid_{nullptr};          // model.embedding = "grid" only
   Proposal proposal_{nullptr};           // model.proposal_samples > 0 only
   PhotoColour photo_colour_{nullptr};    // train.photo_colour only

@@ -1,5 +1,7 @@
 #include "model/camera_refine.h"
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 namespace ablenerf {
@@ -54,6 +56,21 @@ torch::Tensor CameraRefineImpl::corrected(const torch::Tensor& c2w) const {
   const auto rotation = torch::matmul(rotations(), pose.slice(2, 0, 3));
   const auto centre = pose.select(2, 3) + correction().slice(1, 3, 6);
   return torch::cat({rotation, centre.unsqueeze(-1)}, 2).to(c2w.scalar_type());
+}
+
+double coarse_to_fine_alpha(double fraction, double start, double end, int64_t degrees) {
+  const double progress = end > start ? std::clamp((fraction - start) / (end - start), 0.0, 1.0) : 1.0;
+  return 1.0 + static_cast<double>(degrees - 1) * progress;
+}
+
+torch::Tensor frequency_window_weights(double alpha, int64_t degrees) {
+  std::vector<float> band(static_cast<size_t>(degrees));
+  for (int64_t k = 0; k < degrees; ++k) {
+    const double x = std::clamp(alpha - static_cast<double>(k), 0.0, 1.0);
+    band[static_cast<size_t>(k)] = static_cast<float>(0.5 * (1.0 - std::cos(M_PI * x)));
+  }
+  const auto per_band = torch::tensor(band).repeat_interleave(3);  // three axes per band
+  return torch::cat({per_band, per_band});                         // sines, then cosines
 }
 
 }  // namespace ablenerf

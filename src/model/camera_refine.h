@@ -23,6 +23,18 @@ namespace ablenerf {
 // pose wander (docs/MODEL.md, "Camera refinement").
 constexpr double kCameraRefineLrScale = 0.1;
 
+// BARF's coarse-to-fine schedule (Lin et al. 2021, section 3.3; train.camera_refine_c2f_start /
+// _end): while the poses settle, the positional encoding's high frequencies, whose gradients with
+// respect to a pose point every which way, are held back and opened one band at a time. Band k of
+// the IPE's `degrees` is scaled by w_k = (1 - cos(pi clamp(alpha - k, 0, 1))) / 2. BARF's alpha runs
+// from 0 to the band count; the paper's IPE has no raw position beside its bands (BARF keeps one),
+// so here the lowest band is open from the start: alpha = 1 + (degrees - 1) x the schedule's
+// progress from `start` to `end` (shares of the run), clamped.
+double coarse_to_fine_alpha(double fraction, double start, double end, int64_t degrees);
+// The IPE features' weights (6 x degrees, the IPE's layout: all sines, then all cosines, band-major
+// with three axes per band; model/ipe.h) at `alpha`.
+torch::Tensor frequency_window_weights(double alpha, int64_t degrees);
+
 class CameraRefineImpl : public torch::nn::Module {
  public:
   // lr_scale: the corrections' learning rate over the run's; the parameter Adam sees (and weights

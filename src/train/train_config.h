@@ -52,6 +52,11 @@ struct TrainConfig {
   // the cameras' mean squared correction. Off = the poses as given (the paper).
   bool camera_refine = false;
   double camera_refine_decay = 1e-4;
+  // BARF's coarse-to-fine schedule with camera refinement (model/camera_refine.h,
+  // coarse_to_fine_alpha): the IPE's bands open one by one between these shares of the run
+  // (e.g. 0.1 and 0.5, BARF's); end = 0: off, every band open throughout.
+  double camera_refine_c2f_start = 0;
+  double camera_refine_c2f_end = 0;
   int64_t seed = 4;
   int64_t log_every = 100;    // steps between log.jsonl lines
   int64_t eval_every = 5000;  // steps between held-out PSNR checks (0 = never)
@@ -96,6 +101,8 @@ struct TrainConfig {
     f("photo_colour_decay", &photo_colour_decay);
     f("camera_refine", &camera_refine);
     f("camera_refine_decay", &camera_refine_decay);
+    f("camera_refine_c2f_start", &camera_refine_c2f_start);
+    f("camera_refine_c2f_end", &camera_refine_c2f_end);
     f("seed", &seed);
     f("log_every", &log_every);
     f("eval_every", &eval_every);
@@ -126,6 +133,9 @@ struct TrainConfig {
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
     need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
     need(camera_refine_decay >= 0 && std::isfinite(camera_refine_decay), "camera_refine_decay", "must be >= 0");
+    need(camera_refine_c2f_start >= 0 && camera_refine_c2f_start < 1, "camera_refine_c2f_start", "must be in [0, 1)");
+    need(camera_refine_c2f_end == 0 || (camera_refine_c2f_end > camera_refine_c2f_start && camera_refine_c2f_end <= 1),
+         "camera_refine_c2f_end", "must be 0 (off) or in (camera_refine_c2f_start, 1]");
     need(log_every >= 1, "log_every", "must be >= 1");
     need(eval_every >= 0, "eval_every", "must be >= 0");
     need(eval_views >= 0, "eval_views", "must be >= 0");

@@ -11,6 +11,7 @@
 #include "kernels/kernel_test_util.h"
 #include "model/able_nerf.h"
 #include "model/camera_refine.h"
+#include "model/ipe.h"
 #include "test_util.h"
 
 namespace ablenerf {
@@ -159,6 +160,41 @@ TEST(CameraRefine, RotationsAndGradientsMatchTheMatrixExponential) {
     f32->parameter().copy_((c / f32->lr_scale()).to(torch::kFloat));
   }
   EXPECT_LT(test::max_abs(f32->rotations().to(torch::kDouble) - r.detach()), 1e-6);
+}
+
+// BARF's coarse-to-fine window: alpha by hand at the schedule's points; the weights of each band
+// in closed form; against the IPE's layout, a window open on band 0 alone leaves exactly the
+// degree-1 IPE's features (sines of band 0, then its cosines) and zeros elsewhere; a model with the
+// window fully open renders as one without it, and one with band 0 alone does not.
+TEST(CameraRefine, CoarseToFineWindowOpensOneBandAtATime) {
+  EXPECT_DOUBLE_EQ(coarse_to_fine_alpha(0.0, 0.1, 0.5, 16), 1.0);
+  EXPECT_DOUBLE_EQ(coarse_to_fine_alpha(0.1, 0.1, 0.5, 16), 1.0);
+  EXPECT_DOUBLE_EQ(coarse_to_fine_alpha(0.3, 0.1, 0.5, 16), 8.5);
+  EXPECT_DOUBLE_EQ(coarse_to_fine_alpha(0.5, 0.1, 0.5, 16), 16.0);
+  EXPECT_DOUBLE_EQ(coarse_to_fine_alpha(0.9, 0.1, 0.5, 16), 16.0);
+  const auto w = frequency_window_weights(2.5, 4);  // bands 0, 1 open, 2 half (1 - cos(pi/2)) / 2, 3 shut
+  const std::vector<float> band = {1, 1, 0.5f, 0};
+  ASSERT_EQ(w.numel(), 24);
+  for (int64_t i = 0; i < 24; ++i) EXPECT_NEAR(w[i].item<float>(), band[static_cast<size_t>((i % 12) / 3)], 1e-7) << i;
+
+  const auto mean = test::seeded_randn({5, 3}, 21), cov = test::seeded_randn({5, 3}, 22).abs() * 0.01;
+  const auto f = integrated_pos_enc(mean, cov, 4) * frequency_window_weights(1.0, 4);
+  const auto one = integrated_pos_enc(mean, cov, 1);  // (5, 6): 3 sines, 3 cosines
+  EXPECT_TRUE(torch::equal(f.slice(1, 0, 3), one.slice(1, 0, 3)));
+  EXPECT_TRUE(torch::equal(f.slice(1, 12, 15), one.slice(1, 3, 6)));
+  EXPECT_EQ(f.slice(1, 3, 12).abs().max().item<float>(), 0.0f);
+  EXPECT_EQ(f.slice(1, 15, 24).abs().max().item<float>(), 0.0f);
+
+  torch::manual_seed(3);
+  AbleNerf model(test::tiny_model_config().get<ModelConfig>());
+  model->eval();
+  torch::NoGradGuard no_grad;
+  const Rays rays = test::random_rays(6, 23);
+  const auto plain = model->forward(rays, 2.0, 6.0).rgb_fine;
+  model->set_frequency_window(model->config().ipe_degrees);
+  EXPECT_TRUE(torch::equal(model->forward(rays, 2.0, 6.0).rgb_fine, plain));
+  model->set_frequency_window(1.0);
+  EXPECT_GT((model->forward(rays, 2.0, 6.0).rgb_fine - plain).abs().max().item<float>(), 1e-4);
 }
 
 TEST(CameraRefine, WeightsCarryTheCorrectionsIntoAModelMadeWithoutThem) {
