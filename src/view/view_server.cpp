@@ -120,8 +120,15 @@ ViewServer::ViewServer(ViewSession& session, std::string host, int port, LiveCon
         else if (m != "rgb")
           throw InputError("request", "mode", "must be rgb, depth or error");
       }
+      int look = -1;  // a training photo's look (per-photo colour), -1 = the mean
+      if (req.has_param("look") && req.get_param_value("look") != "mean") {
+        const double v = number_param(req.get_param_value("look"), "look");
+        if (v != std::floor(v) || v < 0 || v > 1e9)
+          throw InputError("request", "look", "expected mean or a training photo's index");
+        look = static_cast<int>(v);
+      }
       int camera = -1;
-      res.set_content(session_.render_png(pose, w, h, mode, &camera), "image/png");
+      res.set_content(session_.render_png(pose, w, h, mode, &camera, look), "image/png");
       if (camera >= 0) res.set_header("X-Nearest-Camera", std::to_string(camera));
       res.set_header("Cache-Control", "no-store");
     } catch (const InputError& e) {

@@ -2,7 +2,7 @@
 // `ablenerf view`'s HTTP server (cpp-httplib, Debian's libcpp-httplib-dev), loopback by default:
 //   GET /             the viewer page (view/viewer_page.cpp: everything it needs is in it)
 //   GET /api/cameras  ViewSession::cameras_json()
-//   GET /api/render?pose=P&w=W&h=H[&mode=rgb|depth|error]   a PNG of the view from pose P (12
+//   GET /api/render?pose=P&w=W&h=H[&mode=rgb|depth|error][&look=N|mean]   a PNG of the view from pose P (12
 //                     numbers, comma-separated: the row-major camera-to-world 3x4 in the scene
 //                     frame); error mode names the camera it compared in X-Nearest-Camera
 //   GET /api/state    {"step" (of the weights shown; -1 before the first), "live", "paused"}

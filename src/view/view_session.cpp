@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 
 #include "data/ply.h"
 #include "eval/colormap.h"
@@ -71,7 +72,11 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
   capture_h_ = capture.height;
   capture_w_ = capture.width;
   for (auto& split : capture.splits)
-    for (auto& f : split.frames) frames_.push_back(std::move(f));
+    for (auto& f : split.frames) {
+      // The train split's photos in training order: the per-photo colour maps' (model/photo_colour.h).
+      if (split.name == "train") looks_.push_back(std::filesystem::path(f.image).filename().string());
+      frames_.push_back(std::move(f));
+    }
   if (live_) {
     model_ = AbleNerf(run_.config.get<ModelConfig>(), scene_.kind, NdcProjection{scene_.ndc_a, scene_.ndc_b});
     model_->to(device_);
@@ -80,6 +85,7 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
     model_ = load_run_model(run_, device_);
   }
   model_->eval();
+  has_looks_ = model_->photo_colour() != nullptr;
 }
 
 void ViewSession::set_weights(AbleNerf& trained, int64_t step) {
@@ -112,6 +118,7 @@ nlohmann::json ViewSession::cameras_json() const {
   }
   j["cameras"] = list;
   j["live"] = live_;
+  j["looks"] = has_looks_ ? looks_ : std::vector<std::string>{};
   return j;
 }
 
@@ -160,7 +167,12 @@ int ViewSession::nearest_camera(const std::array<float, 12>& c2w) const {
 }
 
 std::string ViewSession::render_png(const std::array<float, 12>& asked, int width, int height, ViewMode mode,
-                                    int* camera) {
+                                    int* camera, int look) {
+  PhotoColourImpl* colour = look >= 0 ? model_->photo_colour() : nullptr;
+  if (look >= 0 && colour == nullptr)
+    throw InputError("request", "look", "the run learnt no per-photo colour (train.photo_colour)");
+  if (colour && look >= colour->photos())
+    throw InputError("request", "look", "must be below " + std::to_string(colour->photos()) + " (the training photos)");
   const Intrinsics& d = cams_.intrinsics;
   Intrinsics k;  // the dataset's focal at this width, a pinhole
   k.width = width;
@@ -202,6 +214,12 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
                                         run_.config.get<EvalConfig>().chunk, ForwardOptions{}, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
+      if (colour) {  // the chosen photo's colour map over every pixel
+        const auto flat = image.reshape({-1, 3});
+        const auto photo =
+            torch::full({flat.size(0)}, look, torch::TensorOptions().dtype(torch::kLong).device(flat.device()));
+        image = colour->forward(flat, photo).to(torch::kFloat).clamp(0.0, 1.0).reshape(image.sizes());
+      }
     } else if (mode == ViewMode::Error) {
       image = colormap((r.rgb.to(torch::kCPU) - truth).abs().mean(-1), 0.0, kErrorMapMax);
     } else {

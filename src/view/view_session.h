@@ -77,7 +77,8 @@ class ViewSession {
   const RunFolder& run() const { return run_; }
 
   // {"scene", "near", "far", "width", "height", "fx", "fy", "cameras": [[12 numbers, row-major
-  // camera-to-world 3x4 in the scene frame], ...], "step"}.
+  // camera-to-world 3x4 in the scene frame], ...], "step", "looks": [the training photos' file
+  // names, whose looks render_png offers, when the run learnt per-photo colour; else empty]}.
   nlohmann::json cameras_json() const;
 
   // The points of the run's latest points export (RUN/exports.json: `export --points`) in the scene
@@ -89,7 +90,12 @@ class ViewSession {
   // The PNG of the view from `c2w` (row-major 3x4, scene frame, OpenGL axes) through a pinhole
   // with the dataset's focal length scaled to `width` (principal point at the centre).
   // With ViewMode::Error, `camera` (when not null) receives the index of the camera compared.
-  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode, int* camera = nullptr);
+  // `look` (ViewMode::Rgb): a training photo's exposure and white balance for the render, through
+  // its per-photo colour map (model/photo_colour.h; the index of cameras_json()'s "looks"), or -1
+  // for the photos' mean look (the model's own colour); InputError naming "look" for a run without
+  // per-photo colour or an index out of range.
+  std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode, int* camera = nullptr,
+                         int look = -1);
   // The dataset camera nearest `c2w` (centre distance plus the angle between viewing directions,
   // in scene units / radians), as an index of cameras_json()'s list.
   int nearest_camera(const std::array<float, 12>& c2w) const;
@@ -99,6 +105,8 @@ class ViewSession {
   SceneFrame scene_;
   CameraList cams_;
   std::vector<CaptureFrame> frames_;   // every split's frames, in cameras_json()'s order
+  std::vector<std::string> looks_;     // the training photos' names (per-photo colour's order)
+  bool has_looks_ = false;             // the model learnt per-photo colour
   int capture_h_ = 0, capture_w_ = 0;  // the capture's full image size
   torch::Device device_;
   AbleNerf model_{nullptr};

@@ -35,6 +35,7 @@ select, button { font: inherit; }
   <label>mode <select id="mode"><option>rgb</option><option>depth</option><option>error</option></select></label>
   <label>size <select id="size"><option value="window" selected>window</option><option value="0.5">camera 1/2</option><option value="1">camera</option><option value="2">camera 2x</option></select></label>
   <label>render <select id="fraction"><option value="0.25">1/4</option><option value="0.5" selected>1/2</option><option value="1">1</option></select></label>
+  <label id="look-label" hidden>look <select id="look"><option value="mean">mean of the photos</option></select></label>
   <label id="points-label" hidden><input type="checkbox" id="points"> <span id="points-count">points</span></label>
   <button id="rec">record path</button> <button id="save" disabled>save path (0)</button>
   <span id="status">loading cameras...</span>
@@ -129,7 +130,8 @@ function send(scale, my) {
   const [w, h] = size();
   const rw = Math.max(8, Math.round(w * scale)), rh = Math.max(8, Math.round(h * scale));
   const mode = document.getElementById("mode").value;
-  const url = "/api/render?w=" + rw + "&h=" + rh + "&mode=" + mode + "&pose=" + pose.map(x => x.toFixed(6)).join(",");
+  const look = document.getElementById("look").value;
+  const url = "/api/render?w=" + rw + "&h=" + rh + "&mode=" + mode + "&look=" + look + "&pose=" + pose.map(x => x.toFixed(6)).join(",");
   const t0 = performance.now();
   let nearest = null, took = 0;
   fetch(url).then(r => { nearest = r.headers.get("X-Nearest-Camera"); return r.ok ? r.blob() : r.text().then(t => Promise.reject(t)); })
@@ -282,6 +284,7 @@ window.addEventListener("keydown", e => {
   changed();
 });
 document.getElementById("mode").addEventListener("change", changed);
+document.getElementById("look").addEventListener("change", changed);
 document.getElementById("size").addEventListener("change", changed);
 document.getElementById("fraction").addEventListener("change", changed);
 document.getElementById("points").addEventListener("change", changed);
@@ -328,6 +331,12 @@ fetch("/api/cameras").then(r => r.json()).then(j => {
   const sel = document.getElementById("cams");
   j.cameras.forEach((c, i) => { const o = document.createElement("option"); o.value = i; o.textContent = "camera " + i; sel.appendChild(o); });
   statusEl.textContent = j.cameras.length + " cameras, " + j.scene + " scene";
+  // A run with per-photo colour: render with one training photo's exposure and white balance.
+  if (j.looks && j.looks.length) {
+    const ls = document.getElementById("look");
+    j.looks.forEach((name, i) => { const o = document.createElement("option"); o.value = i; o.textContent = i + ": " + name; ls.appendChild(o); });
+    document.getElementById("look-label").hidden = false;
+  }
   // The run's exported points (`ablenerf export --points`), when it has some: a checkbox draws them.
   fetch("/api/points").then(r => r.json()).then(p => {
     if (!p.count) return;

@@ -95,8 +95,9 @@ TEST(TrainerGpu, GraphEqualsEagerThroughALensUnbounded) {
 
 // The capture preset's additions and the phone-capture options through the captured step: the hash
 // grid front end and its normalised decay, the proposal sampler, per-photo colour and camera
-// refinement. The first GPU run with camera refinement stopped at the capture: its rotations went
-// through torch::matrix_exp, which copies norms to the host on CUDA (now a closed form).
+// refinement with BARF's coarse-to-fine window (a device tensor the trainer updates before each replay). The first GPU
+// run with camera refinement stopped at the capture: its rotations went through torch::matrix_exp, which copies norms
+// to the host on CUDA (now a closed form).
 TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   test::TempDir data;
@@ -111,7 +112,8 @@ TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement)
   const Config c = test::config_with(
       test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
                             "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16",
-                            "train.grid_decay=1.0", "train.photo_colour=true", "train.camera_refine=true"});
+                            "train.grid_decay=1.0", "train.photo_colour=true", "train.camera_refine=true",
+                            "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
   expect_graph_equals_eager(c, data.path());
 }
 

@@ -193,6 +193,60 @@ TEST(ViewServer, TwoClientsAndAStalledOne) {
 // The run's latest points export comes back in the scene frame (exports.json says the file is in
 // the capture's coordinates), evenly thinned to the asked count; a run without exports has none,
 // and the endpoint answers the same.
+// Per-photo colour in the viewer: cameras_json lists the training photos; a render with photo 0's
+// look is the mean look's render through photo 0's colour map (set by hand: red halved, green +0.2),
+// to within the PNG's rounding; a look out of range, or on a run without per-photo colour (also
+// through the server), is refused naming "look".
+TEST(ViewServer, LooksOfTheTrainingPhotos) {
+  test::TempDir dir;
+  test::make_tiny_scene(dir / "scene", 2, 2, 16, 16, false);
+  test::make_tiny_run(dir / "run", dir / "scene");
+  {
+    AbleNerf model = load_run_model(RunFolder::open(dir / "run"), torch::kCPU);
+    model->enable_photo_colour(2);
+    const torch::NoGradGuard no_grad;
+    // The maps applied are each photo's delta minus the mean delta: +D for photo 0, -D for photo 1.
+    auto d = torch::zeros({3, 4});
+    d[0][0] = -0.5;  // red x 0.5
+    d[1][3] = 0.2;   // green + 0.2
+    model->photo_colour()->delta().copy_(torch::stack({d, -d}));
+    save_weights(model, dir / "run/weights.pt");
+  }
+  ViewSession session(dir / "run", torch::kCPU);
+  const auto j = session.cameras_json();
+  ASSERT_EQ(j.at("looks").size(), 2u);
+  const auto pose = j.at("cameras")[2].get<std::vector<float>>();
+  std::array<float, 12> c2w{};
+  std::copy(pose.begin(), pose.end(), c2w.begin());
+  const auto mean = decode(session.render_png(c2w, 16, 12, ViewMode::Rgb), dir).to(torch::kFloat) / 255;
+  const auto look = decode(session.render_png(c2w, 16, 12, ViewMode::Rgb, nullptr, 0), dir).to(torch::kInt);
+  const auto expected =
+      to_uint8((mean * torch::tensor({0.5f, 1.0f, 1.0f}) + torch::tensor({0.0f, 0.2f, 0.0f})).clamp(0, 1))
+          .to(torch::kInt);
+  EXPECT_LE((look - expected).abs().max().item<int>(), 1);  // the mean render was rounded once already
+  EXPECT_GT((look - (mean * 255).round().to(torch::kInt)).abs().max().item<int>(), 10);  // and it differs
+  const auto refused = [&](int which) {
+    try {
+      session.render_png(c2w, 16, 12, ViewMode::Rgb, nullptr, which);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("not refused");
+  };
+  EXPECT_NE(refused(2).find("look"), std::string::npos);
+
+  Served plain;  // a run without per-photo colour
+  EXPECT_TRUE(plain.session().cameras_json().at("looks").empty());
+  httplib::Client cli("127.0.0.1", plain.port());
+  auto r = cli.Get(("/api/render?w=16&h=12&look=0&pose=" + pose_text(pose)).c_str());
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 400);
+  EXPECT_NE(r->body.find("look"), std::string::npos) << r->body;
+  r = cli.Get(("/api/render?w=16&h=12&look=mean&pose=" + pose_text(pose)).c_str());
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+}
+
 TEST(ViewServer, ExportedPointsInTheSceneFrame) {
   test::TempDir t;
   test::make_tiny_scene(t / "scene", 2, 2, 16, 16, false);
