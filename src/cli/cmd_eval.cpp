@@ -18,6 +18,7 @@ struct EvalArgs {
   int64_t max_images = -1, chunk = 0;  // -1: every view; chunk and downscale only when given
   int downscale = 0;
   bool align_cameras = false;
+  bool fit_look = false;
 };
 
 void setup(CLI::App& app) {
@@ -41,6 +42,9 @@ void setup(CLI::App& app) {
   app.add_flag("--align-cameras", a->align_cameras,
                "Fit each held-out camera to its photo with the model frozen before scoring (after "
                "train.camera_refine; default: the run's eval.align_cameras)");
+  app.add_flag("--fit-look", a->fit_look,
+               "NeRF-W's protocol: fit each view's exposure and white balance (an affine colour map) on the "
+               "left half of its photo, score the right half (default: the run's eval.fit_look)");
   app.callback([a, downscale, chunk] {
     const torch::Device device = parse_device(a->device);
     const RunFolder run = RunFolder::open(a->run);
@@ -53,6 +57,7 @@ void setup(CLI::App& app) {
     o.lpips_weights = a->lpips_weights;
     if (chunk->count()) o.chunk = a->chunk;
     if (a->align_cameras) o.align_cameras = true;
+    if (a->fit_look) o.fit_look = true;
     o.device = device;
     const auto m = evaluate_run(run, o);
     write_report(run);

@@ -32,6 +32,9 @@ struct EvalConfig {
   // the plain protocol; align_steps Adam steps of 512 rays per view.
   bool align_cameras = false;
   int64_t align_steps = 100;
+  // NeRF-W's protocol (eval/look_fit.h): each view's look fitted on its photo's left half, scores
+  // on the right half. Off = the plain protocol, the one published figures use.
+  bool fit_look = false;
 
   template <class F>
   void visit(F&& f) {
@@ -39,6 +42,7 @@ struct EvalConfig {
     f("ssim", &ssim);
     f("align_cameras", &align_cameras);
     f("align_steps", &align_steps);
+    f("fit_look", &fit_look);
   }
   void validate(const SectionCheck& need) const {
     need(chunk >= 1, "chunk", "must be >= 1");

@@ -9,6 +9,7 @@
 #include "data/dataset.h"
 #include "data/load_options.h"
 #include "eval/camera_align.h"
+#include "eval/look_fit.h"
 #include "eval/colormap.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
@@ -74,6 +75,7 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   const bool align = opts.align_cameras.value_or(run.config.get<EvalConfig>().align_cameras);
   CameraAlignOptions align_opts;
   align_opts.steps = run.config.get<EvalConfig>().align_steps;
+  const bool fit_look = opts.fit_look.value_or(run.config.get<EvalConfig>().fit_look);
 
   LoadOptions lo = load_options_for(run.config, {opts.split});
   // The capture's masks score the "unmasked" part even for a run trained on every pixel
@@ -102,7 +104,14 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   } else {
     lpips.emplace(lpips_path);
   }
-  const bool ssim_ok = variant != SsimVariant::Standard || (k.width >= kSsimWindow && k.height >= kSsimWindow);
+  // With a fitted look the scores are the right half's (columns W/2 .. W-1).
+  const int64_t scored_w = fit_look ? k.width - k.width / 2 : k.width;
+  if (lpips && fit_look && scored_w < Lpips::kMinSide) {
+    note("LPIPS skipped: the scored right halves are " + std::to_string(scored_w) + " pixels wide, AlexNet needs " +
+         std::to_string(Lpips::kMinSide));
+    lpips.reset();
+  }
+  const bool ssim_ok = variant != SsimVariant::Standard || (scored_w >= kSsimWindow && k.height >= kSsimWindow);
   if (!ssim_ok)
     note("SSIM skipped: the standard variant needs images of at least " + std::to_string(kSsimWindow) + "x" +
          std::to_string(kSsimWindow));
@@ -137,12 +146,21 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
                                         });
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     total_seconds += seconds;
-    const torch::Tensor gt = split.images[i];
+    torch::Tensor gt = split.images[i], rgb = r.rgb, keep = split.mask.defined() ? split.mask[i] : torch::Tensor();
+    std::optional<LookFit> look;
+    if (fit_look) {  // NeRF-W: the look from the left half, the scores from the right half
+      look = fit_look_left_half(r.rgb, gt, keep);
+      const int64_t half = k.width / 2;
+      rgb = look->fitted.slice(1, half).contiguous();
+      gt = gt.slice(1, half).contiguous();
+      if (keep.defined()) keep = keep.slice(1, half).contiguous();
+    }
 
     const std::string stem = out_dir + "/r_" + std::to_string(i);
-    write_png(stem + ".png", r.rgb);
-    write_png(stem + "_gt.png", gt);
-    write_png(stem + "_error.png", colormap((r.rgb - gt).abs().mean(-1), 0.0, kErrorMapMax));
+    write_png(stem + ".png", look ? look->fitted : r.rgb);
+    write_png(stem + "_gt.png", split.images[i]);
+    write_png(stem + "_error.png",
+              colormap(((look ? look->fitted : r.rgb) - split.images[i]).abs().mean(-1), 0.0, kErrorMapMax));
     // Unbounded scenes reach 1e6: their depth maps span near to the image's 98th percentile.
     const double depth_far = ds.scene.kind == SceneKind::Unbounded
                                  ? std::max(ds.near * 1.01, r.depth_front.flatten().quantile(0.98).item<double>())
@@ -154,14 +172,17 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     im["index"] = i;
     im["file"] = split.files[static_cast<size_t>(i)];
     im["render"] = "r_" + std::to_string(i) + ".png";
-    im["psnr"] = finite_or_null(psnr(r.rgb, gt));
-    im["ssim"] = ssim_ok ? finite_or_null(ssim(r.rgb, gt, variant)) : nlohmann::json();
-    im["lpips"] = lpips ? finite_or_null(lpips->distance(r.rgb, gt)) : nlohmann::json();
-    if (split.mask.defined()) {  // the capture's masks: the scores over the pixels that trained too
-      const auto keep = split.mask[i];
+    im["psnr"] = finite_or_null(psnr(rgb, gt));
+    im["ssim"] = ssim_ok ? finite_or_null(ssim(rgb, gt, variant)) : nlohmann::json();
+    im["lpips"] = lpips ? finite_or_null(lpips->distance(rgb, gt)) : nlohmann::json();
+    if (keep.defined()) {  // the capture's masks: the scores over the pixels that trained too
       im["unmasked_share"] = keep.to(torch::kFloat).mean().item<double>();
-      im["psnr_unmasked"] = finite_or_null(psnr(r.rgb, gt, keep));
-      im["ssim_unmasked"] = ssim_ok ? finite_or_null(ssim(r.rgb, gt, variant, keep)) : nlohmann::json();
+      im["psnr_unmasked"] = finite_or_null(psnr(rgb, gt, keep));
+      im["ssim_unmasked"] = ssim_ok ? finite_or_null(ssim(rgb, gt, variant, keep)) : nlohmann::json();
+    }
+    if (look) {
+      const auto m = look->map.contiguous();
+      im["look_map"] = std::vector<double>(m.data_ptr<double>(), m.data_ptr<double>() + m.numel());
     }
     im["seconds"] = seconds;
     if (aligned) {
@@ -207,7 +228,15 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["near"] = ds.near;
   m["far"] = ds.far;
   m["error_map_max"] = kErrorMapMax;
-  m["protocol"] = align ? "aligned cameras" : "plain";
+  m["protocol"] = align && fit_look ? "aligned cameras, fitted look"
+                  : align           ? "aligned cameras"
+                  : fit_look        ? "fitted look"
+                                    : "plain";
+  if (fit_look)
+    m["look_fit"] = {{"what",
+                      "NeRF-W's protocol: an affine colour map (3x3 and a bias) per view fitted by least squares on "
+                      "the photo's left half with the model frozen; scores on the right half"},
+                     {"scored_columns", std::vector<int64_t>{k.width / 2, k.width}}};
   if (align)
     m["camera_alignment"] = {{"steps", align_opts.steps},
                              {"rays", align_opts.rays},

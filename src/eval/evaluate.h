@@ -34,6 +34,7 @@ struct EvalOptions {
   std::string lpips_weights;          // "": default_lpips_weights_path(); none found -> LPIPS skipped
   std::optional<int64_t> chunk;       // rays per forward; unset: the run's eval.chunk
   std::optional<bool> align_cameras;  // unset: the run's eval.align_cameras (eval/camera_align.h)
+  std::optional<bool> fit_look;       // unset: the run's eval.fit_look (eval/look_fit.h)
   torch::Device device = torch::kCPU;
   bool progress = true;  // progress line with ETA on stderr
   // One-line notes for the user (LPIPS skipped, ...); default: stderr.
@@ -49,7 +50,9 @@ std::string eval_dir(const RunFolder& run, const std::string& split);
 //   "depth_mae_argmax"]}, "seconds_per_image", "lpips_weights", "ssim_variant", "step",
 //   "width", "height", "near", "far", "error_map_max", "data", "protocol"}; with aligned cameras
 // ("protocol": "aligned cameras", else "plain") each image also has "aligned_rotation_deg" and
-// "aligned_shift", and "camera_alignment" says how they were fitted.
+// "aligned_shift", and "camera_alignment" says how they were fitted. With a fitted look (NeRF-W's
+// protocol, "protocol" names it) the scores are the right half's, each image has "look_map" (the
+// fitted 4x3 map) and "look_fit" says how; the render written is the one through the map.
 // Scores that could not be computed (no LPIPS weights, image too small, infinite PSNR) are null.
 // Throws InputError for a bad run folder, dataset, split or option.
 nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts);

@@ -17,6 +17,7 @@
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "eval/look_fit.h"
 #include "util/image_io.h"
 
 using namespace ablenerf;
@@ -105,6 +106,60 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   EXPECT_EQ(html.find("<script"), std::string::npos);
   EXPECT_EQ(html.find("src=\"http"), std::string::npos);
   EXPECT_EQ(html.find("<link"), std::string::npos);
+}
+
+// NeRF-W's protocol (eval/look_fit.h). The fit itself: a photo that is an exact affine map of the
+// render on its left half (its right half anything, a masked-out left pixel anything) gives back that
+// map. Then through evaluate_run: test photos made from the run's own renders through a colour map
+// score low in the plain protocol and near-exactly (>= 40 dB, the photos' 8-bit rounding) on the
+// right halves with the fitted look; metrics.json names the protocol.
+TEST(Evaluate, FittedLookIsNerfWsProtocol) {
+  const auto map = torch::tensor({0.6, 0.1, 0.0, 0.0, 0.7, 0.0, 0.05, 0.0, 0.5, 0.1, 0.05, 0.2}, torch::kDouble)
+                       .reshape({4, 3});  // rows: r, g, b, bias
+  const auto through = [&](const torch::Tensor& rgb) {
+    const auto flat = rgb.to(torch::kDouble).reshape({-1, 3});
+    return (torch::matmul(flat, map.slice(0, 0, 3)) + map[3]).reshape(rgb.sizes()).to(torch::kFloat);
+  };
+  torch::manual_seed(5);
+  const auto render = torch::rand({6, 10, 3});
+  auto photo = through(render);
+  photo.slice(1, 5).uniform_();  // the right half says nothing
+  auto keep = torch::ones({6, 10}, torch::kBool);
+  photo[2][1] = torch::tensor({1.0f, 0.0f, 1.0f});  // a corrupted left pixel, masked out
+  keep[2][1] = false;
+  const LookFit fit = fit_look_left_half(render, photo, keep);
+  EXPECT_LT((fit.map - map).abs().max().item<double>(), 1e-6);
+  EXPECT_LT((fit.fitted.slice(1, 0, 5) - through(render).slice(1, 0, 5)).abs().max().item<float>(), 1e-6);
+  // Flat colours cannot be fitted: the identity.
+  const auto flat = fit_look_left_half(torch::full({4, 4, 3}, 0.5f), torch::rand({4, 4, 3}));
+  EXPECT_TRUE(
+      torch::allclose(flat.map, torch::cat({torch::eye(3, torch::kDouble), torch::zeros({1, 3}, torch::kDouble)})));
+
+  test::TempDir t;
+  const std::string data = t / "scene", run_dir = t / "run";
+  test::make_tiny_scene(data, 4, kTestViews, kSide, kSide, /*with_depth=*/false);
+  const RunFolder run = test::make_tiny_run(run_dir, data);
+  EvalOptions o;
+  o.progress = false;
+  o.note = [](const std::string&) {};
+  o.lpips_weights = "";
+  evaluate_run(run, o);
+  for (int i = 0; i < kTestViews; ++i) {  // the test photos: the renders through the map, opaque
+    const auto r = read_png(run_dir + "/eval/test/r_" + std::to_string(i) + ".png").to(torch::kFloat) / 255;
+    write_png(data + "/test/r_" + std::to_string(i) + ".png",
+              torch::cat({through(r), torch::ones({kSide, kSide, 1})}, -1));
+  }
+  const auto plain = evaluate_run(run, o);
+  EXPECT_EQ(plain["protocol"], "plain");
+  EXPECT_LT(plain["mean"]["psnr"].get<double>(), 25.0);
+  o.fit_look = true;
+  const auto fitted = evaluate_run(run, o);
+  EXPECT_EQ(fitted["protocol"], "fitted look");
+  EXPECT_TRUE(fitted.contains("look_fit"));
+  EXPECT_GE(fitted["mean"]["psnr"].get<double>(), 40.0);
+  // (The map itself is ill-conditioned here, the untrained model's colours spanning a narrow range:
+  // the exact recovery is the first half's check.)
+  EXPECT_EQ(fitted["images"][0]["look_map"].size(), 12u);
 }
 
 TEST(Evaluate, SmallImagesSkipLpipsAndStandardSsimWithANote) {
