@@ -41,6 +41,7 @@ constexpr double kDefaultFps = 30;
 struct RenderArgs {
   std::string run, cameras, path, out, device = "auto";
   int frames = kDefaultFrames, width = 0, height = 0;
+  int look = -1;  // a training photo's look (per-photo colour); -1 = the mean
   bool raw = false, depth = false, branches = false, le_zero = false, fallback_frames = false;
   double le_noise = 0, fps = kDefaultFps;
   int64_t seed = 0, chunk = 0;
@@ -181,6 +182,12 @@ void run_render(const RenderArgs& a) {
   if (!frame_dir.empty()) ensure_dir(frame_dir);
 
   AbleNerf model = load_run_model(run, device);
+  // --look N: the frames through training photo N's colour map (per-photo colour's look).
+  PhotoColourImpl* colour = a.look >= 0 ? model->photo_colour() : nullptr;
+  if (a.look >= 0 && colour == nullptr)
+    throw InputError("--look", "", "the run learnt no per-photo colour (train.photo_colour)");
+  if (colour && a.look >= colour->photos())
+    throw InputError("--look", "", "must be below " + std::to_string(colour->photos()) + " (the training photos)");
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
     log_warn("note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing");
   torch::Generator gen = at::detail::createCPUGenerator(static_cast<uint64_t>(a.seed));
@@ -199,8 +206,9 @@ void run_render(const RenderArgs& a) {
   Progress bar("render (rays)", rays * n);
   for (int k = 0; k < n; ++k) {
     const std::string note = "frame " + std::to_string(k + 1) + "/" + std::to_string(n);
-    const RenderResult r = render_image(model, poses[k], cams.intrinsics, near, far, chunk, fo, device,
-                                        [&](int64_t done, int64_t) { bar.update(k * rays + done, note); });
+    RenderResult r = render_image(model, poses[k], cams.intrinsics, near, far, chunk, fo, device,
+                                  [&](int64_t done, int64_t) { bar.update(k * rays + done, note); });
+    if (colour) r.rgb = colour->look(r.rgb, a.look);
     if (writer) {
       writer->write(r.rgb);
       continue;
@@ -261,6 +269,9 @@ void setup(CLI::App& app) {
   app.add_flag("--le-zero", a->le_zero, "Zero the learnable embeddings");
   app.add_option("--seed", a->seed, "Seed of the LE noise (same noise for every pixel and frame)")
       ->capture_default_str();
+  app.add_option("--look", a->look,
+                 "Render with training photo N's exposure and white balance (a run with train.photo_colour; "
+                 "default: the photos' mean look)");
   app.add_option("--fps", a->fps, "Video frame rate")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
       ->check(CLI::PositiveNumber);

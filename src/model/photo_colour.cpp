@@ -21,4 +21,12 @@ torch::Tensor PhotoColourImpl::forward(const torch::Tensor& rgb, const torch::Te
   return c + linear + d.select(2, 3);
 }
 
+torch::Tensor PhotoColourImpl::look(const torch::Tensor& image, int64_t photo) {
+  TORCH_CHECK(photo >= 0 && photo < photos(), "PhotoColour::look: photo ", photo, " of ", photos());
+  const auto flat = image.reshape({-1, 3});
+  const auto which =
+      torch::full({flat.size(0)}, photo, torch::TensorOptions().dtype(torch::kLong).device(flat.device()));
+  return forward(flat, which).to(torch::kFloat).clamp(0.0, 1.0).reshape(image.sizes());
+}
+
 }  // namespace ablenerf

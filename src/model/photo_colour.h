@@ -19,6 +19,9 @@ class PhotoColourImpl : public torch::nn::Module {
   // photo's map minus the maps' mean.
   torch::Tensor forward(const torch::Tensor& rgb, const torch::Tensor& photo);
   int64_t photos() const { return delta_.size(0); }
+  // A rendered image (H,W,3) with training photo `photo`'s look: every pixel through its map,
+  // clamped to [0,1], float32 (the viewer's look picker, `render --look`). photo in [0, photos()).
+  torch::Tensor look(const torch::Tensor& image, int64_t photo);
   // The parameter: (photos, 3, 4), [A_p | b_p] before centring; all equal = every map the identity.
   const torch::Tensor& delta() const { return delta_; }
 

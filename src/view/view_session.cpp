@@ -214,12 +214,7 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
                                         run_.config.get<EvalConfig>().chunk, ForwardOptions{}, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
-      if (colour) {  // the chosen photo's colour map over every pixel
-        const auto flat = image.reshape({-1, 3});
-        const auto photo =
-            torch::full({flat.size(0)}, look, torch::TensorOptions().dtype(torch::kLong).device(flat.device()));
-        image = colour->forward(flat, photo).to(torch::kFloat).clamp(0.0, 1.0).reshape(image.sizes());
-      }
+      if (colour) image = colour->look(image, look);  // the chosen photo's colour map over every pixel
     } else if (mode == ViewMode::Error) {
       image = colormap((r.rgb.to(torch::kCPU) - truth).abs().mean(-1), 0.0, kErrorMapMax);
     } else {

@@ -11,6 +11,8 @@
 
 #include "eval/eval_fixtures.h"
 #include "eval/video.h"
+#include "model/able_nerf.h"
+#include "run/run_folder.h"
 #include "test_util.h"
 #include "util/fs.h"
 #include "util/image_io.h"
@@ -96,6 +98,40 @@ TEST(CliRender, RawTensorsMatchThePngsAndExtrasAreWritten) {
   const double x = ray[0][0][0].item<double>();
   const double expect = x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1 / 2.4) - 0.055;
   EXPECT_NEAR(ray_png[0][0][0].item<double>(), std::clamp(expect, 0.0, 1.0), 0.5 / 255 + 1e-6);
+}
+
+// --look N: the frames through training photo N's colour map (set by hand: blue halved, red + 0.3),
+// against the same frames without it (raw tensors, before rounding); refused on a run without
+// per-photo colour and out of range, in one line with exit code 2.
+TEST(CliRender, LookOfATrainingPhoto) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 3, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  const std::string common = " --path spiral --frames 1 --width 10 --height 6 --raw --out ";
+  auto r = test::run_cli("render --run " + t / "run" + " --look 0" + common + t / "no");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_EQ(count_lines(r.output), 1) << r.output;
+  EXPECT_NE(r.output.find("--look"), std::string::npos) << r.output;
+  {
+    AbleNerf model = load_run_model(RunFolder::open(t / "run"), torch::kCPU);
+    model->enable_photo_colour(3);
+    const torch::NoGradGuard no_grad;
+    auto d = torch::zeros({3, 3, 4});
+    d[1][2][2] = -0.75;  // photo 1: blue x 0.5 after centring (-0.75 + 0.25)
+    d[1][0][3] = 0.45;   // red + 0.3 after centring (0.45 - 0.15)
+    model->photo_colour()->delta().copy_(d);
+    save_weights(model, t / "run/weights.pt");
+  }
+  r = test::run_cli("render --run " + t / "run" + common + t / "mean");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = test::run_cli("render --run " + t / "run" + " --look 1" + common + t / "look");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto mean = load_pt(t / "mean/frame_0000.pt"), look = load_pt(t / "look/frame_0000.pt");
+  const auto expected = (mean * torch::tensor({1.0f, 1.0f, 0.5f}) + torch::tensor({0.3f, 0.0f, 0.0f})).clamp(0, 1);
+  EXPECT_LT((look - expected).abs().max().item<float>(), 1e-5);
+  r = test::run_cli("render --run " + t / "run" + " --look 3" + common + t / "no");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("must be below 3"), std::string::npos) << r.output;
 }
 
 TEST(CliRender, CamerasJsonAndBadOptions) {

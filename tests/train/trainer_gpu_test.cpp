@@ -63,6 +63,19 @@ void expect_graph_equals_eager(const Config& c, const std::string& data) {
   EXPECT_GT(max_weight_difference(init, graph.model()), 1e-4);
 }
 
+// A small synthetic phone-like capture: 4 train views and 1 test view of 16x16 through an OpenCV lens,
+// in nerfstudio's layout.
+void write_lens_capture(const std::string& dir) {
+  SynthOptions o;
+  o.res = 16;
+  o.train_views = 4;
+  o.test_views = 1;
+  o.threads = 1;
+  o.lens = "opencv";
+  o.layout = "nerfstudio";
+  write_synthetic_dataset(dir, o);
+}
+
 }  // namespace
 
 TEST(TrainerGpu, GraphEqualsEager) {
@@ -78,14 +91,7 @@ TEST(TrainerGpu, GraphEqualsEager) {
 TEST(TrainerGpu, GraphEqualsEagerThroughALensUnbounded) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   test::TempDir data;
-  SynthOptions o;
-  o.res = 16;
-  o.train_views = 4;
-  o.test_views = 1;
-  o.threads = 1;
-  o.lens = "opencv";
-  o.layout = "nerfstudio";
-  write_synthetic_dataset(data.path(), o);
+  write_lens_capture(data.path());
   Config c = test::tiny_config();
   c.set("train.steps=12");
   c.set("data.scene=unbounded");
@@ -95,20 +101,13 @@ TEST(TrainerGpu, GraphEqualsEagerThroughALensUnbounded) {
 
 // The capture preset's additions and the phone-capture options through the captured step: the hash
 // grid front end and its normalised decay, the proposal sampler, per-photo colour and camera
-// refinement with BARF's coarse-to-fine window (a device tensor the trainer updates before each replay). The first GPU
-// run with camera refinement stopped at the capture: its rotations went through torch::matrix_exp, which copies norms
-// to the host on CUDA (now a closed form).
+// refinement with BARF's coarse-to-fine window (a device tensor the trainer updates before each
+// replay). The first GPU run with camera refinement stopped at the capture: its rotations went
+// through torch::matrix_exp, which copies norms to the host on CUDA (now a closed form).
 TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   test::TempDir data;
-  SynthOptions o;
-  o.res = 16;
-  o.train_views = 4;
-  o.test_views = 1;
-  o.threads = 1;
-  o.lens = "opencv";
-  o.layout = "nerfstudio";
-  write_synthetic_dataset(data.path(), o);
+  write_lens_capture(data.path());
   const Config c = test::config_with(
       test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
                             "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16",
