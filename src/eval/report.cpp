@@ -192,7 +192,7 @@ std::string metrics_section(const std::vector<SplitMetrics>& all) {
     return s.str();
   }
   s << "<table><tr><th>split</th><th>views</th><th>PSNR (dB)</th><th>SSIM</th><th>LPIPS (Alex)</th>"
-       "<th>depth MAE (front / mean)</th><th>s / image</th><th>step</th><th>SSIM variant</th></tr>";
+       "<th>depth MAE (front / mean)</th><th>s / image</th><th>step</th><th>SSIM variant</th><th>protocol</th></tr>";
   for (const auto& sm : all) {
     const auto& m = sm.m;
     const auto mean = m.value("mean", nlohmann::json::object());
@@ -202,7 +202,10 @@ std::string metrics_section(const std::vector<SplitMetrics>& all) {
       << fmt_json(mean.value("lpips", nlohmann::json())) << "</td><td>" << depth_cell(mean) << "</td><td>"
       << fmt_json(m.value("seconds_per_image", nlohmann::json()), 3) << "</td><td>"
       << fmt_json(m.value("step", nlohmann::json())) << "</td><td>"
-      << fmt_json(m.value("ssim_variant", nlohmann::json())) << "</td></tr>";
+      << fmt_json(m.value("ssim_variant", nlohmann::json()))
+      << "</td><td>"
+      // How the held-out views were scored (evaluate.h): plain, aligned cameras, fitted look (right halves).
+      << html_escape(m.value("protocol", std::string("plain"))) << "</td></tr>";
   }
   s << "</table>";
   for (const auto& sm : all) {

@@ -156,6 +156,8 @@ TEST(Evaluate, FittedLookIsNerfWsProtocol) {
   const auto fitted = evaluate_run(run, o);
   EXPECT_EQ(fitted["protocol"], "fitted look");
   EXPECT_TRUE(fitted.contains("look_fit"));
+  write_report(run);  // the report says how the views were scored
+  EXPECT_NE(read_file(run_dir + "/report.html").find("<td>fitted look</td>"), std::string::npos);
   EXPECT_GE(fitted["mean"]["psnr"].get<double>(), 40.0);
   // (The map itself is ill-conditioned here, the untrained model's colours spanning a narrow range:
   // the exact recovery is the first half's check.)
