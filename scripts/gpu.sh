@@ -217,11 +217,12 @@ stage_capture() {
   local rc=0 dir name run t0 extra kv own
   for dir in ${CAPTURES:-.carry/fox4 .carry/fox4_sfm}; do
     [ -d "$dir" ] || { echo "capture: $dir not carried"; rc=1; continue; }
-    own=CAPTURE_SET_$(basename "$dir") extra=()
+    name=$(basename "$dir")
+    own=CAPTURE_SET_$name extra=()
     for kv in ${CAPTURE_SET:-} ${!own:-}; do extra+=(--set "$kv"); done
     # fox4_sfm travels without its photos, which are fox4's (scripts/carry.sh).
-    [ "$(basename "$dir")" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
-    name=$(basename "$dir") run=/tmp/cap_$(basename "$dir") t0=$SECONDS
+    [ "$name" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
+    run=/tmp/cap_$name t0=$SECONDS
     rm -rf "$run"
     $bin train --data "$dir" --config "${CAPTURE_CONFIG:-configs/budget.toml}" --out "$run" --device "${DEVICE:-cuda}" \
       --set train.time_budget_s="${CAPTURE_BUDGET:-120}" "${extra[@]}" > "$OUT/cap_${name}_train.log" 2>&1 || {

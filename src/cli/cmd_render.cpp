@@ -183,11 +183,7 @@ void run_render(const RenderArgs& a) {
 
   AbleNerf model = load_run_model(run, device);
   // --look N: the frames through training photo N's colour map (per-photo colour's look).
-  PhotoColourImpl* colour = a.look >= 0 ? model->photo_colour() : nullptr;
-  if (a.look >= 0 && colour == nullptr)
-    throw InputError("--look", "", "the run learnt no per-photo colour (train.photo_colour)");
-  if (colour && a.look >= colour->photos())
-    throw InputError("--look", "", "must be below " + std::to_string(colour->photos()) + " (the training photos)");
+  PhotoColourImpl* colour = photo_look(model->photo_colour(), a.look, "--look", "");
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
     log_warn("note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing");
   torch::Generator gen = at::detail::createCPUGenerator(static_cast<uint64_t>(a.seed));

@@ -157,10 +157,10 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     }
 
     const std::string stem = out_dir + "/r_" + std::to_string(i);
-    write_png(stem + ".png", look ? look->fitted : r.rgb);
+    const torch::Tensor& shown = look ? look->fitted : r.rgb;  // the whole render, through the fitted map
+    write_png(stem + ".png", shown);
     write_png(stem + "_gt.png", split.images[i]);
-    write_png(stem + "_error.png",
-              colormap(((look ? look->fitted : r.rgb) - split.images[i]).abs().mean(-1), 0.0, kErrorMapMax));
+    write_png(stem + "_error.png", colormap((shown - split.images[i]).abs().mean(-1), 0.0, kErrorMapMax));
     // Unbounded scenes reach 1e6: their depth maps span near to the image's 98th percentile.
     const double depth_far = ds.scene.kind == SceneKind::Unbounded
                                  ? std::max(ds.near * 1.01, r.depth_front.flatten().quantile(0.98).item<double>())

@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "geometry/depth_points.h"
 #include "util/errors.h"
 #include "util/fs.h"
 
@@ -165,10 +166,8 @@ nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch
 }
 
 double reference_tau(const torch::Tensor& points) {
-  const auto p = points.to(torch::kDouble).reshape({-1, 3});
-  if (p.size(0) == 0) return 0;
-  const auto q = torch::quantile(p, torch::tensor({0.01, 0.99}, torch::kDouble), 0);  // (2,3)
-  return 0.01 * (q[1] - q[0]).norm().item<double>();
+  const auto p = points.reshape({-1, 3});
+  return p.size(0) == 0 ? 0.0 : 0.01 * CropBox::around(p, 0.98, 0.0).diagonal();
 }
 
 }  // namespace ablenerf

@@ -81,12 +81,16 @@ void AbleNerfImpl::set_compute(const Compute& c) {
 }
 
 void AbleNerfImpl::set_frequency_window(double alpha) {
-  const int64_t degrees = grid_ ? cfg_.grid_ipe_degrees : cfg_.ipe_degrees;
-  const auto w = frequency_window_weights(alpha, degrees);
-  if (!band_weights_.defined() || band_weights_.device() != ray_token_.device())
-    band_weights_ = w.to(ray_token_.device());
-  else
+  const bool placed = band_weights_.defined() && band_weights_.device() == ray_token_.device();
+  // Unchanged (before the window's start and once it is open): no copy, which on a GPU would wait
+  // for the device every step.
+  if (placed && alpha == band_alpha_) return;
+  const auto w = frequency_window_weights(alpha, ipe_bands());
+  if (placed)
     band_weights_.copy_(w);
+  else
+    band_weights_ = w.to(ray_token_.device());
+  band_alpha_ = alpha;
 }
 
 int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const {

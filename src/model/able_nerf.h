@@ -106,6 +106,9 @@ class AbleNerfImpl : public torch::nn::Module {
   // beside the grid) are scaled by frequency_window_weights(alpha). Kept in one device tensor that
   // is updated in place, so a captured CUDA graph reads the current window. Never set = no window.
   void set_frequency_window(double alpha);
+  // The IPE's frequency bands in the sample tokens: model.ipe_degrees, or with the grid front end
+  // the coarse bands beside the grid (model.grid_ipe_degrees).
+  int64_t ipe_bands() const { return grid_ ? cfg_.grid_ipe_degrees : cfg_.ipe_degrees; }
   const Compute& compute() const { return compute_; }
   // CPU threads a batch of `rays` runs on with this model's ray split: 1 off the CPU, with
   // cpu_split = ops, or when the work draws random numbers (the draws would depend on the split).
@@ -136,6 +139,7 @@ class AbleNerfImpl : public torch::nn::Module {
   torch::Tensor ray_token_;              // (1,1,E) initial ray token
   torch::Tensor mask_;                   // (S+1,S+1) additive mask buffer; undefined when model.mask is off
   torch::Tensor band_weights_;           // the IPE features' coarse-to-fine weights; undefined = none
+  double band_alpha_ = -1;               // the window band_weights_ holds
   GridEmbedding grid_{nullptr};          // model.embedding = "grid" only
   Proposal proposal_{nullptr};           // model.proposal_samples > 0 only
   PhotoColour photo_colour_{nullptr};    // train.photo_colour only

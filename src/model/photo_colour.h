@@ -10,6 +10,8 @@
 // Novel views, eval and the viewer render the scene's own colour, the look of the average photo.
 #include <torch/torch.h>
 
+#include <string>
+
 namespace ablenerf {
 
 class PhotoColourImpl : public torch::nn::Module {
@@ -29,5 +31,10 @@ class PhotoColourImpl : public torch::nn::Module {
   torch::Tensor delta_;
 };
 TORCH_MODULE(PhotoColour);
+
+// The map that gives training photo `look`'s look, or nullptr for the photos' mean look (look < 0).
+// `colour` is the model's per-photo colour (AbleNerf::photo_colour(), null when the run learnt
+// none). InputError(where, field, ...) for a run without per-photo colour or a look out of range.
+PhotoColourImpl* photo_look(PhotoColourImpl* colour, int64_t look, const std::string& where, const std::string& field);
 
 }  // namespace ablenerf

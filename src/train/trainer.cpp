@@ -96,12 +96,9 @@ StepReport Trainer::step() {
   const auto indices = all.slice(0, begin, begin + s.local_rays);
   // BARF's coarse-to-fine window while the cameras are refined (before the step: a captured graph
   // reads the window's tensor, which this updates in place).
-  if (tc.camera_refine && tc.camera_refine_c2f_end > 0) {
-    const auto& mc = s.model->config();
-    const int64_t degrees = mc.embedding == Embedding::Grid ? mc.grid_ipe_degrees : mc.ipe_degrees;
-    s.model->set_frequency_window(
-        coarse_to_fine_alpha(schedule_fraction(), tc.camera_refine_c2f_start, tc.camera_refine_c2f_end, degrees));
-  }
+  if (tc.camera_refine && tc.camera_refine_c2f_end > 0)
+    s.model->set_frequency_window(coarse_to_fine_alpha(schedule_fraction(), tc.camera_refine_c2f_start,
+                                                       tc.camera_refine_c2f_end, s.model->ipe_bands()));
   StepReport r = s.cuda ? device_step(all, indices, lr) : host_step(all, indices, lr);
   s.state.step++;
   s.state.elapsed_seconds = s.local_elapsed();

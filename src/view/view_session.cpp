@@ -85,7 +85,7 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
     model_ = load_run_model(run_, device_);
   }
   model_->eval();
-  has_looks_ = model_->photo_colour() != nullptr;
+  if (!model_->photo_colour()) looks_.clear();  // no per-photo colour, no looks to offer
 }
 
 void ViewSession::set_weights(AbleNerf& trained, int64_t step) {
@@ -118,7 +118,7 @@ nlohmann::json ViewSession::cameras_json() const {
   }
   j["cameras"] = list;
   j["live"] = live_;
-  j["looks"] = has_looks_ ? looks_ : std::vector<std::string>{};
+  j["looks"] = looks_;
   return j;
 }
 
@@ -168,11 +168,7 @@ int ViewSession::nearest_camera(const std::array<float, 12>& c2w) const {
 
 std::string ViewSession::render_png(const std::array<float, 12>& asked, int width, int height, ViewMode mode,
                                     int* camera, int look) {
-  PhotoColourImpl* colour = look >= 0 ? model_->photo_colour() : nullptr;
-  if (look >= 0 && colour == nullptr)
-    throw InputError("request", "look", "the run learnt no per-photo colour (train.photo_colour)");
-  if (colour && look >= colour->photos())
-    throw InputError("request", "look", "must be below " + std::to_string(colour->photos()) + " (the training photos)");
+  PhotoColourImpl* colour = photo_look(model_->photo_colour(), look, "request", "look");
   const Intrinsics& d = cams_.intrinsics;
   Intrinsics k;  // the dataset's focal at this width, a pinhole
   k.width = width;

@@ -105,8 +105,7 @@ class ViewSession {
   SceneFrame scene_;
   CameraList cams_;
   std::vector<CaptureFrame> frames_;   // every split's frames, in cameras_json()'s order
-  std::vector<std::string> looks_;     // the training photos' names (per-photo colour's order)
-  bool has_looks_ = false;             // the model learnt per-photo colour
+  std::vector<std::string> looks_;     // the training photos' names (per-photo colour's order); empty without it
   int capture_h_ = 0, capture_w_ = 0;  // the capture's full image size
   torch::Device device_;
   AbleNerf model_{nullptr};
