@@ -34,18 +34,41 @@ struct MetricsArgs {
   int64_t samples = 200000;
 };
 
+// Dense truth from depth maps (geometry/surface_score.h, depth_truth_points): views and pixels taken.
+constexpr int64_t kTruthViews = 20;
+constexpr int kTruthSide = 200;
+
 // --geometry FILE --truth DATA: the file's points (a mesh sampled on its surface) against the
 // spheres of DATA/scene.json, seen from DATA's cameras (geometry/surface_score.h); or, for a
-// capture without a scene.json but with sparse points (COLMAP), those points' distances to the
-// geometry, both in the capture's own frame (export's default --frame).
+// capture without a scene.json, the points of its depth maps (nerf_synthetic's test views) scored
+// as the spheres are, else its sparse points (COLMAP) and their distances to the geometry; all in
+// the capture's own frame (export's default --frame).
 void run_geometry(const MetricsArgs& a) {
 #ifdef ABLENERF_HAVE_GEOMETRY
   if (!std::filesystem::exists(std::filesystem::path(a.truth) / "scene.json")) {
     const Capture capture = read_capture(a.truth, {}, 1);
+    for (const CaptureSplit& split : capture.splits) {
+      if (split.frames.empty() || !std::all_of(split.frames.begin(), split.frames.end(),
+                                               [](const CaptureFrame& f) { return !f.depth.empty(); }))
+        continue;
+      // About kTruthViews views of ~kTruthSide pixels across: ~10^5 truth points on lego.
+      const int64_t views = static_cast<int64_t>(split.frames.size());
+      const int64_t view_step = std::max<int64_t>(1, views / kTruthViews);
+      const int64_t pixel_step = std::max<int64_t>(1, split.frames.front().camera.width / kTruthSide);
+      const auto truth = depth_truth_points(split, view_step, pixel_step);
+      const double tau = a.tau > 0 ? a.tau : reference_tau(truth);
+      const PointSet pts = read_geometry_points(a.geometry, a.samples);
+      auto out = score_against_truth_points(pts.xyz, truth, tau);
+      out["file"] = a.geometry;
+      out["truth"] = capture.format + " depth maps: " + std::to_string((views + view_step - 1) / view_step) + " " +
+                     split.name + " views, every " + std::to_string(pixel_step) + " pixels";
+      std::cout << out.dump(2) << std::endl;
+      return;
+    }
     if (capture.points.empty())
       throw InputError(a.truth, "scene.json",
-                       "missing, and the capture has no sparse points: --truth takes a scene made by `ablenerf synth` "
-                       "or a COLMAP capture");
+                       "missing, and the capture has no depth maps or sparse points: --truth takes a scene made by "
+                       "`ablenerf synth`, a Blender scene with depth maps or a COLMAP capture");
     auto ref = torch::empty({static_cast<int64_t>(capture.points.size()), 3}, torch::kDouble);
     auto acc = ref.accessor<double, 2>();
     for (size_t i = 0; i < capture.points.size(); ++i)
@@ -135,9 +158,10 @@ void setup(CLI::App& app) {
   app.add_option("--ref", a->ref, "Reference (ground-truth) PNG");
   app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)");
   app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
-  app.add_option(
-      "--truth", a->truth,
-      "A scene made by `ablenerf synth` (its scene.json and cameras), or a COLMAP capture (its sparse points)");
+  app.add_option("--truth", a->truth,
+                 "A scene made by `ablenerf synth` (its scene.json and cameras), a Blender scene with depth maps "
+                 "(nerf_synthetic's "
+                 "test views), or a COLMAP capture (its sparse points)");
   app.add_option("--tau", a->tau,
                  "Distance threshold (default: 1% of the objects' size, or of the sparse points' central 98%)");
   app.add_option("--samples", a->samples, "Points sampled on a mesh's surface")->capture_default_str();

@@ -22,14 +22,21 @@ namespace ablenerf {
 // Checked finite and rigid (rotation orthonormal with det +1).
 using Pose34 = std::array<float, 12>;
 
+// How a frame's depth file holds its depth (Dataset::load makes both camera-space depth along -z).
+enum class DepthFormat {
+  Tensor,      // a pickled float tensor (H, W) of that depth (synth's r_N_depth.pt, depth_file_path)
+  BlenderPng,  // nerf_synthetic's r_N_depth_0001.png (data/depth_file.h)
+};
+
 struct CaptureFrame {
   // Canonical path of the frame's image, inside the dataset folder: the pre-downscaled copy
   // (images_N/, see resolve_downscaled) when one matches the requested downscale.
   std::string image;
   bool prescaled = false;  // `image` is already downscaled (decoded as is, the camera scaled to its size)
   Intrinsics camera;       // at full resolution (width x height of Capture)
-  std::string depth;       // canonical path of its depth tensor ("" when the frame has none)
-  std::string field;       // the field that names the image, e.g. "frames[3].file_path", for errors
+  std::string depth;       // canonical path of its depth file ("" when the frame has none)
+  DepthFormat depth_format = DepthFormat::Tensor;
+  std::string field;  // the field that names the image, e.g. "frames[3].file_path", for errors
   Pose34 pose{};
   // Canonical path of the frame's mask image ("" when none), at the capture's full size: which
   // pixels may train (Dataset::load, data.masks). Its first channel, thresholded at 128, says

@@ -11,6 +11,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "data/depth_file.h"
 #include "data/capture.h"
 #include "data/transforms_json.h"
 #include "util/errors.h"
@@ -166,15 +167,7 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
             frame_mask(fr, masks[static_cast<size_t>(i - start)], expect_h, expect_w, f, h, w);
       }
       if (!fr.depth.empty()) {
-        torch::Tensor d;
-        try {
-          const std::string bytes = read_file(fr.depth);
-          d = torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor().to(torch::kFloat);
-        } catch (const InputError&) {
-          throw;
-        } catch (const std::exception&) {
-          throw InputError(fr.depth, fr.field, "cannot read depth tensor");
-        }
+        torch::Tensor d = read_frame_depth(fr);
         if (d.dim() != 2 || d.size(0) != expect_h || d.size(1) != expect_w)
           throw InputError(fr.depth, fr.field, "depth map size does not match the image");
         if (f > 1) d = box_downscale(d.unsqueeze(-1), f).squeeze(-1);
@@ -207,12 +200,13 @@ Split decode_split(const CaptureSplit& spec, const LoadOptions& opts, int expect
 
 void check_memory(const std::vector<CaptureSplit>& specs, int h, int w, const LoadOptions& opts,
                   const std::string& root) {
-  int64_t frames = 0;
-  for (const auto& s : specs) frames += static_cast<int64_t>(s.frames.size());
+  double planes = 0;  // per pixel: RGB and alpha, and depth where the split has it
+  for (const auto& s : specs)
+    planes += static_cast<double>(s.frames.size()) * (s.frames.empty() || s.frames.front().depth.empty() ? 4 : 5);
   const int64_t hh = h / opts.downscale, ww = w / opts.downscale;
   // In double: json sizes and frame counts are untrusted and their product may not fit int64.
-  const double need = static_cast<double>(frames) * hh * ww * 4 * sizeof(float) +
-                      static_cast<double>(h) * w * 4 * 4 * 2;  // decoded + one full-res scratch
+  const double need =
+      planes * hh * ww * sizeof(float) + static_cast<double>(h) * w * 4 * 4 * 2;  // decoded + one full-res scratch
   const int64_t have = opts.memory_limit_bytes > 0 ? opts.memory_limit_bytes : available_memory_bytes();
   if (need > static_cast<double>(have))
     throw InputError(root, "images",

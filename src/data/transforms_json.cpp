@@ -1,5 +1,6 @@
 #include "data/transforms_json.h"
 
+#include "data/depth_file.h"
 #include "data/capture_formats.h"
 
 #include "data/ply.h"
@@ -303,7 +304,14 @@ void read_blender_capture(const std::string& root, const std::vector<std::string
     } else if (std::abs(a - angle) > 1e-9) {
       throw InputError(file, "camera_angle_x", "differs from " + first_file + " (splits must share one camera)");
     }
-    out.splits.push_back({name, file, parse_frames(j, root, file, true)});
+    auto frames = parse_frames(j, root, file, true);
+    // nerf_synthetic's test frames keep their depth beside the image (data/depth_file.h).
+    for (auto& f : frames) {
+      if (!f.depth.empty()) continue;
+      f.depth = blender_depth_file(f.image);
+      if (!f.depth.empty()) f.depth_format = DepthFormat::BlenderPng;
+    }
+    out.splits.push_back({name, file, std::move(frames)});
   }
   if (out.splits.empty()) throw InputError(root, "transforms_*.json", "no split selected or present");
   const auto hw = image_size(out.splits.front().frames.front().image);

@@ -1,7 +1,11 @@
 #include "geometry/surface_score.h"
 
-#include <cmath>
+#include <open3d/geometry/PointCloud.h>
 
+#include <cmath>
+#include <vector>
+
+#include "data/depth_file.h"
 #include "geometry/depth_points.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -9,9 +13,6 @@
 namespace ablenerf {
 
 namespace {
-
-// Rows of `points` per distance block: bounds the (block x N) distance matrix.
-constexpr int64_t kBlock = 256;
 
 // A sphere's centre as a (3) float64 tensor.
 torch::Tensor centre_of(const SphereTruth& s) {
@@ -25,15 +26,23 @@ torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<Sphere
   return torch::stack(cols, 1);
 }
 
-// Nearest-neighbour distance from each row of `from` (K,3) to the rows of `to` (N,3), in blocks.
+// Open3D's cloud of the rows of `xyz` (K,3).
+open3d::geometry::PointCloud cloud_of(const torch::Tensor& xyz) {
+  const auto p = xyz.to(torch::kDouble).contiguous();
+  const auto a = p.accessor<double, 2>();
+  open3d::geometry::PointCloud c;
+  c.points_.resize(static_cast<size_t>(p.size(0)));
+  for (int64_t i = 0; i < p.size(0); ++i) c.points_[static_cast<size_t>(i)] = {a[i][0], a[i][1], a[i][2]};
+  return c;
+}
+
+// Nearest-neighbour distance from each row of `from` (K,3) to the rows of `to` (N,3): Open3D's
+// k-d tree (PointCloud::ComputePointCloudDistance), exact; infinity when `to` is empty.
 torch::Tensor nearest_distances(const torch::Tensor& from, const torch::Tensor& to) {
-  auto out = torch::full({from.size(0)}, INFINITY, torch::kDouble);
-  if (to.size(0) == 0) return out;
-  for (int64_t b = 0; b < from.size(0); b += kBlock) {
-    const auto f = from.slice(0, b, std::min(from.size(0), b + kBlock));
-    out.slice(0, b, b + f.size(0)).copy_(std::get<0>(torch::cdist(f, to).min(1)));
-  }
-  return out;
+  if (to.size(0) == 0) return torch::full({from.size(0)}, INFINITY, torch::kDouble);
+  if (from.size(0) == 0) return torch::empty({0}, torch::kDouble);
+  std::vector<double> d = cloud_of(from).ComputePointCloudDistance(cloud_of(to));
+  return torch::tensor(d, torch::kDouble);
 }
 
 nlohmann::json summary(const torch::Tensor& acc, const torch::Tensor& comp, double tau) {
@@ -163,6 +172,33 @@ nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch
   j["distance_mean"] = d.mean().item<double>();
   j["within_tau"] = (d < tau).to(torch::kDouble).mean().item<double>();
   return j;
+}
+
+torch::Tensor depth_truth_points(const CaptureSplit& split, int64_t view_step, int64_t pixel_step) {
+  std::vector<torch::Tensor> parts;
+  const CropBox everywhere{{-1e30, -1e30, -1e30}, {1e30, 1e30, 1e30}};
+  for (size_t i = 0; i < split.frames.size(); i += static_cast<size_t>(view_step)) {
+    const CaptureFrame& fr = split.frames[i];
+    if (fr.depth.empty()) continue;
+    const auto depth = read_frame_depth(fr);
+    const Intrinsics k = fr.camera.scaled(static_cast<double>(depth.size(1)) / fr.camera.width,
+                                          static_cast<int>(depth.size(1)), static_cast<int>(depth.size(0)));
+    auto keep = torch::zeros(depth.sizes(), torch::kBool);
+    keep.index_put_({torch::indexing::Slice(0, torch::indexing::None, pixel_step),
+                     torch::indexing::Slice(0, torch::indexing::None, pixel_step)},
+                    true);
+    const auto c2w = torch::tensor(std::vector<float>(fr.pose.begin(), fr.pose.end())).view({3, 4});
+    const auto rgb = torch::zeros({depth.size(0), depth.size(1), 3});
+    parts.push_back(points_from_depth(c2w, k, depth, rgb, 0.0, 1e30, everywhere, keep).xyz.to(torch::kDouble));
+  }
+  return parts.empty() ? torch::empty({0, 3}, torch::kDouble) : torch::cat(parts);
+}
+
+nlohmann::json score_against_truth_points(const torch::Tensor& geometry, const torch::Tensor& truth, double tau) {
+  const auto g = geometry.to(torch::kDouble).reshape({-1, 3}), t = truth.to(torch::kDouble).reshape({-1, 3});
+  nlohmann::json out = summary(nearest_distances(g, t), nearest_distances(t, g), tau);
+  out["tau"] = tau;
+  return out;
 }
 
 double reference_tau(const torch::Tensor& points) {

@@ -15,6 +15,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "data/capture.h"
+
 namespace ablenerf {
 
 struct SphereTruth {
@@ -47,6 +49,19 @@ nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vec
 // "inside", "tau", "distance_median", "distance_mean", "within_tau"} (the share of the inside points
 // within tau; null figures when none is inside).
 nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch::Tensor& reference, double tau);
+
+// Points on the true surface from a capture's depth maps (nerf_synthetic's test views, a synth
+// scene's; data/depth_file.h): every `view_step`-th frame of `split` that has one, every
+// `pixel_step`-th pixel along both axes, moved out along its ray by its depth. (N,3) float64 in the
+// capture's coordinates; 8-bit maps put them within half a step of the surface (Blender: 0.016).
+torch::Tensor depth_truth_points(const CaptureSplit& split, int64_t view_step, int64_t pixel_step);
+
+// Geometry against dense truth points, as score_against_spheres scores spheres: accuracy = each
+// geometry point's distance to the nearest truth point, completeness = each truth point's to the
+// nearest geometry point; {"points", "samples", "accuracy_mean", "completeness_mean", "chamfer",
+// "precision", "recall", "fscore", "tau"}. Truth covers what its views saw: geometry elsewhere (a
+// floor under the object no view looks at) counts against accuracy.
+nlohmann::json score_against_truth_points(const torch::Tensor& geometry, const torch::Tensor& truth, double tau);
 
 // A default threshold for score_reference_points: 1% of the diagonal of the box that holds the
 // central 98% of `points` (N,3) along each axis (sparse points have stray far ones).

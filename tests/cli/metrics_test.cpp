@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
@@ -124,6 +125,51 @@ TEST(MetricsCli, GeometryAgainstAColmapCapturesSparsePoints) {
   r = test::run_cli("metrics --geometry " + t / "plane.ply" + " --truth " + t / "cap");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("scene.json"), std::string::npos) << r.output;
+}
+
+// --geometry against a Blender scene's depth maps (data/depth_file.h): one camera 4 units above
+// the plane z = 0 looking straight down, its depth PNG the plane's ray distances in the Blender
+// encoding (8 (1 - v / 255)). A grid of points on that plane scores F = 1 at tau 0.1 (the truth's
+// points lie 0.128 apart); the same grid lifted by 0.3 scores F = 0 and an accuracy of ~0.3.
+TEST(MetricsCli, GeometryAgainstABlenderScenesDepthMaps) {
+  if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
+  test::TempDir t("metrics");
+  std::filesystem::create_directories(t / "scene/test");
+  const int side = 16;
+  const double angle = 0.5, f = 0.5 * side / std::tan(0.5 * angle);
+  test::write_file(t / "scene/transforms_test.json",
+                   R"({"camera_angle_x": 0.5, "frames": [{"file_path": "./test/r_0", "transform_matrix": )"
+                   R"([[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}]})");
+  write_png(t / "scene/test/r_0.png", torch::full({side, side, 4}, 255, torch::kUInt8));
+  auto depth = torch::zeros({side, side, 4}, torch::kUInt8);
+  for (int r = 0; r < side; ++r)
+    for (int c = 0; c < side; ++c) {
+      const double x = (c + 0.5 - side / 2.0) / f, y = (r + 0.5 - side / 2.0) / f;
+      const double ray = 4.0 * std::sqrt(1 + x * x + y * y);
+      depth.index_put_({r, c}, static_cast<int>(std::lround(255.0 * (1.0 - ray / 8.0))));
+    }
+  write_png(t / "scene/test/r_0_depth_0001.png", depth);
+  for (const double z : {0.0, 0.3}) {
+    std::ostringstream ply;
+    ply << "ply\nformat ascii 1.0\nelement vertex " << 101 * 101
+        << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+    for (int i = -50; i <= 50; ++i)
+      for (int k = -50; k <= 50; ++k) ply << 0.02 * i << " " << 0.02 * k << " " << z << "\n";
+    test::write_file(t / "plane.ply", ply.str());
+    auto r = test::run_cli("metrics --geometry " + t / "plane.ply" + " --truth " + t / "scene" + " --tau 0.1");
+    if (r.output.find("no geometry scoring") != std::string::npos) GTEST_SKIP() << "built without Open3D";
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const auto j = nlohmann::json::parse(r.output);
+    EXPECT_NE(j["truth"].get<std::string>().find("depth maps"), std::string::npos) << r.output;
+    EXPECT_EQ(j["samples"].get<int64_t>(), side * side);
+    if (z == 0.0) {
+      EXPECT_GT(j["fscore"].get<double>(), 0.99) << r.output;
+      EXPECT_LT(j["accuracy_mean"].get<double>(), 0.08) << r.output;
+    } else {
+      EXPECT_EQ(j["fscore"].get<double>(), 0.0) << r.output;
+      EXPECT_NEAR(j["accuracy_mean"].get<double>(), 0.3, 0.03) << r.output;
+    }
+  }
 }
 
 }  // namespace

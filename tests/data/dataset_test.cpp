@@ -184,6 +184,10 @@ TEST(Dataset, LegoScene) {
   EXPECT_EQ(ds.split("train").size(), 100);
   EXPECT_EQ(ds.split("test").size(), 200);
   EXPECT_FALSE(ds.has("val"));
+  // The test views' depth maps beside their images (data/depth_file.h); the train views have none.
+  EXPECT_FALSE(ds.split("train").depth.defined());
+  ASSERT_TRUE(ds.split("test").depth.defined());
+  EXPECT_EQ(ds.split("test").depth.sizes(), (std::vector<int64_t>{200, 100, 100}));
   EXPECT_EQ(ds.intrinsics.width, 100);
   // focal 1111.11 at 800 px -> 138.89 at 100 px
   EXPECT_NEAR(ds.intrinsics.fx * 8, 1111.1110311937682, 1e-4);
