@@ -34,7 +34,7 @@ struct MetricsArgs {
   int64_t samples = 200000;
 };
 
-// Dense truth from depth maps (geometry/surface_score.h, depth_truth_points): views and pixels taken.
+// Dense truth from depth maps (geometry/surface_score.h, depth_truth): views and pixels taken.
 constexpr int64_t kTruthViews = 20;
 constexpr int kTruthSide = 200;
 
@@ -55,10 +55,21 @@ void run_geometry(const MetricsArgs& a) {
       const int64_t views = static_cast<int64_t>(split.frames.size());
       const int64_t view_step = std::max<int64_t>(1, views / kTruthViews);
       const int64_t pixel_step = std::max<int64_t>(1, split.frames.front().camera.width / kTruthSide);
-      const auto truth = depth_truth_points(split, view_step, pixel_step);
-      const double tau = a.tau > 0 ? a.tau : reference_tau(truth);
+      const DepthTruth truth = depth_truth(split, view_step, pixel_step);
+      const auto truth_points = depth_truth_points(truth);
+      const double tau = a.tau > 0 ? a.tau : reference_tau(truth_points);
       const PointSet pts = read_geometry_points(a.geometry, a.samples);
-      auto out = score_against_truth_points(pts.xyz, truth, tau);
+      auto out = score_against_truth_points(pts.xyz, truth_points, tau);
+      // A mesh is also seen from the truth's cameras: its depth maps against theirs (pinhole
+      // cameras: nerf_synthetic's and synth's).
+      const bool pinhole =
+          std::none_of(truth.cameras.begin(), truth.cameras.end(), [](const auto& c) { return c.second.distorted(); });
+      const auto maps = pinhole ? mesh_depth_maps(a.geometry, truth.cameras) : std::vector<torch::Tensor>{};
+      if (!maps.empty()) {
+        std::vector<torch::Tensor> seen;
+        for (size_t v = 0; v < maps.size(); ++v) seen.push_back(maps[v].reshape({-1}).index_select(0, truth.pixels[v]));
+        out["mesh_depth"] = score_depth_against_truth(torch::cat(seen), truth.depth);
+      }
       out["file"] = a.geometry;
       out["truth"] = capture.format + " depth maps: " + std::to_string((views + view_step - 1) / view_step) + " " +
                      split.name + " views, every " + std::to_string(pixel_step) + " pixels";

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <vector>
 #include <filesystem>
 
 #include "util/errors.h"
@@ -298,6 +299,57 @@ PointSet read_geometry_points(const std::string& path, int64_t mesh_samples) {
   if (!open3d::io::ReadPointCloud(path, pc) || pc.points_.empty())
     throw InputError(path, "", "no points or triangles could be read (PLY, OBJ or glTF expected)");
   return point_set(pc);
+}
+
+std::vector<torch::Tensor> mesh_depth_maps(const std::string& path,
+                                           const std::vector<std::pair<torch::Tensor, Intrinsics>>& cameras) {
+  quiet_open3d();
+  if (!fs::is_regular_file(path)) throw InputError(path, "", "file not found");
+  open3d::geometry::TriangleMesh mesh;
+  open3d::io::ReadTriangleMeshOptions mo;
+  if (!open3d::io::ReadTriangleMesh(path, mesh, mo) || mesh.triangles_.empty()) return {};
+  std::vector<torch::Tensor> out;
+  for (const auto& [pose, k] : cameras) {
+    const auto c2w = pose.to(torch::kDouble).contiguous();
+    const auto m = c2w.accessor<double, 2>();
+    // Camera coordinates of every vertex: R^T (p - c); the image point (X, Y) with pixel centres at
+    // col + 0.5, row + 0.5 (data/rays.h casts (X - cx) / fx, -(Y - cy) / fy, -1).
+    const size_t nv = mesh.vertices_.size();
+    std::vector<double> px(nv), py(nv), pz(nv);
+    for (size_t v = 0; v < nv; ++v) {
+      double d[3], c[3];
+      for (int a = 0; a < 3; ++a) d[a] = mesh.vertices_[v][a] - m[a][3];
+      for (int a = 0; a < 3; ++a) c[a] = m[0][a] * d[0] + m[1][a] * d[1] + m[2][a] * d[2];
+      pz[v] = -c[2];
+      px[v] = k.fx * c[0] / pz[v] + k.cx;
+      py[v] = -k.fy * c[1] / pz[v] + k.cy;
+    }
+    auto depth = torch::full({k.height, k.width}, INFINITY, torch::kFloat);
+    auto z = depth.accessor<float, 2>();
+    for (const auto& t : mesh.triangles_) {
+      const int a = t[0], b = t[1], c = t[2];
+      if (pz[a] <= 1e-9 || pz[b] <= 1e-9 || pz[c] <= 1e-9) continue;
+      const double area = (px[b] - px[a]) * (py[c] - py[a]) - (px[c] - px[a]) * (py[b] - py[a]);
+      if (area == 0) continue;
+      const int c0 = std::max(0, static_cast<int>(std::floor(std::min({px[a], px[b], px[c]}) - 0.5)));
+      const int c1 = std::min(k.width - 1, static_cast<int>(std::ceil(std::max({px[a], px[b], px[c]}) - 0.5)));
+      const int r0 = std::max(0, static_cast<int>(std::floor(std::min({py[a], py[b], py[c]}) - 0.5)));
+      const int r1 = std::min(k.height - 1, static_cast<int>(std::ceil(std::max({py[a], py[b], py[c]}) - 0.5)));
+      for (int row = r0; row <= r1; ++row)
+        for (int col = c0; col <= c1; ++col) {
+          const double x = col + 0.5, y = row + 0.5;
+          // Barycentric weights from the signed areas opposite each corner.
+          const double wa = ((px[b] - x) * (py[c] - y) - (px[c] - x) * (py[b] - y)) / area;
+          const double wb = ((px[c] - x) * (py[a] - y) - (px[a] - x) * (py[c] - y)) / area;
+          const double wc = 1.0 - wa - wb;
+          if (wa < 0 || wb < 0 || wc < 0) continue;
+          const double d = 1.0 / (wa / pz[a] + wb / pz[b] + wc / pz[c]);
+          if (d < z[row][col]) z[row][col] = static_cast<float>(d);
+        }
+    }
+    out.push_back(depth);
+  }
+  return out;
 }
 
 void write_points(const PointSet& points, const std::string& path) {

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "data/depth_file.h"
+#include "data/rays.h"
 #include "geometry/depth_points.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -174,24 +175,66 @@ nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch
   return j;
 }
 
-torch::Tensor depth_truth_points(const CaptureSplit& split, int64_t view_step, int64_t pixel_step) {
-  std::vector<torch::Tensor> parts;
-  const CropBox everywhere{{-1e30, -1e30, -1e30}, {1e30, 1e30, 1e30}};
+DepthTruth depth_truth(const CaptureSplit& split, int64_t view_step, int64_t pixel_step) {
+  DepthTruth truth;
+  std::vector<torch::Tensor> origins, directions, depths;
   for (size_t i = 0; i < split.frames.size(); i += static_cast<size_t>(view_step)) {
     const CaptureFrame& fr = split.frames[i];
     if (fr.depth.empty()) continue;
     const auto depth = read_frame_depth(fr);
     const Intrinsics k = fr.camera.scaled(static_cast<double>(depth.size(1)) / fr.camera.width,
                                           static_cast<int>(depth.size(1)), static_cast<int>(depth.size(0)));
+    const auto c2w = torch::tensor(std::vector<float>(fr.pose.begin(), fr.pose.end())).view({3, 4});
+    const Rays rays = rays_for_image(c2w, k);
     auto keep = torch::zeros(depth.sizes(), torch::kBool);
     keep.index_put_({torch::indexing::Slice(0, torch::indexing::None, pixel_step),
                      torch::indexing::Slice(0, torch::indexing::None, pixel_step)},
                     true);
-    const auto c2w = torch::tensor(std::vector<float>(fr.pose.begin(), fr.pose.end())).view({3, 4});
-    const auto rgb = torch::zeros({depth.size(0), depth.size(1), 3});
-    parts.push_back(points_from_depth(c2w, k, depth, rgb, 0.0, 1e30, everywhere, keep).xyz.to(torch::kDouble));
+    const auto idx = keep.reshape({-1}).nonzero().squeeze(-1);
+    truth.cameras.emplace_back(c2w, k);
+    truth.pixels.push_back(idx);
+    origins.push_back(rays.origins.index_select(0, idx));
+    directions.push_back(rays.directions.index_select(0, idx));
+    depths.push_back(depth.reshape({-1}).index_select(0, idx));
   }
-  return parts.empty() ? torch::empty({0, 3}, torch::kDouble) : torch::cat(parts);
+  if (depths.empty()) {
+    truth.origins = truth.directions = torch::empty({0, 3});
+    truth.depth = torch::empty({0});
+  } else {
+    truth.origins = torch::cat(origins);
+    truth.directions = torch::cat(directions);
+    truth.depth = torch::cat(depths);
+  }
+  return truth;
+}
+
+torch::Tensor depth_truth_points(const DepthTruth& truth) {
+  const auto hit = (truth.depth > 0).nonzero().squeeze(-1);
+  return (truth.origins.index_select(0, hit) +
+          truth.directions.index_select(0, hit) * truth.depth.index_select(0, hit).unsqueeze(-1))
+      .to(torch::kDouble);
+}
+
+nlohmann::json score_depth_against_truth(const torch::Tensor& depth, const torch::Tensor& truth) {
+  const auto d = depth.to(torch::kDouble).reshape({-1}), t = truth.to(torch::kDouble).reshape({-1});
+  const auto surface = t > 0, seen = torch::isfinite(d) & (d > 0);
+  const auto both = surface & seen;
+  nlohmann::json j;
+  j["pixels"] = t.size(0);
+  j["surface_pixels"] = surface.sum().item<int64_t>();
+  const int64_t n_surface = j["surface_pixels"].get<int64_t>(), n_both = both.sum().item<int64_t>();
+  const int64_t n_background = t.size(0) - n_surface;
+  j["hit_share"] = n_surface ? static_cast<double>(n_both) / n_surface : 0.0;
+  j["false_surface_share"] =
+      n_background ? (seen & ~surface).sum().item<double>() / static_cast<double>(n_background) : 0.0;
+  if (n_both) {
+    const auto err = (d - t).masked_select(both).abs();
+    j["depth_mae"] = err.mean().item<double>();
+    j["depth_median"] = err.median().item<double>();
+  } else {
+    j["depth_mae"] = j["depth_median"] = nullptr;
+  }
+  return j;
 }
 
 nlohmann::json score_against_truth_points(const torch::Tensor& geometry, const torch::Tensor& truth, double tau) {

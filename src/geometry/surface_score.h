@@ -50,11 +50,28 @@ nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vec
 // within tau; null figures when none is inside).
 nlohmann::json score_reference_points(const torch::Tensor& geometry, const torch::Tensor& reference, double tau);
 
-// Points on the true surface from a capture's depth maps (nerf_synthetic's test views, a synth
-// scene's; data/depth_file.h): every `view_step`-th frame of `split` that has one, every
-// `pixel_step`-th pixel along both axes, moved out along its ray by its depth. (N,3) float64 in the
-// capture's coordinates; 8-bit maps put them within half a step of the surface (Blender: 0.016).
-torch::Tensor depth_truth_points(const CaptureSplit& split, int64_t view_step, int64_t pixel_step);
+// The pixels of a capture's depth maps (nerf_synthetic's test views, a synth scene's;
+// data/depth_file.h): every `view_step`-th frame of `split` that has one, every `pixel_step`-th
+// pixel along both axes. Their rays (data/rays.h: directions with camera-space z = -1) in the
+// capture's coordinates, (N,3) each, and their depth along them (N), 0 where nothing was hit. 8-bit
+// maps hold depth to within half a step (Blender: 0.016).
+struct DepthTruth {
+  torch::Tensor origins, directions, depth;
+  // The views they came from, for rendering geometry the same way: each one's camera-to-world
+  // (3,4), camera, and which of its pixels (flat indices, row-major) are in the rows above.
+  std::vector<std::pair<torch::Tensor, Intrinsics>> cameras;
+  std::vector<torch::Tensor> pixels;
+};
+DepthTruth depth_truth(const CaptureSplit& split, int64_t view_step, int64_t pixel_step);
+// The points where they hit something, origin + depth x direction: (M,3) float64.
+torch::Tensor depth_truth_points(const DepthTruth& truth);
+
+// A depth map of the geometry (e.g. a mesh's from the truth's cameras: fuse.h, mesh_depth_maps)
+// against the truth's, both (N) in the same units; the truth's 0 and the geometry's non-finite or
+// 0 mean nothing there. {"pixels", "surface_pixels" (the truth's), "hit_share" (of those, where the
+// geometry has a surface too), "false_surface_share" (of the truth's background, where it has one),
+// "depth_mae", "depth_median" (|error| where both have a surface; null when nowhere)}.
+nlohmann::json score_depth_against_truth(const torch::Tensor& depth, const torch::Tensor& truth);
 
 // Geometry against dense truth points, as score_against_spheres scores spheres: accuracy = each
 // geometry point's distance to the nearest truth point, completeness = each truth point's to the

@@ -130,7 +130,8 @@ TEST(MetricsCli, GeometryAgainstAColmapCapturesSparsePoints) {
 // --geometry against a Blender scene's depth maps (data/depth_file.h): one camera 4 units above
 // the plane z = 0 looking straight down, its depth PNG the plane's ray distances in the Blender
 // encoding (8 (1 - v / 255)). A grid of points on that plane scores F = 1 at tau 0.1 (the truth's
-// points lie 0.128 apart); the same grid lifted by 0.3 scores F = 0 and an accuracy of ~0.3.
+// points lie 0.128 apart); the same grid lifted by 0.3 scores F = 0 and an accuracy of ~0.3. As a
+// mesh, the plane's depth seen from the camera is off by exactly its lift.
 TEST(MetricsCli, GeometryAgainstABlenderScenesDepthMaps) {
   if (!cli_available()) GTEST_SKIP() << "ABLENERF_BIN not built";
   test::TempDir t("metrics");
@@ -162,6 +163,21 @@ TEST(MetricsCli, GeometryAgainstABlenderScenesDepthMaps) {
     const auto j = nlohmann::json::parse(r.output);
     EXPECT_NE(j["truth"].get<std::string>().find("depth maps"), std::string::npos) << r.output;
     EXPECT_EQ(j["samples"].get<int64_t>(), side * side);
+    EXPECT_FALSE(j.contains("mesh_depth")) << "points have no depth to cast";
+    // The same plane as a mesh of two triangles (1.5 across each way): cast from the camera, its
+    // depth is 4 - z at every pixel, the truth's 4 to within the 8-bit step.
+    test::write_file(t / "square.ply",
+                     "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                     "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+                     "end_header\n-1.5 -1.5 " +
+                         std::to_string(z) + "\n1.5 -1.5 " + std::to_string(z) + "\n1.5 1.5 " + std::to_string(z) +
+                         "\n-1.5 1.5 " + std::to_string(z) + "\n3 0 1 2\n3 0 2 3\n");
+    r = test::run_cli("metrics --geometry " + t / "square.ply" + " --truth " + t / "scene" + " --tau 0.1");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    const auto m = nlohmann::json::parse(r.output).at("mesh_depth");
+    EXPECT_EQ(m["surface_pixels"].get<int64_t>(), side * side) << r.output;
+    EXPECT_DOUBLE_EQ(m["hit_share"].get<double>(), 1.0) << r.output;
+    EXPECT_NEAR(m["depth_mae"].get<double>(), z, 0.016) << r.output;
     if (z == 0.0) {
       EXPECT_GT(j["fscore"].get<double>(), 0.99) << r.output;
       EXPECT_LT(j["accuracy_mean"].get<double>(), 0.08) << r.output;

@@ -114,10 +114,11 @@ TEST(BlenderDepth, LegoNeighbouringViewsAgree) {
     const std::string file = lego + "/" + fr.at("file_path").get<std::string>() + "_depth_0001.png";
     View v;
     const auto png = read_png(file);
-    v.z = as_ray_distance ? blender_depth_to_z(png, k)
-                          : torch::where(png.select(2, 0) > 0, 8.0 * (1.0 - png.select(2, 0).to(torch::kDouble) / 255.0),
-                                         torch::zeros({800, 800}, torch::kDouble))
-                                .to(torch::kFloat);
+    v.z = as_ray_distance
+              ? blender_depth_to_z(png, k)
+              : torch::where(png.select(2, 0) > 0, 8.0 * (1.0 - png.select(2, 0).to(torch::kDouble) / 255.0),
+                             torch::zeros({800, 800}, torch::kDouble))
+                    .to(torch::kFloat);
     std::vector<double> m;
     for (const auto& row : fr.at("transform_matrix"))
       for (const auto& e : row) m.push_back(e.get<double>());

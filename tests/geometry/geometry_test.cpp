@@ -8,7 +8,9 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <limits>
 #include <filesystem>
+#include <sstream>
 
 #include "data/ply.h"
 #include "geometry/depth_points.h"
@@ -342,6 +344,73 @@ TEST(SurfaceScore, ReferencePointsDistancesToThePlane) {
   // The default threshold: 1% of the central box's diagonal (a far stray point does not count).
   auto pts = torch::cat({plane, torch::tensor({{1000.0, 1000.0, 1000.0}}, torch::kDouble)});
   EXPECT_NEAR(reference_tau(pts), 0.01 * std::sqrt(2.0) * 1.96, 0.01 * 0.05);
+}
+
+// A geometry's depth against true depth (score_depth_against_truth), by hand: of the truth's three
+// surface pixels the geometry sees two (errors 0.1 and 0.5) and misses one (infinity); of its two
+// background pixels it puts a surface at one. Truth points (depth_truth_points) sit at
+// origin + depth x direction for the pixels that hit.
+TEST(SurfaceScore, DepthAgainstTrueDepth) {
+  const auto truth = torch::tensor({0.0, 2.0, 3.0, 4.0, 0.0}, torch::kDouble);
+  const double inf = std::numeric_limits<double>::infinity();
+  const auto depth = torch::tensor({inf, 2.1, inf, 3.5, 1.0}, torch::kDouble);
+  const auto j = score_depth_against_truth(depth, truth);
+  EXPECT_EQ(j["pixels"].get<int64_t>(), 5);
+  EXPECT_EQ(j["surface_pixels"].get<int64_t>(), 3);
+  EXPECT_DOUBLE_EQ(j["hit_share"].get<double>(), 2.0 / 3.0);
+  EXPECT_DOUBLE_EQ(j["false_surface_share"].get<double>(), 0.5);
+  EXPECT_NEAR(j["depth_mae"].get<double>(), 0.3, 1e-12);
+  EXPECT_NEAR(j["depth_median"].get<double>(), 0.1, 1e-12);  // the lower middle of two
+  const auto none = score_depth_against_truth(torch::full({3}, INFINITY, torch::kDouble), truth.slice(0, 1, 4));
+  EXPECT_TRUE(none["depth_mae"].is_null());
+  EXPECT_DOUBLE_EQ(none["hit_share"].get<double>(), 0.0);
+
+  DepthTruth t;
+  t.origins = torch::tensor({{0.f, 0.f, 4.f}, {1.f, 0.f, 4.f}});
+  t.directions = torch::tensor({{0.f, 0.f, -1.f}, {0.5f, 0.f, -1.f}});
+  t.depth = torch::tensor({2.f, 0.f});
+  const auto pts = depth_truth_points(t);
+  ASSERT_EQ(pts.size(0), 1);
+  EXPECT_TRUE(torch::allclose(pts[0], torch::tensor({0.0, 0.0, 2.0}, torch::kDouble)));
+}
+
+// A mesh's depth map (fuse.h, mesh_depth_maps) against the closed form: the tilted plane
+// z = 0.3 x (two triangles, 6 units across) seen from (0, 0, 4) looking down -z, off-centre
+// principal point. The ray (xn, yn, -1) from the camera meets it at depth t = 4 / (1 + 0.3 xn): exact
+// only if 1/z is interpolated across each triangle, not z. A point cloud has no depth map.
+TEST(Geometry, MeshDepthMapOfATiltedPlaneIsTheRayIntersection) {
+  test::TempDir t;
+  auto z = [](double x) { return 0.3 * x; };
+  std::ostringstream ply;
+  ply << "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+         "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+      << "-3 -3 " << z(-3) << "\n3 -3 " << z(3) << "\n3 3 " << z(3) << "\n-3 3 " << z(-3) << "\n3 0 1 2\n3 0 2 3\n";
+  test::write_file(t / "tilted.ply", ply.str());
+  Intrinsics k;
+  k.width = 24;
+  k.height = 18;
+  k.fx = 30;
+  k.fy = 28;
+  k.cx = 11;
+  k.cy = 10;
+  const auto c2w = torch::tensor({{1.f, 0.f, 0.f, 0.f}, {0.f, 1.f, 0.f, 0.f}, {0.f, 0.f, 1.f, 4.f}});
+  const auto maps = mesh_depth_maps(t / "tilted.ply", {{c2w, k}});
+  ASSERT_EQ(maps.size(), 1u);
+  ASSERT_EQ(maps[0].sizes(), (std::vector<int64_t>{18, 24}));
+  for (int r = 0; r < k.height; ++r)
+    for (int c = 0; c < k.width; ++c) {
+      const double xn = (c + 0.5 - k.cx) / k.fx;
+      EXPECT_NEAR(maps[0][r][c].item<double>(), 4.0 / (1.0 + 0.3 * xn), 1e-4) << r << "," << c;
+    }
+  // The camera moved 3 units sideways sees the square's edge: no surface beyond it.
+  const auto aside = torch::tensor({{1.f, 0.f, 0.f, 3.f}, {0.f, 1.f, 0.f, 0.f}, {0.f, 0.f, 1.f, 4.f}});
+  const auto edge = mesh_depth_maps(t / "tilted.ply", {{aside, k}})[0];
+  EXPECT_TRUE(std::isinf(edge[9][23].item<float>()));
+  EXPECT_TRUE(std::isfinite(edge[9][0].item<float>()));
+  test::write_file(t / "points.ply",
+                   "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                   "property float z\nend_header\n0 0 0\n");
+  EXPECT_TRUE(mesh_depth_maps(t / "points.ply", {{c2w, k}}).empty());
 }
 
 // The picture of points and cameras (geometry/preview.h): the view's axes are a right-handed
