@@ -13,6 +13,18 @@
 
 namespace ablenerf::test {
 
+// A pinhole camera (no lens distortion) of the given size, focal lengths and principal point.
+inline Intrinsics pinhole(int width, int height, double fx, double fy, double cx, double cy) {
+  Intrinsics k;
+  k.width = width;
+  k.height = height;
+  k.fx = fx;
+  k.fy = fy;
+  k.cx = cx;
+  k.cy = cy;
+  return k;
+}
+
 // A tiny model with a small proposal field (model/proposal.h): 24 proposal intervals, a 3-level
 // grid of 4-32 cells and 2^10 rows; the paper's IPE for the tokens.
 inline ModelConfig proposal_model_config() {

@@ -119,6 +119,12 @@ std::string resolve_downscaled(const std::string& root, const std::string& image
                          "images_" + std::to_string(downscale));
 }
 
+std::string blender_depth_file(const std::string& image) {
+  const fs::path p(image);
+  const fs::path depth = p.parent_path() / (p.stem().string() + "_depth_0001.png");
+  return fs::is_regular_file(depth) ? depth.string() : std::string();
+}
+
 std::string mask_in_folder(const std::string& root, const std::string& image, const std::string& field) {
   std::error_code ec;
   const fs::path canon_root = fs::weakly_canonical(fs::path(root), ec);

@@ -28,6 +28,10 @@ enum class DepthFormat {
   BlenderPng,  // nerf_synthetic's r_N_depth_0001.png (data/depth_file.h)
 };
 
+// The file beside a Blender frame's image that holds its depth, `<image stem>_depth_0001.png`
+// (nerf_synthetic's test views; data/depth_file.h reads it), or "" when there is none.
+std::string blender_depth_file(const std::string& image);
+
 struct CaptureFrame {
   // Canonical path of the frame's image, inside the dataset folder: the pre-downscaled copy
   // (images_N/, see resolve_downscaled) when one matches the requested downscale.

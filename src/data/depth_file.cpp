@@ -1,21 +1,12 @@
 #include "data/depth_file.h"
 
-#include <filesystem>
 #include <vector>
 
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
 
-namespace fs = std::filesystem;
-
 namespace ablenerf {
-
-std::string blender_depth_file(const std::string& image) {
-  const fs::path p(image);
-  const fs::path depth = p.parent_path() / (p.stem().string() + "_depth_0001.png");
-  return fs::is_regular_file(depth) ? depth.string() : std::string();
-}
 
 torch::Tensor blender_depth_to_z(const torch::Tensor& png, const Intrinsics& k) {
   TORCH_CHECK(png.dim() == 3 && png.scalar_type() == torch::kUInt8, "blender_depth_to_z: expected uint8 (H, W, C)");

@@ -22,9 +22,6 @@ namespace ablenerf {
 // The distance a value of 255 would stand for: v = 0 is the background, v = 255 the camera.
 constexpr double kBlenderDepthRange = 8.0;
 
-// The file beside a Blender frame's image that holds its depth ("" when there is none).
-std::string blender_depth_file(const std::string& image);
-
 // A decoded depth PNG (uint8 (H, W, C), the first channel used) as camera-space depth along -z,
 // the convention of the model's depth and of synth's depth files (float (H, W), 0 on the
 // background): the ray distance over the length of the pixel-centre direction (x, y, -1) of `k`

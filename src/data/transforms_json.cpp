@@ -1,6 +1,5 @@
 #include "data/transforms_json.h"
 
-#include "data/depth_file.h"
 #include "data/capture_formats.h"
 
 #include "data/ply.h"
@@ -305,7 +304,7 @@ void read_blender_capture(const std::string& root, const std::vector<std::string
       throw InputError(file, "camera_angle_x", "differs from " + first_file + " (splits must share one camera)");
     }
     auto frames = parse_frames(j, root, file, true);
-    // nerf_synthetic's test frames keep their depth beside the image (data/depth_file.h).
+    // nerf_synthetic's test frames keep their depth beside the image (data/depth_file.h reads them).
     for (auto& f : frames) {
       if (!f.depth.empty()) continue;
       f.depth = blender_depth_file(f.image);

@@ -19,13 +19,7 @@ using namespace ablenerf;
 namespace fs = std::filesystem;
 
 TEST(BlenderDepth, ValueIsTheRayDistanceFromTheFarEnd) {
-  Intrinsics k;
-  k.width = 3;
-  k.height = 2;
-  k.fx = 2.0;
-  k.fy = 4.0;
-  k.cx = 1.0;
-  k.cy = 1.5;
+  const Intrinsics k = test::pinhole(3, 2, 2.0, 4.0, 1.0, 1.5);
   auto png = torch::zeros({2, 3, 4}, torch::kUInt8);
   const int values[2][3] = {{0, 255, 128}, {51, 1, 200}};
   for (int r = 0; r < 2; ++r)
@@ -105,10 +99,7 @@ TEST(BlenderDepth, LegoNeighbouringViewsAgree) {
   std::ifstream in(lego + "/transforms_test.json");
   const auto meta = nlohmann::json::parse(in);
   const double f = 400.0 / std::tan(0.5 * meta.at("camera_angle_x").get<double>());
-  Intrinsics k;
-  k.width = k.height = 800;
-  k.fx = k.fy = f;
-  k.cx = k.cy = 400.0;
+  const Intrinsics k = test::pinhole(800, 800, f, f, 400.0, 400.0);
   auto view = [&](int i, bool as_ray_distance) {
     const auto& fr = meta.at("frames").at(i);
     const std::string file = lego + "/" + fr.at("file_path").get<std::string>() + "_depth_0001.png";

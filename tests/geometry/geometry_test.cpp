@@ -386,13 +386,7 @@ TEST(Geometry, MeshDepthMapOfATiltedPlaneIsTheRayIntersection) {
          "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
       << "-3 -3 " << z(-3) << "\n3 -3 " << z(3) << "\n3 3 " << z(3) << "\n-3 3 " << z(-3) << "\n3 0 1 2\n3 0 2 3\n";
   test::write_file(t / "tilted.ply", ply.str());
-  Intrinsics k;
-  k.width = 24;
-  k.height = 18;
-  k.fx = 30;
-  k.fy = 28;
-  k.cx = 11;
-  k.cy = 10;
+  const Intrinsics k = test::pinhole(24, 18, 30, 28, 11, 10);
   const auto c2w = torch::tensor({{1.f, 0.f, 0.f, 0.f}, {0.f, 1.f, 0.f, 0.f}, {0.f, 0.f, 1.f, 4.f}});
   const auto maps = mesh_depth_maps(t / "tilted.ply", {{c2w, k}});
   ASSERT_EQ(maps.size(), 1u);
