@@ -171,8 +171,7 @@ void setup(CLI::App& app) {
   app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
   app.add_option("--truth", a->truth,
                  "A scene made by `ablenerf synth` (its scene.json and cameras), a Blender scene with depth maps "
-                 "(nerf_synthetic's "
-                 "test views), or a COLMAP capture (its sparse points)");
+                 "(nerf_synthetic's test views), or a COLMAP capture (its sparse points)");
   app.add_option("--tau", a->tau,
                  "Distance threshold (default: 1% of the objects' size, or of the sparse points' central 98%)");
   app.add_option("--samples", a->samples, "Points sampled on a mesh's surface")->capture_default_str();

@@ -2,6 +2,7 @@
 
 #include <vector>
 
+#include "data/rays.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
@@ -10,14 +11,11 @@ namespace ablenerf {
 
 torch::Tensor blender_depth_to_z(const torch::Tensor& png, const Intrinsics& k) {
   TORCH_CHECK(png.dim() == 3 && png.scalar_type() == torch::kUInt8, "blender_depth_to_z: expected uint8 (H, W, C)");
-  const int64_t h = png.size(0), w = png.size(1);
   const auto v = png.select(2, 0).to(torch::kDouble);
   const auto dist = (1.0 - v / 255.0) * kBlenderDepthRange;
-  // |(x, y, -1)| of each pixel centre's direction (data/rays.h casts the same directions).
-  const auto xs = (torch::arange(w, torch::kDouble) + 0.5 - k.cx) / k.fx;
-  const auto ys = (torch::arange(h, torch::kDouble) + 0.5 - k.cy) / k.fy;
-  const auto len = (ys.square().unsqueeze(1) + xs.square().unsqueeze(0) + 1.0).sqrt();
-  return torch::where(v > 0, dist / len, torch::zeros_like(dist)).to(torch::kFloat);
+  // |(x, y, -1)| of each pixel centre's direction, as data/rays.h casts it (camera frame).
+  const auto len = rays_for_image(torch::eye(4).slice(0, 0, 3), k).directions.norm(2, -1).view(v.sizes());
+  return torch::where(v > 0, dist / len.to(torch::kDouble), torch::zeros_like(dist)).to(torch::kFloat);
 }
 
 torch::Tensor read_frame_depth(const CaptureFrame& fr) {

@@ -110,12 +110,13 @@ open3d::geometry::TriangleMesh open3d_mesh(const Mesh& in) {
 open3d::geometry::PointCloud open3d_points(const PointSet& p) {
   open3d::geometry::PointCloud pc;
   const auto x = p.xyz.to(torch::kDouble).contiguous();
-  const auto c = p.rgb.to(torch::kDouble).clamp(0, 1).contiguous();
-  const auto xa = x.accessor<double, 2>(), ca = c.accessor<double, 2>();
+  const auto xa = x.accessor<double, 2>();
   pc.points_.reserve(static_cast<size_t>(x.size(0)));
-  for (int64_t i = 0; i < x.size(0); ++i) {
-    pc.points_.emplace_back(xa[i][0], xa[i][1], xa[i][2]);
-    pc.colors_.emplace_back(ca[i][0], ca[i][1], ca[i][2]);
+  for (int64_t i = 0; i < x.size(0); ++i) pc.points_.emplace_back(xa[i][0], xa[i][1], xa[i][2]);
+  if (p.rgb.defined()) {
+    const auto c = p.rgb.to(torch::kDouble).clamp(0, 1).contiguous();
+    const auto ca = c.accessor<double, 2>();
+    for (int64_t i = 0; i < c.size(0); ++i) pc.colors_.emplace_back(ca[i][0], ca[i][1], ca[i][2]);
   }
   if (p.normals.defined()) {
     const auto n = p.normals.to(torch::kDouble).contiguous();
@@ -299,6 +300,15 @@ PointSet read_geometry_points(const std::string& path, int64_t mesh_samples) {
   if (!open3d::io::ReadPointCloud(path, pc) || pc.points_.empty())
     throw InputError(path, "", "no points or triangles could be read (PLY, OBJ or glTF expected)");
   return point_set(pc);
+}
+
+torch::Tensor nearest_distances(const torch::Tensor& from, const torch::Tensor& to) {
+  if (to.size(0) == 0) return torch::full({from.size(0)}, INFINITY, torch::kDouble);
+  if (from.size(0) == 0) return torch::empty({0}, torch::kDouble);
+  PointSet a, b;
+  a.xyz = from.reshape({-1, 3});
+  b.xyz = to.reshape({-1, 3});
+  return torch::tensor(open3d_points(a).ComputePointCloudDistance(open3d_points(b)), torch::kDouble);
 }
 
 std::vector<torch::Tensor> mesh_depth_maps(const std::string& path,

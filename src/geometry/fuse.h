@@ -65,6 +65,10 @@ void write_mesh(const Mesh& mesh, const std::string& path);
 // cannot be read or holds nothing.
 PointSet read_geometry_points(const std::string& path, int64_t mesh_samples);
 
+// Nearest-neighbour distance from each row of `from` (K,3) to the rows of `to` (N,3), float64 (K):
+// Open3D's k-d tree (PointCloud::ComputePointCloudDistance), exact; infinity when `to` is empty.
+torch::Tensor nearest_distances(const torch::Tensor& from, const torch::Tensor& to);
+
 // Depth maps of the triangle mesh in `path` as pinhole cameras see it: for each camera (c2w (3,4),
 // OpenGL axes; k without lens distortion) the camera-space depth along -z of the nearest triangle at
 // each pixel centre, (k.height, k.width) float, infinity where there is none. A z-buffer, the depth

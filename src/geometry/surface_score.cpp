@@ -1,13 +1,12 @@
 #include "geometry/surface_score.h"
 
-#include <open3d/geometry/PointCloud.h>
-
 #include <cmath>
 #include <vector>
 
 #include "data/depth_file.h"
 #include "data/rays.h"
 #include "geometry/depth_points.h"
+#include "geometry/fuse.h"
 #include "util/errors.h"
 #include "util/fs.h"
 
@@ -25,25 +24,6 @@ torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<Sphere
   std::vector<torch::Tensor> cols;
   for (const auto& s : spheres) cols.push_back(((p - centre_of(s)).norm(2, -1) - s.radius).abs());
   return torch::stack(cols, 1);
-}
-
-// Open3D's cloud of the rows of `xyz` (K,3).
-open3d::geometry::PointCloud cloud_of(const torch::Tensor& xyz) {
-  const auto p = xyz.to(torch::kDouble).contiguous();
-  const auto a = p.accessor<double, 2>();
-  open3d::geometry::PointCloud c;
-  c.points_.resize(static_cast<size_t>(p.size(0)));
-  for (int64_t i = 0; i < p.size(0); ++i) c.points_[static_cast<size_t>(i)] = {a[i][0], a[i][1], a[i][2]};
-  return c;
-}
-
-// Nearest-neighbour distance from each row of `from` (K,3) to the rows of `to` (N,3): Open3D's
-// k-d tree (PointCloud::ComputePointCloudDistance), exact; infinity when `to` is empty.
-torch::Tensor nearest_distances(const torch::Tensor& from, const torch::Tensor& to) {
-  if (to.size(0) == 0) return torch::full({from.size(0)}, INFINITY, torch::kDouble);
-  if (from.size(0) == 0) return torch::empty({0}, torch::kDouble);
-  std::vector<double> d = cloud_of(from).ComputePointCloudDistance(cloud_of(to));
-  return torch::tensor(d, torch::kDouble);
 }
 
 nlohmann::json summary(const torch::Tensor& acc, const torch::Tensor& comp, double tau) {
