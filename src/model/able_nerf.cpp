@@ -98,10 +98,10 @@ int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const
   return ray_workers(rays);
 }
 
-void AbleNerfImpl::enable_photo_colour(int64_t photos) {
+void AbleNerfImpl::enable_photo_colour(int64_t photos, PhotoColourMap map) {
   if (photo_colour_) throw std::logic_error("AbleNerf: per-photo colour enabled twice");
   const auto device = ray_token_.device();
-  photo_colour_ = register_module("photo_colour", PhotoColour(photos));
+  photo_colour_ = register_module("photo_colour", PhotoColour(photos, map));
   photo_colour_->to(device);
 }
 

@@ -92,7 +92,7 @@ class AbleNerfImpl : public torch::nn::Module {
   const ProposalImpl* proposal() const { return proposal_ ? proposal_.get() : nullptr; }
   // Per-photo colour (model/photo_colour.h): registered by the trainer (train.photo_colour) before
   // its optimiser is made, or by load_weights when the weights carry it; never read by forward().
-  void enable_photo_colour(int64_t photos);
+  void enable_photo_colour(int64_t photos, PhotoColourMap map = PhotoColourMap::Affine);
   PhotoColourImpl* photo_colour() { return photo_colour_ ? photo_colour_.get() : nullptr; }
   // Camera refinement (model/camera_refine.h): likewise registered by the trainer
   // (train.camera_refine) or by load_weights; never read by forward() (the trainer corrects the rays).

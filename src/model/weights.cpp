@@ -106,7 +106,6 @@ std::vector<std::pair<std::string, std::string>> release_name_map(const ModelCon
   return m;
 }
 
-const char* const kPhotoColourWeight = "photo_colour.delta";
 const char* const kCameraRefineWeight = "camera_refine.correction";
 
 void save_weights(AbleNerf& model, const std::string& path) {
@@ -140,8 +139,12 @@ void load_weights(AbleNerf& model, const std::string& path) {
     if (t.dim() != dims || t.size(0) < 1 || t.size(-1) != inner) throw InputError(path, key, expected);
     return t.size(0);
   };
-  if (!model->photo_colour())
-    if (const int64_t n = rows_of(kPhotoColourWeight, 3, 4, "expected (photos, 3, 4)")) model->enable_photo_colour(n);
+  if (!model->photo_colour()) {
+    if (const int64_t n = rows_of(kPhotoColourAffineWeight, 3, 4, "expected (photos, 3, 4)"))
+      model->enable_photo_colour(n, PhotoColourMap::Affine);
+    else if (const int64_t g = rows_of(kPhotoColourGainWeight, 2, 3, "expected (photos, 3)"))
+      model->enable_photo_colour(g, PhotoColourMap::Gain);
+  }
   if (!model->camera_refine())
     if (const int64_t n = rows_of(kCameraRefineWeight, 2, 6, "expected (cameras, 6)")) model->enable_camera_refine(n);
   std::vector<std::pair<std::string, std::string>> identity;

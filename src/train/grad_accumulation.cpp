@@ -127,8 +127,12 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   }
   // and the photo colour maps' and camera corrections': each weight times the mean over photos of the
   // squared deviation from the identity.
-  if (tc.photo_colour_decay > 0 && model->photo_colour())
-    sums.loss.add_(add_row_decay(model->photo_colour()->delta(), tc.photo_colour_decay * share).to(sums.loss.dtype()));
+  if (tc.photo_colour_decay > 0 && model->photo_colour()) {
+    // On the maps' values, scale x the parameter (model/photo_colour.h).
+    const PhotoColourImpl& pc = *model->photo_colour();
+    const double weight = tc.photo_colour_decay * share * pc.lr_scale() * pc.lr_scale();
+    sums.loss.add_(add_row_decay(pc.parameter(), weight).to(sums.loss.dtype()));
+  }
   if (tc.camera_refine_decay > 0 && model->camera_refine()) {
     // On the corrections, scale x the parameter (model/camera_refine.h).
     const CameraRefineImpl& cr = *model->camera_refine();

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 
+#include "model/photo_colour_map.h"
 #include "util/config_section.h"
 
 namespace ablenerf {
@@ -42,10 +43,13 @@ struct TrainConfig {
   // Weight of mip-NeRF 360's proposal loss (section 3, eq. 13-14; train/regularisers.h), which trains
   // the proposal field (model.proposal_samples > 0) to bound the fine pass's attention. nerfacto's 1.
   double proposal_weight = 1.0;
-  // Per-photo colour (model/photo_colour.h; docs/MODEL.md, "Per-photo colour"): an affine map of
-  // the rendered colour per training photo for its exposure and white balance, held near the
-  // identity by photo_colour_decay x the photos' mean squared deviation. Off = the paper.
+  // Per-photo colour (model/photo_colour.h; docs/MODEL.md, "Per-photo colour"): a map of the
+  // rendered colour per training photo for its exposure and white balance, held near the identity
+  // by photo_colour_decay x the photos' mean squared parameter. Off = the paper. photo_colour_map:
+  // "affine" (3x4 on the sRGB colour) or "gain" (three gains on the linear light, as a camera's
+  // exposure and white balance act).
   bool photo_colour = false;
+  PhotoColourMap photo_colour_map = PhotoColourMap::Affine;
   double photo_colour_decay = 1e-4;
   // Camera refinement (model/camera_refine.h; docs/MODEL.md, "Camera refinement"): a rigid
   // correction per training photo learned with the scene, held near zero by camera_refine_decay x
@@ -98,6 +102,7 @@ struct TrainConfig {
     f("grid_decay", &grid_decay);
     f("proposal_weight", &proposal_weight);
     f("photo_colour", &photo_colour);
+    f("photo_colour_map", &photo_colour_map);
     f("photo_colour_decay", &photo_colour_decay);
     f("camera_refine", &camera_refine);
     f("camera_refine_decay", &camera_refine_decay);

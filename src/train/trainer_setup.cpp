@@ -111,7 +111,7 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.model->train();
   // Per-photo colour and camera refinement: one map and one correction per training photo, made
   // before Adam sees the parameters.
-  if (tc.photo_colour) s.model->enable_photo_colour(train.size());
+  if (tc.photo_colour) s.model->enable_photo_colour(train.size(), tc.photo_colour_map);
   if (tc.camera_refine) s.model->enable_camera_refine(train.size());
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,

@@ -119,7 +119,7 @@ TEST(CliRender, LookOfATrainingPhoto) {
     auto d = torch::zeros({3, 3, 4});
     d[1][2][2] = -0.75;  // photo 1: blue x 0.5 after centring (-0.75 + 0.25)
     d[1][0][3] = 0.45;   // red + 0.3 after centring (0.45 - 0.15)
-    model->photo_colour()->delta().copy_(d);
+    model->photo_colour()->parameter().copy_(d);
     save_weights(model, t / "run/weights.pt");
   }
   r = test::run_cli("render --run " + t / "run" + common + t / "mean");

@@ -149,7 +149,7 @@ TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
   model->train();
   {
     torch::NoGradGuard no_grad;
-    model->photo_colour()->delta().copy_(torch::randn({4, 3, 4}, torch::kDouble) * 0.1);
+    model->photo_colour()->parameter().copy_(torch::randn({4, 3, 4}, torch::kDouble) * 0.1);
   }
   TrainConfig tc;
   tc.coarse_weight = 0.3;
@@ -160,7 +160,7 @@ TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
 
   for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
   const auto out = model->forward(batch.rays, 2.0, 6.0);
-  const auto all = model->photo_colour()->delta();
+  const auto all = model->photo_colour()->parameter();
   const auto d = (all - all.mean(0, true)).index_select(0, batch.photo);
   const auto map = [&](const torch::Tensor& rgb) {
     const auto eye = torch::eye(3, torch::TensorOptions().dtype(torch::kDouble));
@@ -178,7 +178,7 @@ TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
     EXPECT_NEAR(s.loss.item<double>(), ref_loss_t.item<double>(), 1e-12) << micro;
     expect_gradients_equal(model, ref, "photo colour, micro-batch " + std::to_string(micro));
   }
-  const auto g = model->photo_colour()->delta().grad();
+  const auto g = model->photo_colour()->parameter().grad();
   EXPECT_GT(g[0].abs().sum().item<double>(), 1e-6);
   EXPECT_GT(g[2].abs().sum().item<double>(), 1e-6);
   // The maps are applied centred, so a common change of them all changes no colour: the data
@@ -189,9 +189,9 @@ TEST(GradAccumulation, PhotoColourGradientsEqualTheWrittenOutLoss) {
   tc.photo_colour_decay = 0.5;
   for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
   const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
-  const auto delta = model->photo_colour()->delta();
+  const auto delta = model->photo_colour()->parameter();
   EXPECT_NEAR(s.loss.item<double>(), ref_loss_t.item<double>() + 0.5 / 4 * delta.pow(2).sum().item<double>(), 1e-12);
-  EXPECT_TRUE(torch::allclose(model->photo_colour()->delta().grad(), g + 2 * 0.5 / 4 * delta, 0, 1e-12));
+  EXPECT_TRUE(torch::allclose(model->photo_colour()->parameter().grad(), g + 2 * 0.5 / 4 * delta, 0, 1e-12));
 }
 
 // Camera refinement (model/camera_refine.h): the step's rays go through their photos' corrected

@@ -61,18 +61,25 @@ TEST(GridTraining, ResumeWithAProposalFieldEqualsUninterrupted) {
     EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
 }
 
-// Per-photo colour maps (train.photo_colour) are parameters of the model: checkpoints carry them
-// with their Adam state, so a run resumed from a checkpoint ends bit-exact with the straight one.
+// Per-photo colour maps (train.photo_colour, either form) are parameters of the model: checkpoints
+// carry them with their Adam state, so a run resumed from a checkpoint ends bit-exact with the
+// straight one.
 TEST(GridTraining, ResumeWithPhotoColourEqualsUninterrupted) {
   const test::IntraOpThreads threads(1);
-  test::TempDir t;
-  const Config c = test::config_with(tiny_grid_config(), {"train.photo_colour=true", "train.photo_colour_decay=0.01"});
-  test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
-  auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
-  ASSERT_TRUE(a.contains("photo_colour.delta"));
-  EXPECT_GT(a.at("photo_colour.delta").toTensor().abs().max().item<double>(), 0.0);  // it trained
-  for (const auto& kv : a)
-    EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+  for (const auto& [map, key] : {std::pair<std::string, std::string>{"affine", "photo_colour.delta"},
+                                 std::pair<std::string, std::string>{"gain", "photo_colour.log_gain"}}) {
+    test::TempDir t;
+    const std::string map_setting = "train.photo_colour_map=" + map;
+    const Config c = test::config_with(
+        tiny_grid_config(), {"train.photo_colour=true", map_setting.c_str(), "train.photo_colour_decay=0.01"});
+    test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
+    auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
+    ASSERT_TRUE(a.contains(key)) << map;
+    EXPECT_GT(a.at(key).toTensor().abs().max().item<double>(), 0.0) << map;  // it trained
+    for (const auto& kv : a)
+      EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor()))
+          << map << " " << kv.key().toStringRef();
+  }
 }
 
 // Camera corrections (train.camera_refine) likewise: parameters with their Adam state, so a resumed

@@ -209,7 +209,7 @@ TEST(ViewServer, LooksOfTheTrainingPhotos) {
     auto d = torch::zeros({3, 4});
     d[0][0] = -0.5;  // red x 0.5
     d[1][3] = 0.2;   // green + 0.2
-    model->photo_colour()->delta().copy_(torch::stack({d, -d}));
+    model->photo_colour()->parameter().copy_(torch::stack({d, -d}));
     save_weights(model, dir / "run/weights.pt");
   }
   ViewSession session(dir / "run", torch::kCPU);
