@@ -14,6 +14,16 @@
 namespace ablenerf {
 namespace {
 
+// A small model to carry the maps in its weights.
+ModelConfig small_model() {
+  ModelConfig cfg;
+  cfg.width = 16;
+  cfg.heads = 2;
+  cfg.samples = 4;
+  cfg.le_count = 2;
+  return cfg;
+}
+
 TEST(PhotoColour, EachRayTakesItsPhotosAffineMap) {
   PhotoColour pc(3);
   const auto rgb = torch::tensor({{0.2f, 0.5f, 0.9f}, {0.1f, 0.3f, 0.4f}, {0.7f, 0.6f, 0.5f}, {0.0f, 1.0f, 0.25f}});
@@ -118,11 +128,7 @@ TEST(PhotoColour, GainGradientMatchesFiniteDifferences) {
 
 TEST(PhotoColour, WeightsCarryTheMapsIntoAModelMadeWithoutThem) {
   test::TempDir dir;
-  ModelConfig cfg;
-  cfg.width = 16;
-  cfg.heads = 2;
-  cfg.samples = 4;
-  cfg.le_count = 2;
+  const ModelConfig cfg = small_model();
   AbleNerf a(cfg);
   a->enable_photo_colour(5);
   {
@@ -147,11 +153,7 @@ TEST(PhotoColour, WeightsCarryTheMapsIntoAModelMadeWithoutThem) {
 
 TEST(PhotoColour, WeightsCarryGainsIntoAModelMadeWithoutThem) {
   test::TempDir dir;
-  ModelConfig cfg;
-  cfg.width = 16;
-  cfg.heads = 2;
-  cfg.samples = 4;
-  cfg.le_count = 2;
+  const ModelConfig cfg = small_model();
   AbleNerf a(cfg);
   a->enable_photo_colour(3, PhotoColourMap::Gain);
   {
