@@ -35,18 +35,55 @@ const BlasThreads& blas_threads() {
   return b;
 }
 
+// OpenMP's per-thread team size (the nthreads-var ICV), looked up at run time as OpenBLAS's is: the
+// LibTorch builds we run on use OpenMP for their intra-op loops, without linking us to one runtime.
+struct OmpThreads {
+  SetThreads set = nullptr;
+  GetThreads get = nullptr;
+  OmpThreads() {
+    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "omp_set_num_threads"));
+    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, "omp_get_max_threads"));
+    if (!set || !get) set = nullptr, get = nullptr;
+  }
+};
+
+const OmpThreads& omp_threads() {
+  static const OmpThreads o;
+  return o;
+}
+
 // Set in the threads of a running parallel_slices: nested calls stay serial.
 thread_local bool t_in_worker = false;
 
+// A slice's thread for the scope: nested splits stay serial, and so do LibTorch's own intra-op loops
+// (at::parallel_for: element-wise ops over large tensors, the hash grid's kernels). Left alone,
+// each slice's thread would open an OpenMP team of its own in those loops, W teams on W cores whose
+// idle members spin while the other slices work: on 2 cores a quarter of the capture preset's CPU
+// time went to that spinning, and the 256-ray training step took 84 ms against 58 ms with LibTorch
+// held to one thread (docs/BENCHMARKS.md, "One OpenMP team per slice").
 class WorkerScope {
  public:
-  WorkerScope() : previous_(t_in_worker) { t_in_worker = true; }
-  ~WorkerScope() { t_in_worker = previous_; }
+  WorkerScope() : previous_(t_in_worker) {
+    t_in_worker = true;
+    const auto& omp = omp_threads();
+    if (omp.set) {
+      // at::get_num_threads() first: a thread's first call into LibTorch's parallel code sets its
+      // team size from the process's count, which would undo the 1 set here.
+      (void)at::get_num_threads();
+      omp_previous_ = omp.get();
+      if (omp_previous_ != 1) omp.set(1);
+    }
+  }
+  ~WorkerScope() {
+    t_in_worker = previous_;
+    if (omp_previous_ > 1) omp_threads().set(omp_previous_);
+  }
   WorkerScope(const WorkerScope&) = delete;
   WorkerScope& operator=(const WorkerScope&) = delete;
 
  private:
   bool previous_;
+  int omp_previous_ = 0;
 };
 
 }  // namespace

@@ -1,6 +1,5 @@
 #include "train/adam.h"
 
-#include <ATen/Parallel.h>
 #include <torch/version.h>
 
 #include <algorithm>
@@ -9,6 +8,8 @@
 #include <stdexcept>
 #include <string>
 #include <type_traits>
+
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 
@@ -177,8 +178,10 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     float* v = st.exp_avg_sq().data_ptr<float>();
     float* w = p.data_ptr<float>();
     // Element by element, so splitting the range over threads changes no bit (the grid's table is
-    // a million entries; the transformer's matrices are far smaller and stay on one thread).
-    at::parallel_for(0, p.numel(), kElementsPerTask, [&](int64_t lo, int64_t hi) {
+    // a million entries; the transformer's matrices are far smaller and stay on one thread). The
+    // project's own threads (kernels/cpu_parallel.h), not at::parallel_for: that one is serial in
+    // code built without OpenMP, as ours is.
+    parallel_slices(p.numel(), cpu_workers(p.numel(), kElementsPerTask), [&](int64_t, int64_t lo, int64_t hi) {
       for (int64_t j = lo; j < hi; ++j) {
         m[j] = m[j] * b1 + one_b1 * g[j];
         v[j] = v[j] * b2 + one_b2 * (g[j] * g[j]);

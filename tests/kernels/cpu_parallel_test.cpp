@@ -1,6 +1,6 @@
 // Ray-parallel CPU execution (kernels/cpu_parallel.h): slices cover the range once, errors come
-// back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's
-// thread count is single inside and restored after.
+// back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's and
+// LibTorch's thread counts are single inside and restored after.
 #include <dlfcn.h>
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -93,6 +93,21 @@ TEST(CpuParallel, ModesMirroredNestingSerialBlasRestored) {
     EXPECT_EQ(ok.load(), 2);
   }
   EXPECT_EQ(openblas_threads(), blas_before);
+}
+
+// LibTorch's own loops (compiled with OpenMP inside libtorch) size their teams by the thread's
+// at::get_num_threads(): one inside every slice, the caller's count again after.
+TEST(CpuParallel, LibTorchThreadsAreOneInsideSlicesAndComeBack) {
+  if (!dlsym(RTLD_DEFAULT, "omp_set_num_threads")) GTEST_SKIP() << "LibTorch without OpenMP in this build";
+  const int before = at::get_num_threads();
+  at::set_num_threads(2);
+  std::atomic<int> serial{0};
+  parallel_slices(64, 2, [&](int64_t, int64_t, int64_t) {
+    if (at::get_num_threads() == 1) ++serial;
+  });
+  EXPECT_EQ(serial.load(), 2);
+  EXPECT_EQ(at::get_num_threads(), 2);
+  at::set_num_threads(before);
 }
 
 TEST(CpuParallel, WorkerCountFollowsTheBudgetAndTheMinimum) {
