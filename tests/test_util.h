@@ -27,6 +27,17 @@ inline Intrinsics pinhole(int width, int height, double fx, double fy, double cx
 
 // A tiny model with a small proposal field (model/proposal.h): 24 proposal intervals, a 3-level
 // grid of 4-32 cells and 2^10 rows; the paper's IPE for the tokens.
+// A small model with learnable embeddings (width 16, 2 heads, 4 samples, 2 LEs): enough to carry
+// per-photo parameters through weights files and the view token.
+inline ModelConfig small_le_model_config() {
+  ModelConfig cfg;
+  cfg.width = 16;
+  cfg.heads = 2;
+  cfg.samples = 4;
+  cfg.le_count = 2;
+  return cfg;
+}
+
 inline ModelConfig proposal_model_config() {
   ModelConfig m;
   m.width = 16;

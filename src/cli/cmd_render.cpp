@@ -20,6 +20,7 @@
 #include "eval/colormap.h"
 #include "eval/renderer.h"
 #include "eval/video.h"
+#include "model/look.h"
 #include "model/tonemap.h"
 #include "run/run_folder.h"
 #include "util/log.h"
@@ -41,7 +42,7 @@ constexpr double kDefaultFps = 30;
 struct RenderArgs {
   std::string run, cameras, path, out, device = "auto";
   int frames = kDefaultFrames, width = 0, height = 0;
-  int look = -1;  // a training photo's look (per-photo colour); -1 = the mean
+  int look = -1;  // a training photo's look (per-photo colour, appearance code); -1 = the mean
   bool raw = false, depth = false, branches = false, le_zero = false, fallback_frames = false;
   double le_noise = 0, fps = kDefaultFps;
   int64_t seed = 0, chunk = 0;
@@ -182,8 +183,8 @@ void run_render(const RenderArgs& a) {
   if (!frame_dir.empty()) ensure_dir(frame_dir);
 
   AbleNerf model = load_run_model(run, device);
-  // --look N: the frames through training photo N's colour map (per-photo colour's look).
-  PhotoColourImpl* colour = photo_look(model->photo_colour(), a.look, "--look", "");
+  // --look N: the frames with training photo N's appearance code and through its colour map.
+  const PhotoLook look = photo_look(*model, a.look, "--look", "");
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())
     log_warn("note: this model has no learnable embeddings (model.le_count = 0); --le-noise/--le-zero do nothing");
   torch::Generator gen = at::detail::createCPUGenerator(static_cast<uint64_t>(a.seed));
@@ -192,6 +193,7 @@ void run_render(const RenderArgs& a) {
   fo.le_noise = a.le_noise;
   fo.le_zero = a.le_zero;
   fo.generator = &gen;
+  fo.appearance = look.appearance;
   const int64_t chunk = a.chunk > 0 ? a.chunk : run.config.get<EvalConfig>().chunk;
   const double near = scene.near, far = scene.far;
   // Depth colours span near..far; an unbounded scene's far (1e6) would colour everything alike, so
@@ -204,7 +206,7 @@ void run_render(const RenderArgs& a) {
     const std::string note = "frame " + std::to_string(k + 1) + "/" + std::to_string(n);
     RenderResult r = render_image(model, poses[k], cams.intrinsics, near, far, chunk, fo, device,
                                   [&](int64_t done, int64_t) { bar.update(k * rays + done, note); });
-    if (colour) r.rgb = colour->look(r.rgb, a.look);
+    if (look.colour) r.rgb = look.colour->look(r.rgb, look.photo);
     if (writer) {
       writer->write(r.rgb);
       continue;
@@ -266,8 +268,8 @@ void setup(CLI::App& app) {
   app.add_option("--seed", a->seed, "Seed of the LE noise (same noise for every pixel and frame)")
       ->capture_default_str();
   app.add_option("--look", a->look,
-                 "Render with training photo N's exposure and white balance (a run with train.photo_colour; "
-                 "default: the photos' mean look)");
+                 "Render with training photo N's look: its exposure and white balance, its appearance code (a run "
+                 "with train.photo_colour or train.appearance_code; default: the photos' mean look)");
   app.add_option("--fps", a->fps, "Video frame rate")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--chunk", a->chunk, "Rays per forward pass (default: the run's eval.chunk)")
       ->check(CLI::PositiveNumber);

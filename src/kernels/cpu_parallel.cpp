@@ -15,40 +15,30 @@ namespace {
 // Fewest rays per CPU thread in a ray split (below, thread start-up dominates).
 constexpr int64_t kMinRaysPerWorker = 8;
 
-// OpenBLAS's runtime thread control, looked up at run time so that other BLAS builds (or a
-// LibTorch with MKL) simply skip it.
+// A runtime's thread count, set and read through its two C functions, looked up at run time: other
+// BLAS builds (or a LibTorch with MKL or without OpenMP) simply skip the control.
 using SetThreads = void (*)(int);
 using GetThreads = int (*)();
 
-struct BlasThreads {
+struct ThreadControl {
   SetThreads set = nullptr;
   GetThreads get = nullptr;
-  BlasThreads() {
-    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
+  ThreadControl(const char* set_name, const char* get_name) {
+    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, set_name));
+    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, get_name));
     if (!set || !get) set = nullptr, get = nullptr;
   }
 };
 
-const BlasThreads& blas_threads() {
-  static const BlasThreads b;
+// OpenBLAS's pool (process-wide).
+const ThreadControl& blas_threads() {
+  static const ThreadControl b("openblas_set_num_threads", "openblas_get_num_threads");
   return b;
 }
 
-// OpenMP's per-thread team size (the nthreads-var ICV), looked up at run time as OpenBLAS's is: the
-// LibTorch builds we run on use OpenMP for their intra-op loops, without linking us to one runtime.
-struct OmpThreads {
-  SetThreads set = nullptr;
-  GetThreads get = nullptr;
-  OmpThreads() {
-    set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "omp_set_num_threads"));
-    get = reinterpret_cast<GetThreads>(dlsym(RTLD_DEFAULT, "omp_get_max_threads"));
-    if (!set || !get) set = nullptr, get = nullptr;
-  }
-};
-
-const OmpThreads& omp_threads() {
-  static const OmpThreads o;
+// OpenMP's per-thread team size (the nthreads-var ICV), which LibTorch's intra-op loops follow.
+const ThreadControl& omp_threads() {
+  static const ThreadControl o("omp_set_num_threads", "omp_get_max_threads");
   return o;
 }
 

@@ -112,6 +112,15 @@ void AbleNerfImpl::enable_camera_refine(int64_t cameras) {
   camera_refine_->to(device);
 }
 
+void AbleNerfImpl::enable_appearance_code(int64_t photos) {
+  if (appearance_code_) throw std::logic_error("AbleNerf: appearance codes enabled twice");
+  if (!has_le())
+    throw std::invalid_argument("appearance codes enter through the view token: the model needs model.le_count > 0");
+  const auto device = ray_token_.device();
+  appearance_code_ = register_module("appearance_code", AppearanceCode(photos, cfg_.width));
+  appearance_code_->to(device);
+}
+
 int64_t AbleNerfImpl::parameter_count() const {
   int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();
@@ -178,6 +187,7 @@ ForwardOptions ForwardOptions::slice(int64_t lo, int64_t hi) const {
   ForwardOptions s = *this;
   if (coarse_jitter.defined()) s.coarse_jitter = coarse_jitter.slice(0, lo, hi);
   if (fine_jitter.defined()) s.fine_jitter = fine_jitter.slice(0, lo, hi);
+  if (appearance.defined() && appearance.size(0) > 1) s.appearance = appearance.slice(0, lo, hi);
   return s;
 }
 
@@ -216,6 +226,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     le = effective_le(opts);
     view_code = encode_view(world.directions, cfg_.view_encoding);
     view = view_token_(view_code);
+    // The photo's appearance code on the view token (model/appearance_code.h).
+    if (opts.appearance.defined()) view = view + opts.appearance.to(view.device(), view.scalar_type());
   }
   LETransformer* le_c = has_le() ? &le_coarse_ : nullptr;
   LETransformer* le_f = has_le() ? &le_fine_ : nullptr;

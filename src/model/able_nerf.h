@@ -10,6 +10,7 @@
 #include "data/rays.h"
 #include "model/compute.h"
 #include "model/ab_transformer.h"
+#include "model/appearance_code.h"
 #include "model/colour_heads.h"
 #include "model/grid_embedding.h"
 #include "model/le_transformer.h"
@@ -44,8 +45,12 @@ struct ForwardOptions {
   // the whole batch before splitting it (AbleNerfImpl::with_jitter), so the draws never depend on
   // the split.
   torch::Tensor coarse_jitter, fine_jitter;
+  // A per-photo appearance code (model/appearance_code.h) added to the view token: (B, width), one
+  // per ray, or (1, width) for every ray. Undefined: none, the photos' mean look.
+  torch::Tensor appearance;
 
-  // These options for rays [lo, hi) of the batch (the jitter rows sliced; the rest shared).
+  // These options for rays [lo, hi) of the batch (the jitter rows and per-ray codes sliced; the rest
+  // shared).
   ForwardOptions slice(int64_t lo, int64_t hi) const;
 };
 
@@ -98,6 +103,11 @@ class AbleNerfImpl : public torch::nn::Module {
   // (train.camera_refine) or by load_weights; never read by forward() (the trainer corrects the rays).
   void enable_camera_refine(int64_t cameras);
   CameraRefineImpl* camera_refine() { return camera_refine_ ? camera_refine_.get() : nullptr; }
+  // Per-photo appearance codes (model/appearance_code.h): likewise registered by the trainer
+  // (train.appearance_code) or by load_weights; forward() reads only ForwardOptions::appearance.
+  // Throws std::invalid_argument for a model without learnable embeddings (no view token to add to).
+  void enable_appearance_code(int64_t photos);
+  AppearanceCodeImpl* appearance_code() { return appearance_code_ ? appearance_code_.get() : nullptr; }
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);
@@ -136,14 +146,15 @@ class AbleNerfImpl : public torch::nn::Module {
   bool ndc_ = false;
   NdcProjection ndc_projection_;
   Compute compute_;
-  torch::Tensor ray_token_;              // (1,1,E) initial ray token
-  torch::Tensor mask_;                   // (S+1,S+1) additive mask buffer; undefined when model.mask is off
-  torch::Tensor band_weights_;           // the IPE features' coarse-to-fine weights; undefined = none
-  double band_alpha_ = -1;               // the window band_weights_ holds
-  GridEmbedding grid_{nullptr};          // model.embedding = "grid" only
-  Proposal proposal_{nullptr};           // model.proposal_samples > 0 only
-  PhotoColour photo_colour_{nullptr};    // train.photo_colour only
-  CameraRefine camera_refine_{nullptr};  // train.camera_refine only
+  torch::Tensor ray_token_;                  // (1,1,E) initial ray token
+  torch::Tensor mask_;                       // (S+1,S+1) additive mask buffer; undefined when model.mask is off
+  torch::Tensor band_weights_;               // the IPE features' coarse-to-fine weights; undefined = none
+  double band_alpha_ = -1;                   // the window band_weights_ holds
+  GridEmbedding grid_{nullptr};              // model.embedding = "grid" only
+  Proposal proposal_{nullptr};               // model.proposal_samples > 0 only
+  PhotoColour photo_colour_{nullptr};        // train.photo_colour only
+  CameraRefine camera_refine_{nullptr};      // train.camera_refine only
+  AppearanceCode appearance_code_{nullptr};  // train.appearance_code only
   VolumeEmbedding volume_embedding_{nullptr};
   ABTransformer coarse_{nullptr}, fine_{nullptr};
   RayColourHead ray_head_coarse_{nullptr}, ray_head_fine_{nullptr};

@@ -3,7 +3,6 @@
 #include <stdexcept>
 
 #include "model/tonemap.h"
-#include "util/errors.h"
 
 namespace ablenerf {
 
@@ -43,14 +42,6 @@ torch::Tensor PhotoColourImpl::look(const torch::Tensor& image, int64_t photo) {
   const auto which =
       torch::full({flat.size(0)}, photo, torch::TensorOptions().dtype(torch::kLong).device(flat.device()));
   return forward(flat, which).to(torch::kFloat).clamp(0.0, 1.0).reshape(image.sizes());
-}
-
-PhotoColourImpl* photo_look(PhotoColourImpl* colour, int64_t look, const std::string& where, const std::string& field) {
-  if (look < 0) return nullptr;
-  if (colour == nullptr) throw InputError(where, field, "the run learnt no per-photo colour (train.photo_colour)");
-  if (look >= colour->photos())
-    throw InputError(where, field, "must be below " + std::to_string(colour->photos()) + " (the training photos)");
-  return colour;
 }
 
 }  // namespace ablenerf

@@ -16,8 +16,6 @@
 // the scene's own colour, the look of the average photo.
 #include <torch/torch.h>
 
-#include <string>
-
 #include "model/photo_colour_map.h"
 
 namespace ablenerf {
@@ -56,10 +54,5 @@ TORCH_MODULE(PhotoColour);
 // The weights' names of the two forms' parameters.
 extern const char* const kPhotoColourAffineWeight;
 extern const char* const kPhotoColourGainWeight;
-
-// The map that gives training photo `look`'s look, or nullptr for the photos' mean look (look < 0).
-// `colour` is the model's per-photo colour (AbleNerf::photo_colour(), null when the run learnt
-// none). InputError(where, field, ...) for a run without per-photo colour or a look out of range.
-PhotoColourImpl* photo_look(PhotoColourImpl* colour, int64_t look, const std::string& where, const std::string& field);
 
 }  // namespace ablenerf

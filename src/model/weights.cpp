@@ -130,8 +130,8 @@ c10::Dict<c10::IValue, c10::IValue> read_weights_dict(const std::string& path) {
 
 void load_weights(AbleNerf& model, const std::string& path) {
   const auto dict = read_weights_dict(path);
-  // Weights trained with per-photo colour or camera refinement carry them (model/photo_colour.h,
-  // model/camera_refine.h): made here with their rows.
+  // Weights trained with per-photo colour, camera refinement or appearance codes carry them
+  // (model/photo_colour.h, model/camera_refine.h, model/appearance_code.h): made here with their rows.
   const auto rows_of = [&](const char* key, int64_t dims, int64_t inner, const char* expected) -> int64_t {
     const auto it = dict.find(c10::IValue(std::string(key)));
     if (it == dict.end() || !it->value().isTensor()) return 0;
@@ -147,6 +147,14 @@ void load_weights(AbleNerf& model, const std::string& path) {
   }
   if (!model->camera_refine())
     if (const int64_t n = rows_of(kCameraRefineWeight, 2, 6, "expected (cameras, 6)")) model->enable_camera_refine(n);
+  if (!model->appearance_code()) {
+    const int64_t width = model->config().width;
+    const std::string expected = "expected (photos, " + std::to_string(width) + "): model.width codes";
+    if (const int64_t n = rows_of(kAppearanceCodeWeight, 2, width, expected.c_str())) {
+      if (!model->has_le()) throw InputError(path, kAppearanceCodeWeight, "appearance codes need model.le_count > 0");
+      model->enable_appearance_code(n);
+    }
+  }
   std::vector<std::pair<std::string, std::string>> identity;
   for (const auto& p : model->named_parameters()) identity.emplace_back(p.key(), p.key());
   assign_parameters(model, dict, identity, path, /*release=*/false);

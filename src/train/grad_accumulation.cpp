@@ -45,11 +45,19 @@ Rays through_camera_refine(AbleNerf& model, const Rays& rays, const torch::Tenso
   return cr->forward(rays, photo);
 }
 
-// The loss terms of some rays of the step: through the corrected cameras, the model and the photo
-// colour maps.
+// `opts` with each ray's photo's appearance code (model/appearance_code.h) when the model has codes.
+ForwardOptions with_appearance(AbleNerf& model, ForwardOptions opts, const torch::Tensor& photo) {
+  AppearanceCodeImpl* codes = model->appearance_code();
+  if (codes != nullptr && photo.defined()) opts.appearance = codes->forward(photo);
+  return opts;
+}
+
+// The loss terms of some rays of the step: through the corrected cameras, the model with the photos'
+// appearance codes and the photo colour maps.
 LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions& opts, const TrainConfig& tc,
                      int64_t global_rays, double near, double far) {
-  const ModelOutput out = model->forward(through_camera_refine(model, rays.rays, rays.photo), near, far, opts);
+  const ModelOutput out = model->forward(through_camera_refine(model, rays.rays, rays.photo), near, far,
+                                         with_appearance(model, opts, rays.photo));
   return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays);
 }
 
@@ -125,13 +133,17 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     const auto decay = add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share);
     sums.loss.add_(decay.to(sums.loss.dtype()));
   }
-  // and the photo colour maps' and camera corrections': each weight times the mean over photos of the
-  // squared deviation from the identity.
+  // and the photo colour maps', appearance codes' and camera corrections': each weight times the mean
+  // over photos of the squared deviation from the identity.
   if (tc.photo_colour_decay > 0 && model->photo_colour()) {
     // On the maps' values, scale x the parameter (model/photo_colour.h).
     const PhotoColourImpl& pc = *model->photo_colour();
     const double weight = tc.photo_colour_decay * share * pc.lr_scale() * pc.lr_scale();
     sums.loss.add_(add_row_decay(pc.parameter(), weight).to(sums.loss.dtype()));
+  }
+  if (tc.appearance_code_decay > 0 && model->appearance_code()) {
+    const double weight = tc.appearance_code_decay * share;
+    sums.loss.add_(add_row_decay(model->appearance_code()->parameter(), weight).to(sums.loss.dtype()));
   }
   if (tc.camera_refine_decay > 0 && model->camera_refine()) {
     // On the corrections, scale x the parameter (model/camera_refine.h).

@@ -56,6 +56,12 @@ struct TrainConfig {
   // the cameras' mean squared correction. Off = the poses as given (the paper).
   bool camera_refine = false;
   double camera_refine_decay = 1e-4;
+  // Per-photo appearance codes (model/appearance_code.h; docs/MODEL.md, "Per-photo appearance
+  // code"): a code of the model's width per training photo on its rays' view token, held near the
+  // photos' mean by appearance_code_decay x the photos' mean squared code. Needs the learnable
+  // embeddings (model.le_count > 0). Off = the paper.
+  bool appearance_code = false;
+  double appearance_code_decay = 1e-4;
   // BARF's coarse-to-fine schedule with camera refinement (model/camera_refine.h,
   // coarse_to_fine_alpha): the IPE's bands open one by one between these shares of the run
   // (e.g. 0.1 and 0.5, BARF's); end = 0: off, every band open throughout.
@@ -106,6 +112,8 @@ struct TrainConfig {
     f("photo_colour_decay", &photo_colour_decay);
     f("camera_refine", &camera_refine);
     f("camera_refine_decay", &camera_refine_decay);
+    f("appearance_code", &appearance_code);
+    f("appearance_code_decay", &appearance_code_decay);
     f("camera_refine_c2f_start", &camera_refine_c2f_start);
     f("camera_refine_c2f_end", &camera_refine_c2f_end);
     f("seed", &seed);
@@ -138,6 +146,7 @@ struct TrainConfig {
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
     need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
     need(camera_refine_decay >= 0 && std::isfinite(camera_refine_decay), "camera_refine_decay", "must be >= 0");
+    need(appearance_code_decay >= 0 && std::isfinite(appearance_code_decay), "appearance_code_decay", "must be >= 0");
     need(camera_refine_c2f_start >= 0 && camera_refine_c2f_start < 1, "camera_refine_c2f_start", "must be in [0, 1)");
     need(camera_refine_c2f_end == 0 || (camera_refine_c2f_end > camera_refine_c2f_start && camera_refine_c2f_end <= 1),
          "camera_refine_c2f_end", "must be 0 (off) or in (camera_refine_c2f_start, 1]");

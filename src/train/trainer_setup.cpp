@@ -109,10 +109,16 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.model->to(opts_.device);
   s.model->set_compute(Compute::from_config(config_.get<ComputeConfig>(), opts_.device, config_.source));
   s.model->train();
-  // Per-photo colour and camera refinement: one map and one correction per training photo, made
-  // before Adam sees the parameters.
+  // Per-photo colour, camera refinement and appearance codes: one map, one correction and one code
+  // per training photo, made before Adam sees the parameters.
   if (tc.photo_colour) s.model->enable_photo_colour(train.size(), tc.photo_colour_map);
   if (tc.camera_refine) s.model->enable_camera_refine(train.size());
+  if (tc.appearance_code) {
+    if (!s.model->has_le())
+      throw InputError(config_.source, "train.appearance_code",
+                       "the codes enter through the view token, which needs model.le_count > 0");
+    s.model->enable_appearance_code(train.size());
+  }
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
                                   AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});

@@ -10,6 +10,7 @@
 #include "eval/colormap.h"
 #include "eval/evaluate.h"
 #include "eval/renderer.h"
+#include "model/look.h"
 #include "train/trainer.h"
 #include "util/image_io.h"
 #include "util/png_codec.h"
@@ -73,7 +74,8 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
   capture_w_ = capture.width;
   for (auto& split : capture.splits)
     for (auto& f : split.frames) {
-      // The train split's photos in training order: the per-photo colour maps' (model/photo_colour.h).
+      // The train split's photos in training order: the per-photo colour maps' and appearance codes'
+      // (model/look.h).
       if (split.name == "train") looks_.push_back(std::filesystem::path(f.image).filename().string());
       frames_.push_back(std::move(f));
     }
@@ -85,14 +87,17 @@ ViewSession::ViewSession(const std::string& run_dir, const torch::Device& device
     model_ = load_run_model(run_, device_);
   }
   model_->eval();
-  if (!model_->photo_colour()) looks_.clear();  // no per-photo colour, no looks to offer
+  if (look_photos(*model_) == 0) looks_.clear();  // no per-photo colour or codes, no looks to offer
 }
 
 void ViewSession::set_weights(AbleNerf& trained, int64_t step) {
   const std::lock_guard<std::mutex> lock(mu_);
   const torch::NoGradGuard no_grad;
   const auto src = trained->named_parameters(), dst = model_->named_parameters();
-  for (const auto& p : src) dst[p.key()].copy_(p.value());
+  // The per-photo parameters (colour maps, camera corrections, appearance codes) exist only in the
+  // trainer's model: the live view shows the photos' mean look.
+  for (const auto& p : src)
+    if (auto* d = dst.find(p.key())) d->copy_(p.value());
   const auto sb = trained->named_buffers(), db = model_->named_buffers();
   for (const auto& b : sb) db[b.key()].copy_(b.value());
   step_ = step;
@@ -168,7 +173,7 @@ int ViewSession::nearest_camera(const std::array<float, 12>& c2w) const {
 
 std::string ViewSession::render_png(const std::array<float, 12>& asked, int width, int height, ViewMode mode,
                                     int* camera, int look) {
-  PhotoColourImpl* colour = photo_look(model_->photo_colour(), look, "request", "look");
+  const PhotoLook chosen = photo_look(*model_, look, "request", "look");
   const Intrinsics& d = cams_.intrinsics;
   Intrinsics k;  // the dataset's focal at this width, a pinhole
   k.width = width;
@@ -206,11 +211,13 @@ std::string ViewSession::render_png(const std::array<float, 12>& asked, int widt
   {
     const std::lock_guard<std::mutex> lock(mu_);
     const torch::NoGradGuard no_grad;
+    ForwardOptions fo;
+    fo.appearance = chosen.appearance;  // the chosen photo's code, if the run learnt codes
     const RenderResult r = render_image(model_, pose.to(device_), k, scene_.near, scene_.far,
-                                        run_.config.get<EvalConfig>().chunk, ForwardOptions{}, device_);
+                                        run_.config.get<EvalConfig>().chunk, fo, device_);
     if (mode == ViewMode::Rgb) {
       image = r.rgb;
-      if (colour) image = colour->look(image, look);  // the chosen photo's colour map over every pixel
+      if (chosen.colour) image = chosen.colour->look(image, chosen.photo);  // its colour map over every pixel
     } else if (mode == ViewMode::Error) {
       image = colormap((r.rgb.to(torch::kCPU) - truth).abs().mean(-1), 0.0, kErrorMapMax);
     } else {

@@ -78,7 +78,8 @@ class ViewSession {
 
   // {"scene", "near", "far", "width", "height", "fx", "fy", "cameras": [[12 numbers, row-major
   // camera-to-world 3x4 in the scene frame], ...], "step", "looks": [the training photos' file
-  // names, whose looks render_png offers, when the run learnt per-photo colour; else empty]}.
+  // names, whose looks render_png offers, when the run learnt per-photo colour or appearance codes;
+  // else empty]}.
   nlohmann::json cameras_json() const;
 
   // The points of the run's latest points export (RUN/exports.json: `export --points`) in the scene
@@ -90,10 +91,10 @@ class ViewSession {
   // The PNG of the view from `c2w` (row-major 3x4, scene frame, OpenGL axes) through a pinhole
   // with the dataset's focal length scaled to `width` (principal point at the centre).
   // With ViewMode::Error, `camera` (when not null) receives the index of the camera compared.
-  // `look` (ViewMode::Rgb): a training photo's exposure and white balance for the render, through
-  // its per-photo colour map (model/photo_colour.h; the index of cameras_json()'s "looks"), or -1
-  // for the photos' mean look (the model's own colour); InputError naming "look" for a run without
-  // per-photo colour or an index out of range.
+  // `look` (ViewMode::Rgb): a training photo's look for the render (model/look.h: its appearance
+  // code and its per-photo colour map, whichever the run learnt; the index of cameras_json()'s
+  // "looks"), or -1 for the photos' mean look (the model's own colour); InputError naming "look" for
+  // a run with neither or an index out of range.
   std::string render_png(const std::array<float, 12>& c2w, int width, int height, ViewMode mode, int* camera = nullptr,
                          int look = -1);
   // The dataset camera nearest `c2w` (centre distance plus the angle between viewing directions,

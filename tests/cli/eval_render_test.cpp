@@ -134,6 +134,27 @@ TEST(CliRender, LookOfATrainingPhoto) {
   EXPECT_NE(r.output.find("must be below 3"), std::string::npos) << r.output;
 }
 
+// --look N on a run with appearance codes (set by hand: photo 0's code the mean, photos 1 and 2
+// opposite): photo 0's look is the mean look, photos 1 and 2 differ from it and from each other.
+TEST(CliRender, LookOfATrainingPhotosAppearanceCode) {
+  test::TempDir t;
+  test::make_tiny_scene(t / "scene", 3, 1, 8, 8, false);
+  test::make_tiny_run(t / "run", t / "scene");
+  torch::manual_seed(5);
+  const auto v = torch::randn({test::tiny_model_config().get<ModelConfig>().width}) * 3;
+  test::give_run_appearance_codes(t / "run", torch::stack({torch::zeros_like(v), v, -v}));
+  const std::string common = " --path spiral --frames 1 --width 10 --height 6 --raw --out ";
+  for (const std::string look : {"mean", "0", "1", "2"}) {
+    const auto r =
+        test::run_cli("render --run " + t / "run" + (look == "mean" ? "" : " --look " + look) + common + t / look);
+    ASSERT_EQ(r.exit_code, 0) << look << ": " << r.output;
+  }
+  const auto frame = [&](const std::string& look) { return load_pt(t / (look + "/frame_0000.pt")); };
+  EXPECT_LT((frame("0") - frame("mean")).abs().max().item<float>(), 1e-6);
+  EXPECT_GT((frame("1") - frame("mean")).abs().max().item<float>(), 1e-3);
+  EXPECT_GT((frame("1") - frame("2")).abs().max().item<float>(), 1e-3);
+}
+
 TEST(CliRender, CamerasJsonAndBadOptions) {
   test::TempDir t;
   test::make_tiny_scene(t / "scene", 2, 2, 8, 8, false);

@@ -84,4 +84,15 @@ RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir)
   return run;
 }
 
+void give_run_appearance_codes(const std::string& run_dir, const torch::Tensor& codes) {
+  const RunFolder run = RunFolder::open(run_dir);
+  AbleNerf model = load_run_model(run, torch::kCPU);
+  model->enable_appearance_code(codes.size(0));
+  {
+    const torch::NoGradGuard no_grad;
+    model->appearance_code()->parameter().copy_(codes);
+  }
+  save_weights(model, run.weights_path());
+}
+
 }  // namespace ablenerf::test

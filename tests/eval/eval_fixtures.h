@@ -19,4 +19,7 @@ void make_tiny_scene(const std::string& dir, int n_train, int n_test, int w, int
 // RunFolder::create + save_weights of a fresh tiny model (seeded) + a short log.jsonl.
 RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir);
 
+// Gives the run's weights appearance codes (model/appearance_code.h): `codes` (photos, model width).
+void give_run_appearance_codes(const std::string& run_dir, const torch::Tensor& codes);
+
 }  // namespace ablenerf::test

@@ -14,16 +14,6 @@
 namespace ablenerf {
 namespace {
 
-// A small model to carry the maps in its weights.
-ModelConfig small_model() {
-  ModelConfig cfg;
-  cfg.width = 16;
-  cfg.heads = 2;
-  cfg.samples = 4;
-  cfg.le_count = 2;
-  return cfg;
-}
-
 TEST(PhotoColour, EachRayTakesItsPhotosAffineMap) {
   PhotoColour pc(3);
   const auto rgb = torch::tensor({{0.2f, 0.5f, 0.9f}, {0.1f, 0.3f, 0.4f}, {0.7f, 0.6f, 0.5f}, {0.0f, 1.0f, 0.25f}});
@@ -128,7 +118,7 @@ TEST(PhotoColour, GainGradientMatchesFiniteDifferences) {
 
 TEST(PhotoColour, WeightsCarryTheMapsIntoAModelMadeWithoutThem) {
   test::TempDir dir;
-  const ModelConfig cfg = small_model();
+  const ModelConfig cfg = test::small_le_model_config();
   AbleNerf a(cfg);
   a->enable_photo_colour(5);
   {
@@ -153,7 +143,7 @@ TEST(PhotoColour, WeightsCarryTheMapsIntoAModelMadeWithoutThem) {
 
 TEST(PhotoColour, WeightsCarryGainsIntoAModelMadeWithoutThem) {
   test::TempDir dir;
-  const ModelConfig cfg = small_model();
+  const ModelConfig cfg = test::small_le_model_config();
   AbleNerf a(cfg);
   a->enable_photo_colour(3, PhotoColourMap::Gain);
   {

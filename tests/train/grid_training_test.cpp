@@ -99,6 +99,25 @@ TEST(GridTraining, ResumeWithCameraRefineEqualsUninterrupted) {
     EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
 }
 
+// Appearance codes (train.appearance_code) likewise: parameters with their Adam state and decay, so
+// a resumed run ends bit-exact with the straight one. Without learnable embeddings (no view token
+// for them) the run is refused naming the key.
+TEST(GridTraining, ResumeWithAppearanceCodesEqualsUninterrupted) {
+  const test::IntraOpThreads threads(1);
+  test::TempDir t;
+  const Config c =
+      test::config_with(tiny_grid_config(), {"train.appearance_code=true", "train.appearance_code_decay=0.01"});
+  test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
+  auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
+  ASSERT_TRUE(a.contains("appearance_code.codes"));
+  EXPECT_GT(a.at("appearance_code.codes").toTensor().abs().max().item<double>(), 0.0);  // it trained
+  for (const auto& kv : a)
+    EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
+  const Config no_le = test::config_with(c, {"model.le_count=0"});
+  const std::string why = grid_refusal([&] { train(no_le, grid_run_options(t / "no_le")); });
+  EXPECT_NE(why.find("train.appearance_code"), std::string::npos) << why;
+}
+
 TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
   test::TempDir t;
   const Config c = tiny_grid_config();

@@ -53,6 +53,14 @@ std::string pose_text(const std::vector<float>& p) {
   return s;
 }
 
+// Camera `i` of the session's cameras_json() as render_png takes it.
+std::array<float, 12> camera_c2w(const ViewSession& session, int i) {
+  const auto pose = session.cameras_json().at("cameras")[i].get<std::vector<float>>();
+  std::array<float, 12> c2w{};
+  std::copy(pose.begin(), pose.end(), c2w.begin());
+  return c2w;
+}
+
 // A PNG body decoded (through a file: the codec reads files).
 torch::Tensor decode(const std::string& png, const test::TempDir& dir) {
   test::write_file(dir / "got.png", png);
@@ -245,6 +253,46 @@ TEST(ViewServer, LooksOfTheTrainingPhotos) {
   r = cli.Get(("/api/render?w=16&h=12&look=mean&pose=" + pose_text(pose)).c_str());
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 200) << r->body;
+}
+
+// Appearance codes in the viewer: a run with codes only (no colour maps) offers the training
+// photos' looks, each rendered with its own code (opposite codes set by hand: the two looks differ
+// from each other and from the mean look).
+TEST(ViewServer, LooksOfAppearanceCodes) {
+  test::TempDir dir;
+  test::make_tiny_scene(dir / "scene", 2, 2, 16, 16, false);
+  test::make_tiny_run(dir / "run", dir / "scene");
+  torch::manual_seed(6);
+  const auto v = torch::randn({test::tiny_model_config().get<ModelConfig>().width}) * 3;
+  test::give_run_appearance_codes(dir / "run", torch::stack({v, -v}));
+  ViewSession session(dir / "run", torch::kCPU);
+  ASSERT_EQ(session.cameras_json().at("looks").size(), 2u);
+  const auto c2w = camera_c2w(session, 2);
+  const auto render = [&](int look) {
+    return decode(session.render_png(c2w, 16, 12, ViewMode::Rgb, nullptr, look), dir).to(torch::kInt);
+  };
+  const auto mean = render(-1), first = render(0), second = render(1);
+  EXPECT_GT((first - mean).abs().max().item<int>(), 2);
+  EXPECT_GT((first - second).abs().max().item<int>(), 2);
+  EXPECT_THROW(render(2), InputError);
+}
+
+// The live view (`train --view`) takes the trainer's weights each time it renders: a trainer's
+// model with per-photo parameters (colour maps, appearance codes) hands over the scene's weights and
+// the view shows the mean look, rendered as the trainer's model renders it.
+TEST(ViewServer, LiveWeightsFromATrainerWithPerPhotoParameters) {
+  test::TempDir dir;
+  test::make_tiny_scene(dir / "scene", 2, 2, 16, 16, false);
+  test::make_tiny_run(dir / "run", dir / "scene");
+  AbleNerf trained = load_run_model(RunFolder::open(dir / "run"), torch::kCPU);
+  trained->enable_photo_colour(2);
+  trained->enable_appearance_code(2);
+  ViewSession live(dir / "run", torch::kCPU, /*live=*/true);
+  ASSERT_NO_THROW(live.set_weights(trained, 7));
+  EXPECT_EQ(live.weights_step(), 7);
+  ViewSession saved(dir / "run", torch::kCPU);  // the same weights, read from the run
+  const auto c2w = camera_c2w(saved, 1);
+  EXPECT_EQ(live.render_png(c2w, 16, 12, ViewMode::Rgb), saved.render_png(c2w, 16, 12, ViewMode::Rgb));
 }
 
 TEST(ViewServer, ExportedPointsInTheSceneFrame) {
