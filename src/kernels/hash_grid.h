@@ -23,7 +23,7 @@ constexpr int kHashGridMaxFeatures = 8;
 // Returns (N, levels, features) float32. Differentiable in the table and in the positions (the
 // trilinear weights' derivatives, computed only when the positions require a gradient: camera
 // refinement moves the samples; zero along an axis outside [0, 1]). CPU tensors run the project's loops (the table's
-// gradient is added level by level, one thread per level: no two threads write one row, no lock); CUDA tensors the
+// gradient is added level by level, points in order: no lock, the same sums every run); CUDA tensors the
 // kernels (atomic adds), or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
 // argument on bad input.
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape);

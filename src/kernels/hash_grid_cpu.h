@@ -7,13 +7,18 @@
 
 namespace ablenerf {
 
+// The loops go through at::parallel_for (points, or levels for the scatter). Our code is compiled
+// without OpenMP, and there ATen's header runs them on the calling thread: the CPU's two cores come
+// from the ray split instead, each slice's thread running its own lookups (kernels/cpu_parallel.h).
+//
 // out (n, levels, features) = the interpolated rows of table (levels, table_size, features) at
-// positions (n, 3). Points are split across LibTorch's intra-op threads.
+// positions (n, 3).
 void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out);
 
 // grad_table (levels, table_size, features) += the scatter of grad_out (n, levels, features) into
-// the rows each point read, with its trilinear weights. One thread per level, points in order: no
-// two threads touch one row, and the sums come out the same on every run.
+// the rows each point read, with its trilinear weights. Level by level, points in order (split by
+// level where it runs in parallel): no two threads touch one row, and the sums come out the same on
+// every run.
 void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
                             float* grad_table);
 
