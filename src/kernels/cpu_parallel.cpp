@@ -45,6 +45,10 @@ const ThreadControl& omp_threads() {
 // Set in the threads of a running parallel_slices: nested calls stay serial.
 thread_local bool t_in_worker = false;
 
+// LibTorch's thread count before a SerialIntraOp on this thread took it to 1 (0 outside one): it
+// still counts in the thread budget, so the ray split inside such a scope keeps its threads.
+thread_local int t_held_threads = 0;
+
 // A slice's thread for the scope: nested splits stay serial, and so do LibTorch's own intra-op loops
 // (at::parallel_for: element-wise ops over large tensors, the hash grid's kernels). Left alone,
 // each slice's thread would open an OpenMP team of its own in those loops, W teams on W cores whose
@@ -53,30 +57,34 @@ thread_local bool t_in_worker = false;
 // held to one thread (docs/BENCHMARKS.md, "One OpenMP team per slice").
 class WorkerScope {
  public:
-  WorkerScope() : previous_(t_in_worker) {
-    t_in_worker = true;
-    const auto& omp = omp_threads();
-    if (omp.set) {
-      // at::get_num_threads() first: a thread's first call into LibTorch's parallel code sets its
-      // team size from the process's count, which would undo the 1 set here.
-      (void)at::get_num_threads();
-      omp_previous_ = omp.get();
-      if (omp_previous_ != 1) omp.set(1);
-    }
-  }
-  ~WorkerScope() {
-    t_in_worker = previous_;
-    if (omp_previous_ > 1) omp_threads().set(omp_previous_);
-  }
+  WorkerScope() : previous_(t_in_worker) { t_in_worker = true; }
+  ~WorkerScope() { t_in_worker = previous_; }
   WorkerScope(const WorkerScope&) = delete;
   WorkerScope& operator=(const WorkerScope&) = delete;
 
  private:
   bool previous_;
-  int omp_previous_ = 0;
+  SerialIntraOp serial_;
 };
 
 }  // namespace
+
+SerialIntraOp::SerialIntraOp() {
+  const auto& omp = omp_threads();
+  if (!omp.set) return;
+  // at::get_num_threads() first: a thread's first call into LibTorch's parallel code sets its team
+  // size from the process's count, which would undo the 1 set here.
+  (void)at::get_num_threads();
+  previous_ = omp.get();
+  held_ = t_held_threads;
+  t_held_threads = std::max(held_, previous_);
+  if (previous_ != 1) omp.set(1);
+}
+
+SerialIntraOp::~SerialIntraOp() {
+  if (previous_ > 1) omp_threads().set(previous_);
+  t_held_threads = held_;
+}
 
 SingleThreadedBlas::SingleThreadedBlas() {
   const auto& b = blas_threads();
@@ -97,7 +105,7 @@ bool blas_thread_control_available() { return blas_threads().set != nullptr; }
 
 int64_t cpu_thread_budget() {
   const auto& blas = blas_threads();
-  return std::max<int64_t>({1, at::get_num_threads(), blas.get ? blas.get() : 1});
+  return std::max<int64_t>({1, at::get_num_threads(), t_held_threads, blas.get ? blas.get() : 1});
 }
 
 int64_t cpu_workers(int64_t n, int64_t min_per_worker) {

@@ -43,6 +43,23 @@ class SingleThreadedBlas {
   int previous_ = 0;
 };
 
+// LibTorch's intra-op loops on the calling thread run serially for the scope (its OpenMP team size
+// set to 1, restored after; nothing where OpenMP's control is absent). For a thread that runs
+// parallel_slices again and again (a CPU training step): between the splits its own table-sized ops
+// would open a team whose idle member spins on a core into the next split's slices. The count it
+// held still counts in cpu_thread_budget() on that thread.
+class SerialIntraOp {
+ public:
+  SerialIntraOp();
+  ~SerialIntraOp();
+  SerialIntraOp(const SerialIntraOp&) = delete;
+  SerialIntraOp& operator=(const SerialIntraOp&) = delete;
+
+ private:
+  int previous_ = 0;
+  int held_ = 0;
+};
+
 // Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
 // thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the
 // caller's grad mode and inference mode. The first exception thrown by any slice is rethrown

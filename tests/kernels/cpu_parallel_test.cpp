@@ -110,6 +110,31 @@ TEST(CpuParallel, LibTorchThreadsAreOneInsideSlicesAndComeBack) {
   at::set_num_threads(before);
 }
 
+TEST(CpuParallel, SerialIntraOpHoldsTheCallerAndKeepsTheSplit) {
+  if (!dlsym(RTLD_DEFAULT, "omp_set_num_threads")) GTEST_SKIP() << "LibTorch without OpenMP in this build";
+  const int before = at::get_num_threads();
+  at::set_num_threads(2);
+  // OpenBLAS held to one thread, so that LibTorch's count alone makes the budget of 2.
+  const SingleThreadedBlas single_blas;
+  const int64_t budget = cpu_thread_budget();
+  ASSERT_EQ(budget, 2);
+  {
+    const SerialIntraOp serial;
+    EXPECT_EQ(at::get_num_threads(), 1);
+    // The held count still counts: a ray split inside the scope keeps its workers.
+    EXPECT_EQ(cpu_thread_budget(), budget);
+    if (blas_thread_control_available()) EXPECT_EQ(cpu_workers(1 << 20, 8), budget);
+    {
+      const SerialIntraOp nested;
+      EXPECT_EQ(at::get_num_threads(), 1);
+      EXPECT_EQ(cpu_thread_budget(), budget);
+    }
+    EXPECT_EQ(cpu_thread_budget(), budget);
+  }
+  EXPECT_EQ(at::get_num_threads(), 2);
+  at::set_num_threads(before);
+}
+
 TEST(CpuParallel, WorkerCountFollowsTheBudgetAndTheMinimum) {
   EXPECT_EQ(cpu_workers(0, 8), 1);
   EXPECT_EQ(cpu_workers(15, 8), 1);  // two workers would get fewer than 8 each
