@@ -43,8 +43,9 @@ void setup(CLI::App& app) {
                "Fit each held-out camera to its photo with the model frozen before scoring (after "
                "train.camera_refine; default: the run's eval.align_cameras)");
   app.add_flag("--fit-look", a->fit_look,
-               "NeRF-W's protocol: fit each view's exposure and white balance (an affine colour map) on the "
-               "left half of its photo, score the right half (default: the run's eval.fit_look)");
+               "NeRF-W's protocol: fit each view's exposure and white balance (an affine colour map), and its "
+               "appearance code when the run has codes, on the left half of its photo, score the right half "
+               "(default: the run's eval.fit_look)");
   app.callback([a, downscale, chunk] {
     const torch::Device device = parse_device(a->device);
     const RunFolder run = RunFolder::open(a->run);

@@ -33,8 +33,13 @@ struct EvalConfig {
   bool align_cameras = false;
   int64_t align_steps = 100;
   // NeRF-W's protocol (eval/look_fit.h): each view's look fitted on its photo's left half, scores
-  // on the right half. Off = the plain protocol, the one published figures use.
+  // on the right half. Off = the plain protocol, the one published figures use. A run with
+  // appearance codes has its code fitted first: look_code_steps Adam steps of 512 rays, step
+  // look_code_lr on the code (trained codes' entries stay within a few tenths, which 100 such steps
+  // reach; larger steps fit the left half's noise: docs/BENCHMARKS.md, "NeRF-W's code fit").
   bool fit_look = false;
+  int64_t look_code_steps = 100;
+  double look_code_lr = 3e-3;
 
   template <class F>
   void visit(F&& f) {
@@ -43,10 +48,14 @@ struct EvalConfig {
     f("align_cameras", &align_cameras);
     f("align_steps", &align_steps);
     f("fit_look", &fit_look);
+    f("look_code_steps", &look_code_steps);
+    f("look_code_lr", &look_code_lr);
   }
   void validate(const SectionCheck& need) const {
     need(chunk >= 1, "chunk", "must be >= 1");
     need(align_steps >= 1, "align_steps", "must be >= 1");
+    need(look_code_steps >= 1, "look_code_steps", "must be >= 1");
+    need(look_code_lr > 0, "look_code_lr", "must be positive");
   }
 };
 ABLENERF_CONFIG_SECTION(EvalConfig);

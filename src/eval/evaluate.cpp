@@ -76,6 +76,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   CameraAlignOptions align_opts;
   align_opts.steps = run.config.get<EvalConfig>().align_steps;
   const bool fit_look = opts.fit_look.value_or(run.config.get<EvalConfig>().fit_look);
+  PhotoFitOptions code_opts;
+  code_opts.steps = run.config.get<EvalConfig>().look_code_steps;
+  code_opts.lr = run.config.get<EvalConfig>().look_code_lr;
 
   LoadOptions lo = load_options_for(run.config, {opts.split});
   // The capture's masks score the "unmasked" part even for a run trained on every pixel
@@ -139,11 +142,21 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
                              opts.device);
     }
     const torch::Tensor pose = aligned ? aligned->c2w : split.c2w[i];
-    const auto t0 = std::chrono::steady_clock::now();  // the render's time, the alignment's aside
-    const RenderResult r = render_image(model, pose, cam, ds.near, ds.far, chunk, ForwardOptions{}, opts.device,
-                                        [&](int64_t done, int64_t) {
-                                          if (bar) bar->update(i * rays_per_image + done, view);
-                                        });
+    // NeRF-W: a run with appearance codes renders with the code fitted on the photo's left half.
+    ForwardOptions look_opts;
+    std::optional<CodeFit> code;
+    if (fit_look && model->appearance_code()) {
+      code_opts.seed = static_cast<uint64_t>(i);
+      code =
+          fit_code_left_half(model, pose, cam, split.images[i], split.mask.defined() ? split.mask[i] : torch::Tensor(),
+                             ds.near, ds.far, code_opts, opts.device);
+      look_opts.appearance = code->code;
+    }
+    const auto t0 = std::chrono::steady_clock::now();  // the render's time, the fits' aside
+    const RenderResult r =
+        render_image(model, pose, cam, ds.near, ds.far, chunk, look_opts, opts.device, [&](int64_t done, int64_t) {
+          if (bar) bar->update(i * rays_per_image + done, view);
+        });
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     total_seconds += seconds;
     torch::Tensor gt = split.images[i], rgb = r.rgb, keep = split.mask.defined() ? split.mask[i] : torch::Tensor();
@@ -183,6 +196,10 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
     if (look) {
       const auto m = look->map.contiguous();
       im["look_map"] = std::vector<double>(m.data_ptr<double>(), m.data_ptr<double>() + m.numel());
+    }
+    if (code) {
+      im["look_code_norm"] = code->code.norm().item<double>();
+      im["look_code_mse"] = {code->fit.mse_before, code->fit.mse_after};
     }
     im["seconds"] = seconds;
     if (aligned) {
@@ -237,6 +254,14 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
                       "NeRF-W's protocol: an affine colour map (3x3 and a bias) per view fitted by least squares on "
                       "the photo's left half with the model frozen; scores on the right half"},
                      {"scored_columns", std::vector<int64_t>{k.width / 2, k.width}}};
+  if (fit_look && model->appearance_code())
+    m["look_fit"]["appearance_code"] = {
+        {"steps", code_opts.steps},
+        {"rays", code_opts.rays},
+        {"lr", code_opts.lr},
+        {"what",
+         "the run's appearance code fitted first on the left half (from the photos' mean), the render "
+         "taken with it, the colour map fitted on that render"}};
   if (align)
     m["camera_alignment"] = {{"steps", align_opts.steps},
                              {"rays", align_opts.rays},

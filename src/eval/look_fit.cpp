@@ -25,4 +25,23 @@ LookFit fit_look_left_half(const torch::Tensor& render, const torch::Tensor& pho
   return out;
 }
 
+CodeFit fit_code_left_half(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& cam, const torch::Tensor& image,
+                           const torch::Tensor& keep, double near, double far, const PhotoFitOptions& o,
+                           const torch::Device& device) {
+  AppearanceCodeImpl* codes = model->appearance_code();
+  TORCH_CHECK(codes != nullptr, "fit_code_left_half: the model has no appearance codes");
+  const auto& p = codes->parameter();
+  CodeFit out;
+  out.code = torch::zeros({1, p.size(1)}, p.options().device(device)).requires_grad_(true);
+  out.fit =
+      fit_to_photo(model, c2w, cam, image, allowed_pixels(image.size(0), image.size(1), keep, 0, image.size(1) / 2),
+                   {out.code}, o, device, [&](const Rays& rays, const torch::Tensor&) {
+                     ForwardOptions f;
+                     f.appearance = out.code;
+                     return model->forward(rays, near, far, f);
+                   });
+  out.code = out.code.detach();
+  return out;
+}
+
 }  // namespace ablenerf

@@ -6,7 +6,13 @@
 // (model/photo_colour.h: an affine map of the rendered colour, 3x3 plus a bias), which enters after
 // the render, so the fit with the model frozen is linear least squares on the render, solved in
 // closed form instead of by gradient steps.
+//
+// A run with per-photo appearance codes (model/appearance_code.h) has, besides, the code NeRF-W
+// itself fits: the view's code is fitted first by gradient steps on the left half's pixels (from
+// zero, the photos' mean look), the render taken with it, and the colour map fitted on that render.
 #include <torch/torch.h>
+
+#include "eval/photo_fit.h"
 
 namespace ablenerf {
 
@@ -20,5 +26,17 @@ struct LookFit {
 // whole render through it. A left half with fewer than 4 pixels, or whose colours do not span a
 // plane, keeps the identity.
 LookFit fit_look_left_half(const torch::Tensor& render, const torch::Tensor& photo, const torch::Tensor& keep = {});
+
+struct CodeFit {
+  torch::Tensor code;  // (1, width) on the model's device, no gradient: ForwardOptions::appearance
+  PhotoFit fit;
+};
+
+// The appearance code that takes the model's render of camera c2w (3,4) closest to `image` (H,W,3)
+// on the left half's columns (where `keep` (H,W) is true when it is defined), the model frozen;
+// o.lr is on the code itself. The model must have appearance codes.
+CodeFit fit_code_left_half(AbleNerf& model, const torch::Tensor& c2w, const Intrinsics& cam, const torch::Tensor& image,
+                           const torch::Tensor& keep, double near, double far, const PhotoFitOptions& o,
+                           const torch::Device& device);
 
 }  // namespace ablenerf
