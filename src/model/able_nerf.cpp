@@ -98,17 +98,30 @@ int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const
   return ray_workers(rays);
 }
 
+namespace {
+// The per-photo modules' names (their parameters' prefixes in weights files).
+constexpr const char* kPhotoColourModule = "photo_colour";
+constexpr const char* kCameraRefineModule = "camera_refine";
+constexpr const char* kAppearanceCodeModule = "appearance_code";
+}  // namespace
+
+bool AbleNerfImpl::per_photo_parameter(const std::string& name) {
+  for (const std::string module : {kPhotoColourModule, kCameraRefineModule, kAppearanceCodeModule})
+    if (name.rfind(module + ".", 0) == 0) return true;
+  return false;
+}
+
 void AbleNerfImpl::enable_photo_colour(int64_t photos, PhotoColourMap map) {
   if (photo_colour_) throw std::logic_error("AbleNerf: per-photo colour enabled twice");
   const auto device = ray_token_.device();
-  photo_colour_ = register_module("photo_colour", PhotoColour(photos, map));
+  photo_colour_ = register_module(kPhotoColourModule, PhotoColour(photos, map));
   photo_colour_->to(device);
 }
 
 void AbleNerfImpl::enable_camera_refine(int64_t cameras) {
   if (camera_refine_) throw std::logic_error("AbleNerf: camera refinement enabled twice");
   const auto device = ray_token_.device();
-  camera_refine_ = register_module("camera_refine", CameraRefine(cameras));
+  camera_refine_ = register_module(kCameraRefineModule, CameraRefine(cameras));
   camera_refine_->to(device);
 }
 
@@ -117,7 +130,7 @@ void AbleNerfImpl::enable_appearance_code(int64_t photos) {
   if (!has_le())
     throw std::invalid_argument("appearance codes enter through the view token: the model needs model.le_count > 0");
   const auto device = ray_token_.device();
-  appearance_code_ = register_module("appearance_code", AppearanceCode(photos, cfg_.width));
+  appearance_code_ = register_module(kAppearanceCodeModule, AppearanceCode(photos, cfg_.width));
   appearance_code_->to(device);
 }
 

@@ -108,6 +108,9 @@ class AbleNerfImpl : public torch::nn::Module {
   // Throws std::invalid_argument for a model without learnable embeddings (no view token to add to).
   void enable_appearance_code(int64_t photos);
   AppearanceCodeImpl* appearance_code() { return appearance_code_ ? appearance_code_.get() : nullptr; }
+  // True for a parameter of those three per-photo modules: it belongs to one capture's training
+  // photos, not to the scene (a model made for viewing has none).
+  static bool per_photo_parameter(const std::string& name);
   // How the arithmetic runs (model/compute.h): the attention kernel of every attention layer,
   // the precision of the matrix products (outputs are always fp32) and the CPU ray split.
   void set_compute(const Compute& c);

@@ -13,8 +13,6 @@
 // mean look; a small decay (train.appearance_code_decay) bounds their spread.
 #include <torch/torch.h>
 
-#include <string>
-
 namespace ablenerf {
 
 class AppearanceCodeImpl : public torch::nn::Module {

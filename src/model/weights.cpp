@@ -2,6 +2,7 @@
 // release state dict. Both sets of names are documented in docs/weights.md.
 #include <map>
 #include <sstream>
+#include <stdexcept>
 
 #include "model/able_nerf.h"
 #include "util/errors.h"
@@ -151,8 +152,11 @@ void load_weights(AbleNerf& model, const std::string& path) {
     const int64_t width = model->config().width;
     const std::string expected = "expected (photos, " + std::to_string(width) + "): model.width codes";
     if (const int64_t n = rows_of(kAppearanceCodeWeight, 2, width, expected.c_str())) {
-      if (!model->has_le()) throw InputError(path, kAppearanceCodeWeight, "appearance codes need model.le_count > 0");
-      model->enable_appearance_code(n);
+      try {
+        model->enable_appearance_code(n);
+      } catch (const std::invalid_argument& e) {  // the model's refusal (no LEs), named by the key
+        throw InputError(path, kAppearanceCodeWeight, e.what());
+      }
     }
   }
   std::vector<std::pair<std::string, std::string>> identity;

@@ -95,9 +95,9 @@ void ViewSession::set_weights(AbleNerf& trained, int64_t step) {
   const torch::NoGradGuard no_grad;
   const auto src = trained->named_parameters(), dst = model_->named_parameters();
   // The per-photo parameters (colour maps, camera corrections, appearance codes) exist only in the
-  // trainer's model: the live view shows the photos' mean look.
+  // trainer's model: the live view shows the photos' mean look. Any other name must match.
   for (const auto& p : src)
-    if (auto* d = dst.find(p.key())) d->copy_(p.value());
+    if (!AbleNerfImpl::per_photo_parameter(p.key())) dst[p.key()].copy_(p.value());
   const auto sb = trained->named_buffers(), db = model_->named_buffers();
   for (const auto& b : sb) db[b.key()].copy_(b.value());
   step_ = step;
