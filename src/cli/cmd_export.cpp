@@ -132,7 +132,9 @@ void run_export_poses(const ExportArgs& a) {
     given.push_back(pose_tensor(scene.to_scene(f.pose)));
   }
   torch::NoGradGuard no_grad;
-  const auto corrected = refine->corrected(torch::stack(given).to(refine->correction().dtype())).to(torch::kDouble);
+  const auto given_c2w = torch::stack(given).to(refine->parameter().dtype());
+  refine->set_centres(given_c2w.slice(1, 0, 3).select(2, 3));  // the gauge as training had it
+  const auto corrected = refine->corrected(given_c2w).to(torch::kDouble);
   const auto correction = refine->correction().to(torch::kDouble);
   nlohmann::json out;
   out["frames"] = nlohmann::json::array();

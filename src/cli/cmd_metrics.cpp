@@ -15,6 +15,8 @@
 #include "cli/command.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
+#include "eval/pose_error.h"
+#include "util/fs.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "data/capture.h"
 #include "data/dataset.h"
@@ -29,6 +31,7 @@ namespace cmd_metrics {
 
 struct MetricsArgs {
   std::string ref, img, lpips_weights, ssim = "standard";
+  std::string poses;            // estimated cameras against a synth scene's true training cameras
   std::string geometry, truth;  // geometry against a synth scene's spheres or a capture's sparse points
   double tau = 0;
   int64_t samples = 200000;
@@ -114,9 +117,104 @@ void run_geometry(const MetricsArgs& a) {
 #endif
 }
 
+nlohmann::json parse_json_file(const std::string& path) {
+  try {
+    return nlohmann::json::parse(read_file(path));
+  } catch (const nlohmann::json::exception&) {
+    throw InputError(path, "", "invalid JSON");
+  }
+}
+
+// A (3,4) camera-to-world from a JSON 3x4 or 4x4 matrix, or an InputError naming file and field.
+torch::Tensor pose_of(const nlohmann::json& m, const std::string& file, const std::string& field) {
+  auto out = torch::empty({3, 4}, torch::kDouble);
+  const bool shaped = m.is_array() && (m.size() == 3 || m.size() == 4);
+  for (size_t r = 0; shaped && r < 3; ++r) {
+    if (!m[r].is_array() || m[r].size() != 4) throw InputError(file, field, "must be a 3x4 or 4x4 matrix");
+    for (size_t c = 0; c < 4; ++c) {
+      if (!m[r][c].is_number()) throw InputError(file, field, "must be a 3x4 or 4x4 matrix of numbers");
+      out[static_cast<int64_t>(r)][static_cast<int64_t>(c)] = m[r][c].get<double>();
+    }
+  }
+  if (!shaped) throw InputError(file, field, "must be a 3x4 or 4x4 matrix");
+  return out;
+}
+
+nlohmann::json errors_json(const PoseErrors& e) {
+  return {{"rotation_deg", e.rotation_deg}, {"centre", e.centre}, {"reprojection_deg", e.reprojection_deg}};
+}
+
+// --poses FILE --truth DATA: FILE's frames (a transforms.json: `export --poses`, or the capture's
+// own transforms_train.json for the given poses), in order, against the true training cameras that
+// `synth --pose-noise-deg` records in DATA/scene.json; the reprojection over a 3x3x3 lattice spanning
+// the scene's objects (eval/pose_error.h). As given, and after the rigid alignment of the centres.
+void run_poses(const MetricsArgs& a) {
+  const std::string scene_file = (std::filesystem::path(a.truth) / "scene.json").string();
+  if (!std::filesystem::exists(scene_file))
+    throw InputError(scene_file, "", "missing: --poses scores against a scene made by `ablenerf synth`");
+  const auto scene = parse_json_file(scene_file);
+  if (!scene.contains("train_view_truth") || !scene["train_view_truth"].is_array())
+    throw InputError(scene_file, "train_view_truth",
+                     "missing: the scene has no true training cameras (made without --pose-noise-deg?)");
+  const auto est_json = parse_json_file(a.poses);
+  if (!est_json.contains("frames") || !est_json["frames"].is_array())
+    throw InputError(a.poses, "frames", "missing (a transforms.json, e.g. written by `export --poses`)");
+  const auto& truth_views = scene["train_view_truth"];
+  const auto& frames = est_json["frames"];
+  if (frames.size() != truth_views.size() || frames.empty())
+    throw InputError(a.poses, "frames",
+                     "has " + std::to_string(frames.size()) + " cameras, the scene's training views " +
+                         std::to_string(truth_views.size()));
+  std::vector<torch::Tensor> est, truth;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const std::string at = "[" + std::to_string(i) + "]";
+    const auto field = [](const nlohmann::json& o, const char* key) {
+      return o.is_object() && o.contains(key) ? o[key] : nlohmann::json();
+    };
+    est.push_back(pose_of(field(frames[i], "transform_matrix"), a.poses, "frames" + at + ".transform_matrix"));
+    truth.push_back(pose_of(field(truth_views[i], "true_transform_matrix"), scene_file,
+                            "train_view_truth" + at + ".true_transform_matrix"));
+  }
+  // The objects' box: every object with a centre and a radius.
+  auto lo = torch::full({3}, 1e300, torch::kDouble), hi = torch::full({3}, -1e300, torch::kDouble);
+  int objects = 0;
+  const auto list = scene.value("objects", nlohmann::json::array());
+  for (size_t i = 0; i < list.size(); ++i) {
+    const auto& o = list[i];
+    if (!o.is_object() || !o.contains("centre") || !o.contains("radius") || !o["radius"].is_number()) continue;
+    const auto& centre = o["centre"];
+    if (!centre.is_array() || centre.size() != 3 || !centre[0].is_number() || !centre[1].is_number() ||
+        !centre[2].is_number())
+      throw InputError(scene_file, "objects[" + std::to_string(i) + "].centre", "must be [x, y, z]");
+    const auto c =
+        torch::tensor({centre[0].get<double>(), centre[1].get<double>(), centre[2].get<double>()}, torch::kDouble);
+    lo = torch::minimum(lo, c - o["radius"].get<double>());
+    hi = torch::maximum(hi, c + o["radius"].get<double>());
+    ++objects;
+  }
+  if (objects == 0) throw InputError(scene_file, "objects", "no object with a centre and a radius");
+  const auto e = torch::stack(est), t = torch::stack(truth), points = box_lattice(lo, hi);
+  const auto aligned = align_poses_rigid(e, t);
+  nlohmann::json out;
+  out["cameras"] = frames.size();
+  out["as_given"] = errors_json(pose_errors(e, t, points));
+  out["aligned"] = errors_json(pose_errors(aligned, t, points));
+  out["aligned_note"] =
+      "after the one rigid motion that takes the cameras' centres closest to the truth's (Kabsch), as BARF scores "
+      "refined poses: the motion common to all cameras is one no photo reveals";
+  out["points"] = "3x3x3 lattice over the objects' bounding box";
+  out["file"] = a.poses;
+  std::cout << out.dump(2) << std::endl;
+}
+
 std::string size_str(const torch::Tensor& im) { return std::to_string(im.size(1)) + "x" + std::to_string(im.size(0)); }
 
 void run(const MetricsArgs& a) {
+  if (!a.poses.empty()) {
+    if (a.truth.empty()) throw InputError("metrics", "--truth", "--poses needs --truth DATA (a synth scene)");
+    run_poses(a);
+    return;
+  }
   if (!a.geometry.empty() || !a.truth.empty()) {
     if (a.geometry.empty() || a.truth.empty())
       throw InputError("metrics", "--geometry",
@@ -168,6 +266,9 @@ void setup(CLI::App& app) {
   auto a = std::make_shared<MetricsArgs>();
   app.add_option("--ref", a->ref, "Reference (ground-truth) PNG");
   app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)");
+  app.add_option("--poses", a->poses,
+                 "Cameras (a transforms.json: `export --poses`) to score against --truth's true training cameras "
+                 "(a synth scene made with --pose-noise-deg)");
   app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
   app.add_option("--truth", a->truth,
                  "A scene made by `ablenerf synth` (its scene.json and cameras), a Blender scene with depth maps "
@@ -183,6 +284,6 @@ void setup(CLI::App& app) {
 }
 
 }  // namespace cmd_metrics
-ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair; or geometry against a synth scene",
+ABLENERF_COMMAND("metrics", 80, "PSNR, SSIM and LPIPS of one image pair; or geometry or cameras against a synth scene",
                  cmd_metrics::setup);
 }  // namespace ablenerf::cli

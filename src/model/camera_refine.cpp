@@ -13,8 +13,24 @@ CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale, bool centre
   param_ = register_parameter("correction", torch::zeros({cameras, 6}));
 }
 
+void CameraRefineImpl::set_centres(const torch::Tensor& centres) {
+  TORCH_CHECK(centres.dim() == 2 && centres.size(0) == cameras() && centres.size(1) == 3,
+              "CameraRefine::set_centres: expected (", cameras(), ", 3), got ", centres.sizes());
+  centres_ = centres.detach().to(param_.device(), param_.scalar_type()).clone();
+}
+
 torch::Tensor CameraRefineImpl::correction() const {
-  return (centred_ ? param_ - param_.mean(0, /*keepdim=*/true) : param_) * lr_scale_;
+  if (!centred_) return param_ * lr_scale_;
+  const auto w = param_.slice(1, 0, 3), t = param_.slice(1, 3, 6);
+  const auto wg = w.mean(0, /*keepdim=*/true);
+  const auto c = centres_.defined() ? centres_.to(param_.device(), param_.scalar_type())
+                                    : torch::zeros({cameras(), 3}, param_.options());
+  const auto d = c - c.mean(0, /*keepdim=*/true);  // the centres about their mean
+  // t_p - w_g x c_p, then its mean (the common shift) and its scaling about the mean out.
+  const auto rest = t - torch::cross(wg.expand_as(c), c, 1);
+  const auto shifted = rest - rest.mean(0, /*keepdim=*/true);
+  const auto s = (shifted * d).sum() / (d * d).sum().clamp_min(1e-12);
+  return torch::cat({w - wg, shifted - s * d}, 1) * lr_scale_;
 }
 
 torch::Tensor CameraRefineImpl::rotations() const {

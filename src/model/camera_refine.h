@@ -8,10 +8,12 @@
 // which is the ray of the corrected camera-to-world [exp([w_p]x) R | c + t_p]: the samples move
 // with the pose, so the loss reaches w and t through the sample positions (the grid's lookup passes
 // the positions' gradient: kernels/hash_grid.h), the frustums and the view direction. Moving every
-// camera alike and the scene with them fits the photos as well, so the corrections applied are the
-// parameters minus their mean over the cameras (the common shift and turn stay zero: the scene stays
-// where the poses put it, and held-out cameras still see it), and a small decay
-// (train.camera_refine_decay) keeps corrections that the images do not ask for at zero.
+// camera alike and the scene with them fits the photos as well: the rig's rigid motions and its
+// scaling about its centre (to first order, the corrections w_p = w, t_p = w x c_p + t + s (c_p - c))
+// change no photo. So the corrections applied are the parameters with that part taken out
+// (correction(): the rig's gauge removed; the scene stays where the poses put it, and held-out
+// cameras still see it), and a small decay (train.camera_refine_decay) keeps corrections that the
+// images do not ask for at zero.
 #include <torch/torch.h>
 
 #include "data/rays.h"
@@ -38,15 +40,24 @@ torch::Tensor frequency_window_weights(double alpha, int64_t degrees);
 class CameraRefineImpl : public torch::nn::Module {
  public:
   // lr_scale: the corrections' learning rate over the run's; the parameter Adam sees (and weights
-  // files hold) is the corrections over lr_scale. centred: the corrections applied are the
-  // parameter minus its mean over the cameras (training: see above); not for a lone camera fitted
+  // files hold) is the corrections over lr_scale. centred: the rig's gauge is taken out of the
+  // corrections (training: see above; set_centres gives its geometry); not for a lone camera fitted
   // on its own (eval/camera_align.h).
   explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale, bool centred = true);
+  // The given cameras' centres (cameras, 3) in the scene frame, which the gauge's turn and scaling
+  // move (the trainer and `export --poses` set them from the poses). Until set, all at the origin:
+  // the gauge is then the common shift and turn alone, and correction() the parameter minus its mean.
+  void set_centres(const torch::Tensor& centres);
   // The rays of photos `photo` (B,) (int64, < cameras()) as their corrected cameras cast them.
   Rays forward(const Rays& rays, const torch::Tensor& photo);
   int64_t cameras() const { return param_.size(0); }
   // The corrections applied: (cameras, 6), w (axis times angle, radians) then t; zero = the poses as
-  // given.
+  // given. Centred: with w_g the parameters' mean turn, t_g the mean of t_p - w_g x c_p, and s the
+  // least-squares scaling of the rest about the centres' mean c, each camera's (w_p - w_g,
+  // t_p - w_g x c_p - t_g - s (c_p - c)), times lr_scale: a projection (applied twice it changes
+  // nothing) whose kernel is the gauge, so any correction of the rig modulo the gauge stays
+  // reachable; subtracting the plain mean instead also removed the cameras' common turn about their
+  // own centres, which no gauge motion gives (docs/MODEL.md, "Camera refinement", 3.).
   torch::Tensor correction() const;
   // The parameter itself (correction() / lr_scale()) and the scale.
   const torch::Tensor& parameter() const { return param_; }
@@ -61,6 +72,7 @@ class CameraRefineImpl : public torch::nn::Module {
   double lr_scale_;
   bool centred_;
   torch::Tensor param_;
+  torch::Tensor centres_;  // (cameras, 3), not a parameter: set_centres
 };
 TORCH_MODULE(CameraRefine);
 

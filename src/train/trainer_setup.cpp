@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <sstream>
+#include <stdexcept>
 
 #include "data/load_options.h"
 #include "model/compute.h"
@@ -112,12 +113,16 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   // Per-photo colour, camera refinement and appearance codes: one map, one correction and one code
   // per training photo, made before Adam sees the parameters.
   if (tc.photo_colour) s.model->enable_photo_colour(train.size(), tc.photo_colour_map);
-  if (tc.camera_refine) s.model->enable_camera_refine(train.size());
+  if (tc.camera_refine) {
+    s.model->enable_camera_refine(train.size());
+    s.model->camera_refine()->set_centres(train.c2w.slice(1, 0, 3).select(2, 3));  // the rig's gauge
+  }
   if (tc.appearance_code) {
-    if (!s.model->has_le())
-      throw InputError(config_.source, "train.appearance_code",
-                       "the codes enter through the view token, which needs model.le_count > 0");
-    s.model->enable_appearance_code(train.size());
+    try {
+      s.model->enable_appearance_code(train.size());
+    } catch (const std::invalid_argument& e) {  // the model's refusal (no LEs), named by the key
+      throw InputError(config_.source, "train.appearance_code", e.what());
+    }
   }
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,

@@ -67,6 +67,36 @@ TEST(CameraRefine, CentredCorrectionsIgnoreACommonChange) {
   EXPECT_LT(test::max_abs(a->correction() - (c - c.mean(0, true))), 1e-12);
 }
 
+// With the cameras' centres set, the corrections applied are the parameters modulo the rig's gauge:
+// adding a gauge motion (every camera turned by w, its centre moved by w x c_p + t + s (c_p - c))
+// changes no correction, taking the gauge out twice is taking it out once, and a common turn of every
+// camera about its own centre, which is no gauge motion, is kept: it becomes the same turn of the
+// centres the other way about their mean (by hand: w' = 0, t'_p = -w x (c_p - c)).
+TEST(CameraRefine, CorrectionsAreTakenModuloTheRigsGauge) {
+  const auto c = test::seeded_randn({5, 6}, 8) * 0.1;
+  const auto centres = test::seeded_randn({5, 3}, 9) * 2.0;
+  const auto d = centres - centres.mean(0, true);
+  const auto with_centres = [&](const torch::Tensor& p) {
+    auto cr = with_corrections(p, true);
+    cr->set_centres(centres);
+    return cr;
+  };
+  const auto w = torch::tensor({0.02, -0.01, 0.03}, torch::kDouble),
+             t = torch::tensor({0.1, 0.2, -0.1}, torch::kDouble);
+  const double scale = 0.05;
+  const auto gauge = torch::cat({w.expand({5, 3}), torch::cross(w.expand({5, 3}), centres, 1) + t + scale * d}, 1);
+  auto a = with_centres(c), b = with_centres(c + gauge);
+  torch::NoGradGuard no_grad;
+  EXPECT_LT(test::max_abs(a->correction() - b->correction()), 1e-12);
+  EXPECT_LT(test::max_abs(with_centres(a->correction())->correction() - a->correction()), 1e-12);
+  EXPECT_LT(test::max_abs(with_centres(gauge)->correction()), 1e-12);
+  const auto turn = with_centres(torch::cat({w.expand({5, 3}), torch::zeros({5, 3}, torch::kDouble)}, 1));
+  const auto want = torch::cat({torch::zeros({5, 3}, torch::kDouble), -torch::cross(w.expand({5, 3}), d, 1)}, 1);
+  EXPECT_LT(test::max_abs(turn->correction() - want), 1e-12);
+  EXPECT_GT(test::max_abs(turn->correction()), 1e-3);
+  EXPECT_THROW(a->set_centres(torch::zeros({4, 3}, torch::kDouble)), c10::Error);
+}
+
 // The corrected rays of a photo are the rays of its corrected camera: the same pixels cast through
 // CameraRefine::corrected(c2w) by rays_for_pixels (a pinhole and a fisheye camera).
 TEST(CameraRefine, CorrectedRaysAreTheCorrectedCamerasRays) {
