@@ -16,8 +16,6 @@ namespace ablenerf {
 // kernels do not take (levels 1..32, features 1..8, log2_table 1..24, 1 <= base <= max).
 HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base_resolution, int max_resolution);
 
-constexpr int kHashGridMaxFeatures = 8;
-
 // positions: (N, 3) float32, contiguous, coordinates in [0, 1] (clamped; NaN counts as 0);
 // table: (levels, table_size, features) float32, contiguous, on the positions' device.
 // Returns (N, levels, features) float32. Differentiable in the table and in the positions (the

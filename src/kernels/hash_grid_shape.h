@@ -22,6 +22,7 @@
 namespace ablenerf {
 
 constexpr int kHashGridMaxLevels = 32;
+constexpr int kHashGridMaxFeatures = 8;  // floats per row
 
 struct HashGridShape {
   int levels = 0;

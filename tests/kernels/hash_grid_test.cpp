@@ -2,7 +2,7 @@
 // against their closed forms, exactness on a field that is linear inside a cell, the CPU loops
 // against the plain LibTorch reference (values, the table's and the positions' gradients), the
 // reference's gradient against finite differences, the loops' gradient the same with one thread and with several, and
-// the input checks.
+// the input checks; every row width the loops are compiled for.
 #include <gtest/gtest.h>
 
 #include <ATen/Parallel.h>
@@ -102,6 +102,24 @@ TEST(HashGrid, CpuLoopsMatchTheReference) {
   want.backward(g);
   EXPECT_LT(test::max_abs(t1.grad() - t2.grad()), 1e-4);  // rows summed over ~500 points
   EXPECT_GT(test::max_abs(t1.grad()), 0.1);
+}
+
+// The loops are compiled for 2 and 4 floats per row and keep a generic loop for the others
+// (kernels/hash_grid_cpu.cpp): every width against the reference, values and the table's gradient.
+TEST(HashGrid, EveryRowWidthMatchesTheReference) {
+  for (const int features : {1, 2, 3, 4, 8}) {
+    const HashGridShape s = hash_grid_shape(4, features, 7, 4, 32);
+    const auto p = points(300, 30 + features);
+    const auto table = table_for(s, 40 + features);
+    const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 50 + features).to(torch::kFloat);
+    auto t1 = table.clone().requires_grad_(), t2 = table.clone().requires_grad_();
+    const auto got = hash_grid_encode(p, t1, s), want = hash_grid_encode_reference(p, t2, s);
+    EXPECT_LT(test::max_abs(got - want), 1e-5) << features;
+    got.backward(g);
+    want.backward(g);
+    EXPECT_LT(test::max_abs(t1.grad() - t2.grad()), 1e-4) << features;
+    EXPECT_GT(test::max_abs(t1.grad()), 0.1) << features;
+  }
 }
 
 // The encoding is linear in the table, so central differences on it are exact up to rounding.
