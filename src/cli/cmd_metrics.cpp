@@ -16,14 +16,16 @@
 #include "eval/lpips.h"
 #include "eval/metrics.h"
 #include "eval/pose_error.h"
-#include "util/fs.h"
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "data/capture.h"
 #include "data/dataset.h"
+#include "data/transforms_json.h"
 #include "geometry/fuse.h"
 #include "geometry/surface_score.h"
 #endif
 #include "util/errors.h"
+#include "util/json_file.h"
+#include "synth/scene_truth.h"
 #include "eval/eval_config.h"
 
 namespace ablenerf::cli {
@@ -95,7 +97,7 @@ void run_geometry(const MetricsArgs& a) {
     std::cout << out.dump(2) << std::endl;
     return;
   }
-  const auto spheres = read_scene_spheres(a.truth + "/scene.json");
+  const auto spheres = synth::read_scene_spheres(a.truth + "/scene.json");
   const CameraList cams = capture_cameras(a.truth, SceneFrame{}, 1);
   const auto eyes = cams.c2w.select(2, 3);  // camera centres (N,3)
   // tau: 1% of the size of the objects (their bounding box's diagonal) unless given.
@@ -117,27 +119,11 @@ void run_geometry(const MetricsArgs& a) {
 #endif
 }
 
-nlohmann::json parse_json_file(const std::string& path) {
-  try {
-    return nlohmann::json::parse(read_file(path));
-  } catch (const nlohmann::json::exception&) {
-    throw InputError(path, "", "invalid JSON");
-  }
-}
-
-// A (3,4) camera-to-world from a JSON 3x4 or 4x4 matrix, or an InputError naming file and field.
+// A (3,4) camera-to-world in double precision, checked as the transforms formats check theirs.
 torch::Tensor pose_of(const nlohmann::json& m, const std::string& file, const std::string& field) {
-  auto out = torch::empty({3, 4}, torch::kDouble);
-  const bool shaped = m.is_array() && (m.size() == 3 || m.size() == 4);
-  for (size_t r = 0; shaped && r < 3; ++r) {
-    if (!m[r].is_array() || m[r].size() != 4) throw InputError(file, field, "must be a 3x4 or 4x4 matrix");
-    for (size_t c = 0; c < 4; ++c) {
-      if (!m[r][c].is_number()) throw InputError(file, field, "must be a 3x4 or 4x4 matrix of numbers");
-      out[static_cast<int64_t>(r)][static_cast<int64_t>(c)] = m[r][c].get<double>();
-    }
-  }
-  if (!shaped) throw InputError(file, field, "must be a 3x4 or 4x4 matrix");
-  return out;
+  double a[3][4];
+  parse_pose_matrix(m, file, field, a);
+  return torch::from_blob(a, {3, 4}, torch::kDouble).clone();
 }
 
 nlohmann::json errors_json(const PoseErrors& e) {
@@ -152,11 +138,11 @@ void run_poses(const MetricsArgs& a) {
   const std::string scene_file = (std::filesystem::path(a.truth) / "scene.json").string();
   if (!std::filesystem::exists(scene_file))
     throw InputError(scene_file, "", "missing: --poses scores against a scene made by `ablenerf synth`");
-  const auto scene = parse_json_file(scene_file);
+  const auto scene = read_json_file(scene_file);
   if (!scene.contains("train_view_truth") || !scene["train_view_truth"].is_array())
     throw InputError(scene_file, "train_view_truth",
                      "missing: the scene has no true training cameras (made without --pose-noise-deg?)");
-  const auto est_json = parse_json_file(a.poses);
+  const auto est_json = read_json_file(a.poses);
   if (!est_json.contains("frames") || !est_json["frames"].is_array())
     throw InputError(a.poses, "frames", "missing (a transforms.json, e.g. written by `export --poses`)");
   const auto& truth_views = scene["train_view_truth"];
@@ -175,24 +161,13 @@ void run_poses(const MetricsArgs& a) {
     truth.push_back(pose_of(field(truth_views[i], "true_transform_matrix"), scene_file,
                             "train_view_truth" + at + ".true_transform_matrix"));
   }
-  // The objects' box: every object with a centre and a radius.
+  // The objects' box: the scene's spheres.
   auto lo = torch::full({3}, 1e300, torch::kDouble), hi = torch::full({3}, -1e300, torch::kDouble);
-  int objects = 0;
-  const auto list = scene.value("objects", nlohmann::json::array());
-  for (size_t i = 0; i < list.size(); ++i) {
-    const auto& o = list[i];
-    if (!o.is_object() || !o.contains("centre") || !o.contains("radius") || !o["radius"].is_number()) continue;
-    const auto& centre = o["centre"];
-    if (!centre.is_array() || centre.size() != 3 || !centre[0].is_number() || !centre[1].is_number() ||
-        !centre[2].is_number())
-      throw InputError(scene_file, "objects[" + std::to_string(i) + "].centre", "must be [x, y, z]");
-    const auto c =
-        torch::tensor({centre[0].get<double>(), centre[1].get<double>(), centre[2].get<double>()}, torch::kDouble);
-    lo = torch::minimum(lo, c - o["radius"].get<double>());
-    hi = torch::maximum(hi, c + o["radius"].get<double>());
-    ++objects;
+  for (const auto& s : synth::read_scene_spheres(scene_file)) {
+    const auto c = torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
+    lo = torch::minimum(lo, c - s.radius);
+    hi = torch::maximum(hi, c + s.radius);
   }
-  if (objects == 0) throw InputError(scene_file, "objects", "no object with a centre and a radius");
   const auto e = torch::stack(est), t = torch::stack(truth), points = box_lattice(lo, hi);
   const auto aligned = align_poses_rigid(e, t);
   nlohmann::json out;

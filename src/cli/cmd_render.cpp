@@ -26,6 +26,7 @@
 #include "util/log.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/json_file.h"
 #include "util/image_io.h"
 #include "util/progress.h"
 #include "eval/eval_config.h"
@@ -55,12 +56,7 @@ bool ends_with(const std::string& s, const std::string& suffix) {
 // Native image size of a cameras json: its "w"/"h", else the first frame's PNG header.
 // Returns {0,0} when neither is available.
 std::pair<int, int> native_size(const std::string& json_path) {
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(read_file(json_path));
-  } catch (const nlohmann::json::exception&) {
-    throw InputError(json_path, "", "invalid JSON");
-  }
+  const nlohmann::json j = read_json_file(json_path);
   if (j.is_object() && j.contains("w") && j.contains("h") && j["w"].is_number() && j["h"].is_number())
     return {j["w"].get<int>(), j["h"].get<int>()};
   if (!j.is_object() || !j.contains("frames") || !j["frames"].is_array() || j["frames"].empty() ||

@@ -16,6 +16,7 @@
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_codec.h"
+#include "util/json_file.h"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -80,17 +81,7 @@ std::string mark_nonfinite(const std::string& text) {
 
 bool is_nonfinite_marker(const json& v) { return v.is_string() && v.get<std::string>() == "non-finite"; }
 
-json parse_json_file(const std::string& path) {
-  const std::string text = mark_nonfinite(read_file(path));
-  try {
-    return json::parse(text);
-  } catch (const json::parse_error& e) {
-    throw InputError(path, "byte " + std::to_string(e.byte), "invalid JSON");
-  } catch (const json::exception& e) {
-    // e.g. a number too large for a double (1e999): nlohmann reports it as out_of_range.
-    throw InputError(path, "", std::string("invalid JSON (") + e.what() + ")");
-  }
-}
+json parse_json_file(const std::string& path) { return parse_json_text(mark_nonfinite(read_file(path)), path); }
 
 double number_field(const json& j, const std::string& key, const std::string& file, const std::string& where) {
   const std::string field = where.empty() ? key : where + "." + key;
@@ -127,8 +118,9 @@ int size_field(const json& j, const std::string& key, const std::string& file) {
 // Tolerances of the pose checks: json poses are written with ~6-7 significant digits.
 constexpr double kLastRowTolerance = 1e-4;  // |last row - [0, 0, 0, 1]|_1
 
-// Pose (3,4 or 4,4 rows) -> the top 3x4, checked finite and rigid.
-Pose34 parse_pose(const json& m, const std::string& file, const std::string& field) {
+}  // namespace
+
+Pose34 parse_pose_matrix(const json& m, const std::string& file, const std::string& field, double (&out)[3][4]) {
   if (!m.is_array() || (m.size() != 4 && m.size() != 3))
     throw InputError(file, field, "expected a 4x4 (or 3x4) matrix");
   double a[4][4] = {{0}};
@@ -145,10 +137,16 @@ Pose34 parse_pose(const json& m, const std::string& file, const std::string& fie
     const double d = std::abs(a[3][0]) + std::abs(a[3][1]) + std::abs(a[3][2]) + std::abs(a[3][3] - 1);
     if (d > kLastRowTolerance) throw InputError(file, field, "last row must be [0, 0, 0, 1]");
   }
-  double top[3][4];
   for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) top[r][c] = a[r][c];
-  return checked_pose(top, file, field);
+    for (int c = 0; c < 4; ++c) out[r][c] = a[r][c];
+  return checked_pose(out, file, field);
+}
+
+namespace {
+
+Pose34 parse_pose(const json& m, const std::string& file, const std::string& field) {
+  double unused[3][4];
+  return parse_pose_matrix(m, file, field, unused);
 }
 
 std::vector<CaptureFrame> parse_frames(const json& j, const std::string& root, const std::string& file, bool add_png) {

@@ -8,7 +8,7 @@
 
 #include "data/capture.h"
 #include "util/errors.h"
-#include "util/fs.h"
+#include "util/json_file.h"
 
 #include <nlohmann/json.hpp>
 
@@ -115,12 +115,7 @@ torch::Tensor forward_facing_path(PathKind kind, int frames, const torch::Tensor
 bool is_path_file(const std::string& name) { return name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0; }
 
 torch::Tensor read_path_file(const std::string& path) {
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(read_file(path));
-  } catch (const nlohmann::json::exception&) {
-    throw InputError(path, "", "invalid JSON");
-  }
+  const nlohmann::json j = read_json_file(path);
   if (!j.is_object() || j.value("ablenerf_path", 0) != 1)
     throw InputError(path, "ablenerf_path", "not a camera path recorded by `ablenerf view` (version 1)");
   if (j.value("coordinates", std::string()) != "scene")

@@ -8,19 +8,18 @@
 #include "geometry/depth_points.h"
 #include "geometry/fuse.h"
 #include "util/errors.h"
-#include "util/fs.h"
 
 namespace ablenerf {
 
 namespace {
 
 // A sphere's centre as a (3) float64 tensor.
-torch::Tensor centre_of(const SphereTruth& s) {
+torch::Tensor centre_of(const synth::SphereTruth& s) {
   return torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
 }
 
 // Distance from each row of p (N,3) to the surface of every sphere: (N, S).
-torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<SphereTruth>& spheres) {
+torch::Tensor surface_distances(const torch::Tensor& p, const std::vector<synth::SphereTruth>& spheres) {
   std::vector<torch::Tensor> cols;
   for (const auto& s : spheres) cols.push_back(((p - centre_of(s)).norm(2, -1) - s.radius).abs());
   return torch::stack(cols, 1);
@@ -45,36 +44,7 @@ nlohmann::json summary(const torch::Tensor& acc, const torch::Tensor& comp, doub
 
 }  // namespace
 
-std::vector<SphereTruth> read_scene_spheres(const std::string& scene_json) {
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(read_file(scene_json));
-  } catch (const nlohmann::json::exception&) {
-    throw InputError(scene_json, "", "invalid JSON");
-  }
-  if (!j.is_object() || !j.contains("objects") || !j["objects"].is_array())
-    throw InputError(scene_json, "objects", "missing (not a scene.json written by `ablenerf synth`)");
-  std::vector<SphereTruth> out;
-  for (size_t i = 0; i < j["objects"].size(); ++i) {
-    const auto& o = j["objects"][i];
-    const std::string where = "objects[" + std::to_string(i) + "]";
-    if (!o.is_object() || o.value("shape", "") != "sphere") continue;
-    SphereTruth s;
-    s.name = o.value("name", where);
-    s.material = o.value("material", "");
-    if (!o.contains("centre") || !o["centre"].is_array() || o["centre"].size() != 3 || !o.contains("radius") ||
-        !o["radius"].is_number())
-      throw InputError(scene_json, where, "a sphere needs centre [x, y, z] and radius");
-    for (size_t a = 0; a < 3; ++a) s.centre[a] = o["centre"][a].get<double>();
-    s.radius = o["radius"].get<double>();
-    if (!(s.radius > 0)) throw InputError(scene_json, where + ".radius", "must be positive");
-    out.push_back(s);
-  }
-  if (out.empty()) throw InputError(scene_json, "objects", "no sphere to score against");
-  return out;
-}
-
-std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector<SphereTruth>& spheres,
+std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector<synth::SphereTruth>& spheres,
                                                                const torch::Tensor& eyes, int64_t per_sphere) {
   const auto i = torch::arange(per_sphere, torch::kDouble);
   const auto z = 1 - (2 * i + 1) / static_cast<double>(per_sphere);
@@ -110,7 +80,7 @@ std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector
   return {torch::cat(kept), torch::cat(owner)};
 }
 
-nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<SphereTruth>& spheres,
+nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<synth::SphereTruth>& spheres,
                                      const torch::Tensor& eyes, double tau, int64_t per_sphere) {
   const auto p = points.to(torch::kDouble).reshape({-1, 3});
   const auto [samples, owner] = visible_sphere_samples(spheres, eyes, per_sphere);

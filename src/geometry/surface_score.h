@@ -16,28 +16,19 @@
 #include <nlohmann/json.hpp>
 
 #include "data/capture.h"
+#include "synth/scene_truth.h"
 
 namespace ablenerf {
 
-struct SphereTruth {
-  std::string name, material;
-  std::array<double, 3> centre{};
-  double radius = 0;
-};
-
-// The spheres of a synth scene.json ("objects" of shape "sphere"); InputError naming the file and
-// field otherwise.
-std::vector<SphereTruth> read_scene_spheres(const std::string& scene_json);
-
 // Evenly spread samples (golden-angle spiral) on each sphere, `per_sphere` each, kept where one of
 // `eyes` (M,3) sees them; (K,3) float64 and the index of each sample's sphere (K).
-std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector<SphereTruth>& spheres,
+std::pair<torch::Tensor, torch::Tensor> visible_sphere_samples(const std::vector<synth::SphereTruth>& spheres,
                                                                const torch::Tensor& eyes, int64_t per_sphere);
 
 // Scores `points` (N,3) against the spheres at threshold `tau`: {"all": {...}, "<sphere name>": {...}},
 // each with points, samples, accuracy_mean, completeness_mean, chamfer, precision, recall, fscore.
 // A point counts for the sphere whose surface is nearest to it.
-nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<SphereTruth>& spheres,
+nlohmann::json score_against_spheres(const torch::Tensor& points, const std::vector<synth::SphereTruth>& spheres,
                                      const torch::Tensor& eyes, double tau, int64_t per_sphere = 20000);
 
 // Points known to lie on the true surface against exported geometry, for captures without an

@@ -7,6 +7,7 @@
 #include "model/compute.h"
 #include "util/errors.h"
 #include "util/fs.h"
+#include "util/json_file.h"
 #include "data/data_config.h"
 #include "model/compute_config.h"
 #include "model/model_config.h"
@@ -24,12 +25,7 @@ RunFolder RunFolder::open(const std::string& dir) {
   r.config = Config::load(cfg);
   const std::string info = r.path("run.json");
   if (fs::exists(info)) {
-    nlohmann::json j;
-    try {
-      j = nlohmann::json::parse(read_file(info));
-    } catch (const nlohmann::json::exception& e) {
-      throw InputError(info, "", "invalid JSON");
-    }
+    const nlohmann::json j = read_json_file(info);
     if (!j.is_object() || !j.contains("data") || !j["data"].is_string())
       throw InputError(info, "data", "missing or not a string");
     r.data_dir = j["data"].get<std::string>();
@@ -68,12 +64,7 @@ void RunFolder::write_scene(const SceneFrame& scene) const { write_file_atomic(s
 
 nlohmann::json RunFolder::exports() const {
   if (!fs::exists(exports_path())) return nlohmann::json::array();
-  nlohmann::json all;
-  try {
-    all = nlohmann::json::parse(read_file(exports_path()));
-  } catch (const nlohmann::json::exception&) {
-    throw InputError(exports_path(), "", "invalid JSON (move it away to start a new list)");
-  }
+  const nlohmann::json all = read_json_file(exports_path(), " (move it away to start a new list)");
   if (!all.is_array()) throw InputError(exports_path(), "", "expected a JSON array of exports");
   return all;
 }

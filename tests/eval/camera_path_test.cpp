@@ -159,7 +159,7 @@ TEST(CameraPath, RecordedPathFiles) {
   EXPECT_FLOAT_EQ(poses[0][1][3].item<float>(), -1);
   EXPECT_FLOAT_EQ(poses[1][0][1].item<float>(), -1);
   const std::pair<std::string, std::string> bad[] = {
-      {"not json", ""},
+      {"not json", "byte 2"},  // where the parse stopped (util/json_file.h)
       {"{\"ablenerf_path\": 2, \"coordinates\": \"scene\", \"poses\": [[1,0,0,0,0,1,0,0,0,0,1,0]]}", "ablenerf_path"},
       {"{\"ablenerf_path\": 1, \"coordinates\": \"capture\", \"poses\": [[1,0,0,0,0,1,0,0,0,0,1,0]]}", "coordinates"},
       {"{\"ablenerf_path\": 1, \"coordinates\": \"scene\", \"poses\": []}", "poses"},

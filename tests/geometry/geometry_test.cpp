@@ -281,7 +281,7 @@ TEST(Geometry, FilesAreWrittenWholeOrNotAtAll) {
 // by twice the threshold score 0; half of the visible surface gives recall 1/2; a sample hidden
 // behind another sphere is not asked for.
 TEST(SurfaceScore, PrecisionRecallAndVisibilityOnKnownSpheres) {
-  const std::vector<SphereTruth> spheres{{"a", "diffuse", {0, 0, 0}, 0.5}, {"b", "glass", {3, 0, 0}, 0.5}};
+  const std::vector<synth::SphereTruth> spheres{{"a", "diffuse", {0, 0, 0}, 0.5}, {"b", "glass", {3, 0, 0}, 0.5}};
   // Cameras all round, far away: every sample is seen.
   const auto eyes = torch::tensor({10.0, 0.0, 0.0,  -10.0, 0.0, 0.0,   0.0, 10.0, 0.0,  0.0, -10.0, 0.0,
                                    0.0,  0.0, 10.0, 0.0,   0.0, -10.0, 1.5, 0.0,  10.0, 1.5, 0.0,   -10.0},
