@@ -14,8 +14,8 @@ constexpr int64_t kPointsPerTask = 1024;
 // presets' 2 and the common 4: the row's loads and sums unroll), or F = 0 for any count (`features`).
 // Level by level rather than point by point: a hashed level's rows (2^16 x 2 floats = 512 KiB at
 // the capture preset) stay in the core's L2 cache while every point reads them, where a point
-// reading all levels in turn sweeps the whole table (4 MiB) through it: 2-2.5x faster lookups
-// (docs/BENCHMARKS.md, "Hash-grid loops level by level").
+// reading all levels in turn sweeps the whole table (4 MiB) through it (docs/BENCHMARKS.md,
+// "Hash-grid loops level by level").
 template <int F>
 void forward_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows, const HashGridShape& s,
                    int level, int64_t features, float* out) {
@@ -80,6 +80,7 @@ void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad
     });
   });
 }
+
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
                                       const HashGridShape& s, float* grad_positions) {
   const int64_t levels = s.levels, features = s.features, rows = s.table_size;
