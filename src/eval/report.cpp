@@ -271,6 +271,24 @@ std::string curves_section(const RunLog& log) {
     }
   };
   constexpr double kMinutesPerSecond = 1.0 / 60.0;
+  // The loss's terms (train/grad_accumulation.h) beside their sum, each in the order it first
+  // appears in the log.
+  static constexpr std::array<const char*, 8> kTermColours = {"#7f7f7f", "#9467bd", "#2ca02c", "#17becf",
+                                                              "#bcbd22", "#8c564b", "#e377c2", "#1f77b4"};
+  std::vector<ChartSeries> terms;
+  for (const auto& r : log.train) {
+    if (!r.contains("step") || !r["step"].is_number() || !r.contains("terms") || !r["terms"].is_object()) continue;
+    for (const auto& [name, value] : r["terms"].items()) {
+      if (!value.is_number()) continue;
+      auto it = std::find_if(terms.begin(), terms.end(), [&](const ChartSeries& c) { return c.label == name; });
+      if (it == terms.end()) {
+        terms.push_back({name, kTermColours[terms.size() % kTermColours.size()], {}, {}, false});
+        it = terms.end() - 1;
+      }
+      it->x.push_back(r["step"].get<double>());
+      it->y.push_back(value.get<double>());
+    }
+  }
   for (const auto& r : log.train) {
     add(loss, r, "step", 1.0, "loss");
     add(train_psnr, r, "step", 1.0, "psnr");
@@ -284,7 +302,9 @@ std::string curves_section(const RunLog& log) {
     s << "<p>No training log (log.jsonl) in this run.</p>";
     return s.str();
   }
-  s << "<div class=\"charts\">" << svg_chart("Loss (log scale)", "step", "loss", {loss}, true)
+  std::vector<ChartSeries> losses{loss};
+  losses.insert(losses.end(), terms.begin(), terms.end());
+  s << "<div class=\"charts\">" << svg_chart("Loss and its terms (log scale)", "step", "loss", losses, true)
     << svg_chart("PSNR", "step", "dB", {train_psnr, held_out}, false)
     << svg_chart("PSNR against training time", "minutes", "dB", {train_psnr_t, held_out_t}, false) << "</div>";
   return s.str();

@@ -6,8 +6,9 @@
 //   RUN/checkpoint.pt   full training state (model, Adam, step, RNG), checksummed; see train/checkpoint.h
 //   RUN/scene.json      the capture's scene frame (data/scene_frame.h): capture -> scene transform,
 //                       bounded/unbounded, near/far; absent for runs from before it (Blender identity)
-//   RUN/log.jsonl       one JSON object per line: {"type":"train", step, loss, psnr, lr, rays_per_s,
-//                       elapsed_s} or {"type":"eval", step, psnr, views, split}; see run/run_log.h
+//   RUN/log.jsonl       one JSON object per line: {"type":"train", step, loss, terms (the loss's terms by
+//                       name, train/grad_accumulation.h), psnr, lr, rays_per_s, elapsed_s} or
+//                       {"type":"eval", step, psnr, views, split}; see run/run_log.h
 //   RUN/eval/SPLIT/     eval outputs (images, error and depth maps, metrics.json)
 //   RUN/report.html     the self-contained report
 //   RUN/exports.json    what `export --points / --mesh` wrote, one object per export (geometry/export_geometry.h)

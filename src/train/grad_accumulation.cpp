@@ -13,16 +13,33 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
   const auto se_c = (out.rgb_coarse - target).pow(2).sum();
   const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
   const auto se_f = ray_se.sum();
-  auto loss = (tc.coarse_weight * se_c + tc.fine_weight * se_f) * inv;
-  if (tc.distortion_weight > 0)
-    loss = loss + distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
-                      (tc.distortion_weight / static_cast<double>(global_rays));
-  if (tc.proposal_weight > 0 && out.proposal_weights.defined())
-    loss = loss + proposal_loss(out.proposal_s, out.proposal_weights, out.fine_s,
-                                attention_distribution(out.fine_weights).detach())
-                          .sum() *
-                      (tc.proposal_weight / static_cast<double>(global_rays));
-  return {loss, se_f.detach() * inv, ray_se.detach()};
+  std::array<torch::Tensor, kLossTermCount> parts;
+  parts[kTermFine] = se_f * (tc.fine_weight * inv);
+  parts[kTermCoarse] = se_c * (tc.coarse_weight * inv);
+  auto loss = parts[kTermCoarse] + parts[kTermFine];
+  if (tc.distortion_weight > 0) {
+    parts[kTermDistortion] = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
+                             (tc.distortion_weight / static_cast<double>(global_rays));
+    loss = loss + parts[kTermDistortion];
+  }
+  if (tc.proposal_weight > 0 && out.proposal_weights.defined()) {
+    parts[kTermProposal] = proposal_loss(out.proposal_s, out.proposal_weights, out.fine_s,
+                                         attention_distribution(out.fine_weights).detach())
+                               .sum() *
+                           (tc.proposal_weight / static_cast<double>(global_rays));
+    loss = loss + parts[kTermProposal];
+  }
+  if (tc.proposal_attention_weight > 0 && out.proposal_weights.defined()) {
+    parts[kTermProposalAttention] = proposal_loss(out.proposal_s, out.proposal_weights.detach(), out.fine_s,
+                                                  attention_distribution(out.fine_weights))
+                                        .sum() *
+                                    (tc.proposal_attention_weight / static_cast<double>(global_rays));
+    loss = loss + parts[kTermProposalAttention];
+  }
+  const auto zero = torch::zeros({}, se_f.options());
+  std::vector<torch::Tensor> terms;
+  for (const auto& t : parts) terms.push_back(t.defined() ? t.detach().reshape({}).to(zero.dtype()) : zero);
+  return {loss, se_f.detach() * inv, ray_se.detach(), torch::stack(terms)};
 }
 
 namespace {
@@ -69,19 +86,26 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   const auto params = model->parameters();
   // In the parameters' dtype (fp32 in training; float64 in tests).
   const auto zero = torch::zeros({}, params.front().options());
-  StepSums sums{zero, zero.clone(), {}};
+  StepSums sums{zero, zero.clone(), {}, torch::zeros({kLossTermCount}, zero.options())};
   std::vector<torch::Tensor> ray_se;
   const auto add = [&](const LossTerms& t) {
     sums.loss.add_(t.loss.detach());
     sums.mse_fine.add_(t.mse_fine);
+    sums.terms.add_(t.terms.to(sums.terms.dtype()));
     ray_se.push_back(t.ray_se);
+  };
+  // A decay's value, into the loss and its term.
+  const auto add_decay = [&](LossTerm term, const torch::Tensor& value) {
+    const auto v = value.to(sums.loss.dtype());
+    sums.loss.add_(v);
+    sums.terms[term].add_(v);
   };
   for (int64_t b = 0; b < batch.size(); b += micro) {
     const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
     // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
     // before the split, so that a step does not depend on how many threads share it.
     ForwardOptions opts = model->with_jitter(mb.size(), {});
-    opts.weights_grad = tc.distortion_weight > 0;
+    opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
     const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
       const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far);
@@ -98,7 +122,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,
                                                             /*allow_unused=*/true);
-      parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se};
+      parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se, t.terms};
     });
     torch::NoGradGuard no_grad;
     for (size_t w = 0; w < grads.size(); ++w) add(parts[w]);
@@ -130,8 +154,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
   if (tc.grid_decay > 0 && model->grid()) {
     const auto& grid = model->grid();
-    const auto decay = add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share);
-    sums.loss.add_(decay.to(sums.loss.dtype()));
+    add_decay(kTermGridDecay, add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share));
   }
   // and the photo colour maps', appearance codes' and camera corrections': each weight times the mean
   // over photos of the squared deviation from the identity.
@@ -139,17 +162,17 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     // On the maps' values, scale x the parameter (model/photo_colour.h).
     const PhotoColourImpl& pc = *model->photo_colour();
     const double weight = tc.photo_colour_decay * share * pc.lr_scale() * pc.lr_scale();
-    sums.loss.add_(add_row_decay(pc.parameter(), weight).to(sums.loss.dtype()));
+    add_decay(kTermPhotoColourDecay, add_row_decay(pc.parameter(), weight));
   }
   if (tc.appearance_code_decay > 0 && model->appearance_code()) {
     const double weight = tc.appearance_code_decay * share;
-    sums.loss.add_(add_row_decay(model->appearance_code()->parameter(), weight).to(sums.loss.dtype()));
+    add_decay(kTermAppearanceDecay, add_row_decay(model->appearance_code()->parameter(), weight));
   }
   if (tc.camera_refine_decay > 0 && model->camera_refine()) {
     // On the corrections, scale x the parameter (model/camera_refine.h).
     const CameraRefineImpl& cr = *model->camera_refine();
     const double weight = tc.camera_refine_decay * share * cr.lr_scale() * cr.lr_scale();
-    sums.loss.add_(add_row_decay(cr.parameter(), weight).to(sums.loss.dtype()));
+    add_decay(kTermCameraRefineDecay, add_row_decay(cr.parameter(), weight));
   }
   sums.ray_se = ray_se.empty() ? torch::zeros({0}, zero.options()) : torch::cat(ray_se);
   return sums;

@@ -8,6 +8,7 @@
 // thread (or cpu_split = "ops", or on a GPU) it is a plain loss.backward() per micro-batch.
 // Nothing here synchronises with the device (the sums are returned as device tensors), so on a
 // GPU the whole function can be captured in a CUDA graph.
+#include <array>
 #include <torch/torch.h>
 
 #include "model/able_nerf.h"
@@ -16,10 +17,35 @@
 
 namespace ablenerf {
 
+// The terms the step's loss is the sum of, each as it enters the loss (weight included), so that
+// they add up to StepSums::loss; train log lines carry them under these names.
+enum LossTerm : int64_t {
+  kTermFine,               // fine_weight x the fine colour's MSE
+  kTermCoarse,             // coarse_weight x the coarse colour's MSE
+  kTermDistortion,         // distortion_weight x the attention weights' distortion loss
+  kTermProposal,           // proposal_weight x the proposal's loss
+  kTermProposalAttention,  // proposal_attention_weight x the same loss on the attention
+  kTermGridDecay,          // the grid table's normalised weight decay
+  kTermPhotoColourDecay,   // the photo colour maps' decay
+  kTermAppearanceDecay,    // the appearance codes' decay
+  kTermCameraRefineDecay,  // the camera corrections' decay
+  kLossTermCount
+};
+inline constexpr std::array<const char*, kLossTermCount> kLossTermNames = {"fine",
+                                                                           "coarse",
+                                                                           "distortion",
+                                                                           "proposal",
+                                                                           "proposal_attention",
+                                                                           "grid_decay",
+                                                                           "photo_colour_decay",
+                                                                           "appearance_decay",
+                                                                           "camera_refine_decay"};
+
 struct LossTerms {
   torch::Tensor loss;      // what is differentiated
   torch::Tensor mse_fine;  // this slice's share of the step's fine-colour MSE (for reporting)
   torch::Tensor ray_se;    // (B,) each ray's fine-colour squared error summed over channels, detached
+  torch::Tensor terms;     // (kLossTermCount,) the loss's terms (LossTerm), detached
 };
 
 // The loss of some rays of a step of `global_rays` rays: (coarse_weight * SE_coarse + fine_weight *
@@ -33,6 +59,7 @@ struct StepSums {
       loss;  // the step's loss (this process's share), 0-d, in the parameters' dtype and on their device, detached
   torch::Tensor mse_fine;  // the step's fine-colour MSE (this process's share), likewise
   torch::Tensor ray_se;    // (rays,) LossTerms::ray_se of this process's rays, in batch order
+  torch::Tensor terms;     // (kLossTermCount,) the loss's terms (LossTerm) summed likewise; they add up to loss
 };
 
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add

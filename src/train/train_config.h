@@ -43,6 +43,10 @@ struct TrainConfig {
   // Weight of mip-NeRF 360's proposal loss (section 3, eq. 13-14; train/regularisers.h), which trains
   // the proposal field (model.proposal_samples > 0) to bound the fine pass's attention. nerfacto's 1.
   double proposal_weight = 1.0;
+  // The same loss the other way round: the fine attention drawn towards what the proposal field
+  // (one density shared by every ray) can bound, the field held constant. 0 = off (the attention
+  // only ever learns from the colour).
+  double proposal_attention_weight = 0.0;
   // Per-photo colour (model/photo_colour.h; docs/MODEL.md, "Per-photo colour"): a map of the
   // rendered colour per training photo for its exposure and white balance, held near the identity
   // by photo_colour_decay x the photos' mean squared parameter. Off = the paper. photo_colour_map:
@@ -107,6 +111,7 @@ struct TrainConfig {
     f("distortion_weight", &distortion_weight);
     f("grid_decay", &grid_decay);
     f("proposal_weight", &proposal_weight);
+    f("proposal_attention_weight", &proposal_attention_weight);
     f("photo_colour", &photo_colour);
     f("photo_colour_map", &photo_colour_map);
     f("photo_colour_decay", &photo_colour_decay);
@@ -144,6 +149,8 @@ struct TrainConfig {
     need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
     need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
+    need(proposal_attention_weight >= 0 && std::isfinite(proposal_attention_weight), "proposal_attention_weight",
+         "must be >= 0");
     need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
     need(camera_refine_decay >= 0 && std::isfinite(camera_refine_decay), "camera_refine_decay", "must be >= 0");
     need(appearance_code_decay >= 0 && std::isfinite(appearance_code_decay), "appearance_code_decay", "must be >= 0");

@@ -124,22 +124,28 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   r.lr = lr;
   r.loss = sums.loss.item<double>();
   r.mse_fine = sums.mse_fine.item<double>();
+  const torch::Tensor terms = sums.terms.to(torch::kCPU, torch::kDouble).contiguous();
+  std::copy(terms.data_ptr<double>(), terms.data_ptr<double>() + kLossTermCount, r.terms.begin());
   // The error map needs every rank's per-ray errors: they travel in the all-reduce, each rank
   // filling its slice of the global batch with zeros elsewhere.
   const bool guided = s.sampler->error_guided();
   torch::Tensor ray_se = guided ? sums.ray_se.to(torch::kCPU, torch::kDouble) : torch::Tensor();
   if (opts_.dist) {
-    std::vector<double> stats(3 + (guided ? all.size(0) : 0), 0.0);
+    // [loss, mse_fine, elapsed / world, terms..., ray_se...]
+    constexpr int64_t kRays = 3 + kLossTermCount;
+    std::vector<double> stats(kRays + (guided ? all.size(0) : 0), 0.0);
     stats[0] = r.loss, stats[1] = r.mse_fine, stats[2] = s.local_elapsed() / static_cast<double>(s.world);
+    std::copy(r.terms.begin(), r.terms.end(), stats.begin() + 3);
     if (guided) {
       const int64_t begin = tc.rays_per_step * s.rank / s.world;
-      std::copy(ray_se.data_ptr<double>(), ray_se.data_ptr<double>() + ray_se.size(0), stats.begin() + 3 + begin);
+      std::copy(ray_se.data_ptr<double>(), ray_se.data_ptr<double>() + ray_se.size(0), stats.begin() + kRays + begin);
     }
     opts_.dist->all_reduce_gradients(s.model, stats.data(), static_cast<int>(stats.size()));
     r.loss = stats[0];
     r.mse_fine = stats[1];
     s.agreed_elapsed = stats[2];
-    if (guided) ray_se = torch::tensor(std::vector<double>(stats.begin() + 3, stats.end()), torch::kDouble);
+    std::copy(stats.begin() + 3, stats.begin() + kRays, r.terms.begin());
+    if (guided) ray_se = torch::tensor(std::vector<double>(stats.begin() + kRays, stats.end()), torch::kDouble);
   }
   r.finite = s.adam->step_host(r.loss);
   if (guided && r.finite) s.sampler->observe(all, ray_se);
@@ -163,19 +169,36 @@ void Trainer::device_body() {
   s.adam->step_device(sums.loss);
   torch::NoGradGuard no_grad;
   std::vector<torch::Tensor> figures{sums.loss.reshape({1}).to(torch::kFloat),
-                                     sums.mse_fine.reshape({1}).to(torch::kFloat), s.adam->found_inf().reshape({1})};
+                                     sums.mse_fine.reshape({1}).to(torch::kFloat), s.adam->found_inf().reshape({1}),
+                                     sums.terms.to(torch::kFloat)};
   if (s.sampler->error_guided()) figures.push_back(sums.ray_se.reshape({-1}).to(torch::kFloat));
   s.figures_dev.copy_(torch::cat(figures));
 }
 
+namespace {
+
+// The report of a step from its figures as the device wrote them (trainer_detail::kFigure*).
+StepReport figures_report(const std::vector<double>& f, int64_t step, double lr) {
+  StepReport r;
+  r.step = step;
+  r.loss = f[0];
+  r.mse_fine = f[1];
+  r.finite = f[kFigureFound] == 0.0;
+  std::copy(f.begin() + kFigureTerms, f.begin() + kFigureRays, r.terms.begin());
+  r.lr = lr;
+  return r;
+}
+
+}  // namespace
+
 void Trainer::observe_pending(const std::vector<double>& figures) {
   auto& s = *s_;
   if (!s.pending_indices.defined()) return;  // already fed (flush, then the next step)
-  if (s.sampler->error_guided() && figures[2] == 0.0) {
-    const auto n = static_cast<int64_t>(figures.size()) - 3;
+  if (s.sampler->error_guided() && figures[kFigureFound] == 0.0) {
+    const auto n = static_cast<int64_t>(figures.size()) - kFigureRays;
     s.sampler->observe(
         s.pending_indices,
-        torch::tensor(std::vector<double>(figures.begin() + 3, figures.end()), torch::kDouble).reshape({n}));
+        torch::tensor(std::vector<double>(figures.begin() + kFigureRays, figures.end()), torch::kDouble).reshape({n}));
   }
   s.pending_indices = torch::Tensor();
 }
@@ -191,11 +214,7 @@ StepReport Trainer::device_step(const torch::Tensor& all, const torch::Tensor& i
   StepReport r;
   if (auto f = s.cuda->take()) {
     observe_pending(*f);
-    r.step = s.state.step;  // the previous step, 1-based
-    r.loss = (*f)[0];
-    r.mse_fine = (*f)[1];
-    r.finite = (*f)[2] == 0.0;
-    r.lr = s.pending_lr;
+    r = figures_report(*f, s.state.step, s.pending_lr);  // the previous step, 1-based
     s.last = r;
   }
   s.cuda->queue(s.figures_dev);
@@ -209,13 +228,7 @@ StepReport Trainer::flush() {
   if (!s.cuda) return s.last;
   if (auto f = s.cuda->drain()) {
     observe_pending(*f);
-    StepReport r;
-    r.step = s.state.step;
-    r.loss = (*f)[0];
-    r.mse_fine = (*f)[1];
-    r.finite = (*f)[2] == 0.0;
-    r.lr = s.pending_lr;
-    s.last = r;
+    s.last = figures_report(*f, s.state.step, s.pending_lr);
   }
   return s.last;
 }
@@ -255,6 +268,7 @@ void Trainer::log_step(const StepReport& r) {
   if (!s.leader || r.step < 0 || !r.finite) return;
   s.loss_acc += r.loss;
   s.mse_fine_acc += r.mse_fine;
+  for (size_t t = 0; t < r.terms.size(); ++t) s.terms_acc[t] += r.terms[t];
   s.acc_steps++;
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - s.rate_clock).count();
   if (secs > kRateWindowS) {
@@ -269,14 +283,21 @@ void Trainer::log_step(const StepReport& r) {
     s.progress->update(s.state.step, fields, false, schedule_fraction());
   }
   if (r.step % tc.log_every == 0 || r.step == tc.steps) {
+    const auto n = static_cast<double>(s.acc_steps);
+    // The loss's terms that are in play (a term that is zero over the whole window is left out).
+    nlohmann::json terms = nlohmann::json::object();
+    for (size_t t = 0; t < s.terms_acc.size(); ++t)
+      if (s.terms_acc[t] != 0) terms[kLossTermNames[t]] = s.terms_acc[t] / n;
     append_run_log(s.run.log_path(), {{"type", "train"},
                                       {"step", r.step},
-                                      {"loss", s.loss_acc / static_cast<double>(s.acc_steps)},
-                                      {"psnr", psnr_from_mse(s.mse_fine_acc / static_cast<double>(s.acc_steps))},
+                                      {"loss", s.loss_acc / n},
+                                      {"terms", terms},
+                                      {"psnr", psnr_from_mse(s.mse_fine_acc / n)},
                                       {"lr", r.lr},
                                       {"rays_per_s", s.rays_per_s},
                                       {"elapsed_s", s.state.elapsed_seconds}});
     s.loss_acc = s.mse_fine_acc = 0;
+    s.terms_acc.fill(0.0);
     s.acc_steps = 0;
   }
 }

@@ -14,9 +14,9 @@
 //    step late.
 #include <torch/torch.h>
 
-#include <functional>
-
+#include <array>
 #include <cmath>
+#include <functional>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -25,6 +25,7 @@
 
 #include "data/dataset.h"
 #include "model/able_nerf.h"
+#include "train/grad_accumulation.h"
 #include "util/config.h"
 
 namespace ablenerf {
@@ -71,7 +72,8 @@ struct StepReport {
   int64_t step = -1;  // 1-based index of the optimiser step these figures belong to
   double loss = NAN;
   double mse_fine = NAN;
-  bool finite = true;  // false: the update of that step was skipped
+  std::array<double, kLossTermCount> terms{};  // the loss's terms (train/grad_accumulation.h, LossTerm)
+  bool finite = true;                          // false: the update of that step was skipped
   double lr = NAN;
 };
 

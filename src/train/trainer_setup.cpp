@@ -144,7 +144,7 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
     s.cuda = std::make_unique<CudaStep>(opts_.device, tc.graph, kGraphWarmupSteps);
     const auto dev = torch::TensorOptions().device(opts_.device);
     s.indices_dev = torch::zeros({s.local_rays}, dev.dtype(torch::kLong));
-    s.figures_dev = torch::zeros({3 + (map ? s.local_rays : 0)}, dev.dtype(torch::kFloat));
+    s.figures_dev = torch::zeros({kFigureRays + (map ? s.local_rays : 0)}, dev.dtype(torch::kFloat));
   }
   s.start = std::chrono::steady_clock::now();
 }

@@ -29,6 +29,11 @@ inline constexpr int64_t kGraphWarmupSteps = 3;
 inline constexpr double kProgressIntervalS = 15.0;
 // Seconds over which the rays/s figure of the progress line is averaged.
 inline constexpr double kRateWindowS = 0.5;
+// A step's figures on the device: loss, fine MSE, found-inf flag, the loss's terms, then (with the
+// error map) each ray's squared error.
+inline constexpr int64_t kFigureFound = 2;
+inline constexpr int64_t kFigureTerms = 3;
+inline constexpr int64_t kFigureRays = kFigureTerms + kLossTermCount;
 }  // namespace trainer_detail
 
 struct Trainer::State {
@@ -49,7 +54,7 @@ struct Trainer::State {
   // Device form.
   std::unique_ptr<CudaStep> cuda;
   torch::Tensor indices_dev;      // this step's ray indices on the device (the graph's input)
-  torch::Tensor figures_dev;      // [loss, mse_fine, found_inf, ray_se...] of the step (the graph's output)
+  torch::Tensor figures_dev;      // the step's figures (trainer_detail::kFigure*; the graph's output)
   double pending_lr = NAN;        // lr of the step whose figures are in flight
   torch::Tensor pending_indices;  // its ray indices, until its errors reach the error map
   StepReport last;
@@ -60,6 +65,7 @@ struct Trainer::State {
   // Hooks' bookkeeping.
   int64_t bad_in_a_row = 0, steps_this_run = 0;
   double loss_acc = 0, mse_fine_acc = 0;
+  std::array<double, kLossTermCount> terms_acc{};
   int64_t acc_steps = 0, rays_since_log = 0;
   std::chrono::steady_clock::time_point rate_clock = std::chrono::steady_clock::now();
   double rays_per_s = 0;

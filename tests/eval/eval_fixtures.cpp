@@ -77,7 +77,8 @@ RunFolder make_tiny_run(const std::string& run_dir, const std::string& data_dir)
   std::string log;
   for (int step = 100; step <= 500; step += 100)
     log += "{\"type\":\"train\",\"step\":" + std::to_string(step) + ",\"loss\":" + std::to_string(0.1 / step * 100) +
-           ",\"psnr\":" + std::to_string(10 + step / 100.0) +
+           ",\"terms\":{\"fine\":" + std::to_string(0.07 / step * 100) +
+           ",\"proposal\":" + std::to_string(0.03 / step * 100) + "},\"psnr\":" + std::to_string(10 + step / 100.0) +
            ",\"lr\":0.0005,\"rays_per_s\":1000,\"elapsed_s\":" + std::to_string(step / 10.0) + "}\n";
   log += "{\"type\":\"eval\",\"step\":500,\"psnr\":13.5,\"views\":4,\"split\":\"val\"}\n";
   write_file(run.log_path(), log);

@@ -96,6 +96,11 @@ TEST(Evaluate, WritesImagesMetricsAndReport) {
   const std::string html = read_file(run.report_path());
   EXPECT_NE(html.find("<svg"), std::string::npos);
   EXPECT_NE(html.find("<polyline"), std::string::npos);
+  // The loss's terms drawn beside it, by name: the fixture logs "fine" and "proposal".
+  const auto loss_chart = html.find("Loss and its terms");
+  ASSERT_NE(loss_chart, std::string::npos);
+  EXPECT_NE(html.find(">proposal<", loss_chart), std::string::npos);
+  EXPECT_NE(html.find(">fine<", loss_chart), std::string::npos);
   // PSNR against wall-clock minutes too: the fixture's last record is at 50 s = 0.83 minutes.
   const auto time_chart = html.find("PSNR against training time");
   ASSERT_NE(time_chart, std::string::npos);

@@ -2,9 +2,13 @@
 // against its double sum written out and its closed forms, with gradients checked by finite
 // differences; Zip-NeRF's normalised weight decay against its closed form; and both wired into a
 // training step: the attention weights carry a gradient only when the distortion loss asks for it,
-// and the step's gradients are the colour loss's plus exactly these terms'.
+// and the step's gradients are the colour loss's plus exactly these terms'; the step reports each
+// term, and the proposal loss taken the other way round reaches only the attention.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
+
+#include <map>
+#include <string>
 
 #include "test_util.h"
 #include "train_fixture.h"
@@ -214,11 +218,16 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   auto gen = at::detail::createCPUGenerator(7);
   const int64_t n = 12, global = 36;  // this process's share of a 36-ray step
   const RayBatch batch{test::random_rays(n, 8, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
+  torch::Tensor reported;  // the last step's terms (StepSums::terms)
   const auto grads_of = [&](const TrainConfig& tc, double* loss) {
     model->zero_grad();
     for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
     const StepSums sums = accumulate_gradients(model, batch, 5, tc, global, 2.0, 6.0);
     *loss = sums.loss.item<double>();
+    reported = sums.terms.to(torch::kDouble);
+    // The terms add up to the loss, and the fine one is the reported fine MSE (fine_weight 1).
+    EXPECT_NEAR(reported.sum().item<double>(), *loss, 1e-6 * *loss);
+    EXPECT_NEAR(reported[kTermFine].item<double>(), sums.mse_fine.item<double>(), 1e-6 * *loss);
     std::map<std::string, torch::Tensor> g;
     for (const auto& kv : model->named_parameters())
       g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
@@ -238,10 +247,17 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   ForwardOptions o;
   o.weights_grad = true;
   const auto out = model->forward(batch.rays, 2.0, 6.0, o);
-  const auto terms = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() * (0.3 / global) +
-                     grid_weight_decay(model->grid()->table()) * (0.7 * n / global);
+  const auto distortion = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() * (0.3 / global);
+  const auto decay = grid_weight_decay(model->grid()->table()) * (0.7 * n / global);
+  const auto terms = distortion + decay;
   terms.backward();
   EXPECT_NEAR(both_loss, colour_loss + terms.item<double>(), 1e-6 * both_loss);
+  // Each term is reported under its own name, and no term that is off shows.
+  EXPECT_NEAR(reported[kTermDistortion].item<double>(), distortion.item<double>(), 1e-5 * distortion.item<double>());
+  EXPECT_NEAR(reported[kTermGridDecay].item<double>(), decay.item<double>(), 1e-5 * decay.item<double>());
+  EXPECT_GT(reported[kTermCoarse].item<double>(), 0);
+  for (const LossTerm off : {kTermProposal, kTermPhotoColourDecay, kTermAppearanceDecay, kTermCameraRefineDecay})
+    EXPECT_EQ(reported[off].item<double>(), 0) << kLossTermNames[off];
   // The step's gradient less the colour loss's is the terms' gradient, to float rounding.
   for (const auto& kv : model->named_parameters()) {
     const auto term = kv.value().grad().defined() ? kv.value().grad() : torch::zeros_like(kv.value());
@@ -251,6 +267,60 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   // Both terms matter: the decay on the table, the distortion on the transformer's weights.
   EXPECT_GT(model->named_parameters()["grid.table"].grad().abs().max().item<double>(), 1e-3);
   EXPECT_GT(model->named_parameters()["fine.blocks.1.attn.in_proj_weight"].grad().abs().max().item<double>(), 1e-5);
+}
+
+TEST(Regularisers, ProposalAttentionTermMovesOnlyTheAttention) {
+  // train.proposal_attention_weight: the proposal loss with the field held constant, on the fine
+  // attention. The step's gradients less those without it are exactly that loss's gradient written
+  // out with plain autograd; none of it reaches the proposal field, and it does reach the transformer.
+  torch::manual_seed(11);
+  AbleNerf model(test::proposal_model_config());
+  model->eval();  // no jitter: every forward sees the same samples
+  auto gen = at::detail::createCPUGenerator(12);
+  const int64_t n = 16, global = 32;
+  const RayBatch batch{test::random_rays(n, 13, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
+  torch::Tensor reported;
+  const auto grads_of = [&](const TrainConfig& tc) {
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    const StepSums sums = accumulate_gradients(model, batch, 8, tc, global, 2.0, 6.0);
+    reported = sums.terms.to(torch::kDouble);
+    EXPECT_NEAR(reported.sum().item<double>(), sums.loss.item<double>(), 1e-6 * sums.loss.item<double>());
+    std::map<std::string, torch::Tensor> g;
+    for (const auto& kv : model->named_parameters())
+      g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
+    return g;
+  };
+  TrainConfig plain;
+  TrainConfig pulled = plain;
+  pulled.proposal_attention_weight = 0.5;
+  const auto g0 = grads_of(plain);
+  EXPECT_EQ(reported[kTermProposalAttention].item<double>(), 0);
+  const auto g1 = grads_of(pulled);
+
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  ForwardOptions o;
+  o.weights_grad = true;
+  const auto out = model->forward(batch.rays, 2.0, 6.0, o);
+  const auto term =
+      proposal_loss(out.proposal_s, out.proposal_weights.detach(), out.fine_s, attention_distribution(out.fine_weights))
+          .sum() *
+      (0.5 / global);
+  ASSERT_GT(term.item<double>(), 1e-6);  // the untrained field leaves attention uncovered
+  term.backward();
+  EXPECT_NEAR(reported[kTermProposalAttention].item<double>(), term.item<double>(), 1e-5 * term.item<double>());
+  double reached = 0;
+  for (const auto& kv : model->named_parameters()) {
+    const auto diff = g1.at(kv.key()) - g0.at(kv.key());
+    if (kv.key().rfind("proposal.", 0) == 0) {
+      EXPECT_EQ(diff.abs().max().item<double>(), 0) << kv.key();
+      continue;
+    }
+    const auto ref = kv.value().grad().defined() ? kv.value().grad() : torch::zeros_like(kv.value());
+    const double tol = 1e-3 * ref.abs().max().item<double>() + 1e-6 * (1 + g0.at(kv.key()).abs().max().item<double>());
+    EXPECT_LT((diff - ref).abs().max().item<double>(), tol) << kv.key();
+    reached = std::max(reached, ref.abs().max().item<double>());
+  }
+  EXPECT_GT(reached, 1e-6);
 }
 
 }  // namespace
