@@ -163,7 +163,7 @@ void run_poses(const MetricsArgs& a) {
   }
   // The objects' box: the scene's spheres.
   auto lo = torch::full({3}, 1e300, torch::kDouble), hi = torch::full({3}, -1e300, torch::kDouble);
-  for (const auto& s : synth::read_scene_spheres(scene_file)) {
+  for (const auto& s : synth::scene_spheres(scene, scene_file)) {
     const auto c = torch::tensor({s.centre[0], s.centre[1], s.centre[2]}, torch::kDouble);
     lo = torch::minimum(lo, c - s.radius);
     hi = torch::maximum(hi, c + s.radius);

@@ -8,7 +8,10 @@
 namespace ablenerf::synth {
 
 std::vector<SphereTruth> read_scene_spheres(const std::string& scene_json) {
-  const nlohmann::json j = read_json_file(scene_json);
+  return scene_spheres(read_json_file(scene_json), scene_json);
+}
+
+std::vector<SphereTruth> scene_spheres(const nlohmann::json& j, const std::string& scene_json) {
   if (!j.is_object() || !j.contains("objects") || !j["objects"].is_array())
     throw InputError(scene_json, "objects", "missing (not a scene.json written by `ablenerf synth`)");
   std::vector<SphereTruth> out;

@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 namespace ablenerf::synth {
 
 struct SphereTruth {
@@ -17,5 +19,7 @@ struct SphereTruth {
 // The spheres of a synth scene.json ("objects" of shape "sphere"); InputError naming the file and
 // field otherwise, and when there is none.
 std::vector<SphereTruth> read_scene_spheres(const std::string& scene_json);
+// The same from the file's parsed JSON (`scene_json` names the file in errors).
+std::vector<SphereTruth> scene_spheres(const nlohmann::json& scene, const std::string& scene_json);
 
 }  // namespace ablenerf::synth
