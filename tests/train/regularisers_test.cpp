@@ -50,6 +50,23 @@ ModelConfig regulariser_model(bool grid) {
   return m;
 }
 
+// One training step's gradients by parameter name (zeros where a parameter has none), its loss and
+// its reported terms, which must add up to the loss, the fine one being the fine MSE (fine_weight 1).
+std::map<std::string, torch::Tensor> step_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro,
+                                                    const TrainConfig& tc, int64_t global, double* loss,
+                                                    torch::Tensor* terms) {
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums sums = accumulate_gradients(model, batch, micro, tc, global, 2.0, 6.0);
+  *loss = sums.loss.item<double>();
+  *terms = sums.terms.to(torch::kDouble);
+  EXPECT_NEAR(terms->sum().item<double>(), *loss, 1e-6 * *loss);
+  EXPECT_NEAR((*terms)[kTermFine].item<double>(), sums.mse_fine.item<double>(), 1e-6 * *loss);
+  std::map<std::string, torch::Tensor> g;
+  for (const auto& kv : model->named_parameters())
+    g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
+  return g;
+}
+
 TEST(Regularisers, DistortionEqualsItsDoubleSum) {
   const auto [w, s] = random_rays_weights(6, 11, 3);
   const auto fast = distortion_loss(w, s);
@@ -220,18 +237,7 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   const RayBatch batch{test::random_rays(n, 8, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
   torch::Tensor reported;  // the last step's terms (StepSums::terms)
   const auto grads_of = [&](const TrainConfig& tc, double* loss) {
-    model->zero_grad();
-    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
-    const StepSums sums = accumulate_gradients(model, batch, 5, tc, global, 2.0, 6.0);
-    *loss = sums.loss.item<double>();
-    reported = sums.terms.to(torch::kDouble);
-    // The terms add up to the loss, and the fine one is the reported fine MSE (fine_weight 1).
-    EXPECT_NEAR(reported.sum().item<double>(), *loss, 1e-6 * *loss);
-    EXPECT_NEAR(reported[kTermFine].item<double>(), sums.mse_fine.item<double>(), 1e-6 * *loss);
-    std::map<std::string, torch::Tensor> g;
-    for (const auto& kv : model->named_parameters())
-      g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
-    return g;
+    return step_gradients(model, batch, 5, tc, global, loss, &reported);
   };
   TrainConfig colour;
   TrainConfig both = colour;
@@ -280,15 +286,9 @@ TEST(Regularisers, ProposalAttentionTermMovesOnlyTheAttention) {
   const int64_t n = 16, global = 32;
   const RayBatch batch{test::random_rays(n, 13, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
   torch::Tensor reported;
+  double loss = 0;
   const auto grads_of = [&](const TrainConfig& tc) {
-    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
-    const StepSums sums = accumulate_gradients(model, batch, 8, tc, global, 2.0, 6.0);
-    reported = sums.terms.to(torch::kDouble);
-    EXPECT_NEAR(reported.sum().item<double>(), sums.loss.item<double>(), 1e-6 * sums.loss.item<double>());
-    std::map<std::string, torch::Tensor> g;
-    for (const auto& kv : model->named_parameters())
-      g[kv.key()] = kv.value().grad().defined() ? kv.value().grad().clone() : torch::zeros_like(kv.value());
-    return g;
+    return step_gradients(model, batch, 8, tc, global, &loss, &reported);
   };
   TrainConfig plain;
   TrainConfig pulled = plain;
