@@ -3,6 +3,14 @@
 // an error map: train/error_map.h), generated on the fly from the poses (docs/MODEL.md, section 1: no table of all
 // rays). Every process of a data-parallel group draws the same global batch from one identically
 // seeded stream and keeps its own slice, so a run does not depend on how many processes share it.
+//
+// Coarse pixels (train.coarse_pixel_*; docs/MODEL.md, "Coarse pixels first"): with a factor f, the
+// sampler also holds the training images reduced f times, each coarse pixel the mean of an f x f
+// block (blocks that do not fit at the right and bottom edges are left out; with a mask, only
+// blocks whose every pixel is kept). A coarse pixel's ray is the cone through the block's centre,
+// f times wider: the ray of the camera whose focal length and principal point are divided by f,
+// which is how mip-NeRF trains one scene at several scales. Flat indices past the full images'
+// pixels (pixels() + image * h * w + row * w + col, h = H / f, w = W / f) name coarse pixels.
 #include <torch/torch.h>
 
 #include <optional>
@@ -30,20 +38,30 @@ class RaySampler {
   // split.cameras[i] when the split lists them, else `k`.
   // With `error_map`, pixels are drawn through an ErrorMap fed by observe(); without, uniformly.
   // Pixels outside split.mask (when it is defined) are never drawn.
+  // coarse_factor > 1: also hold the images reduced that many times, for draws of coarse pixels.
   RaySampler(const Split& split, const Intrinsics& k, const torch::Device& device, uint64_t seed,
-             std::optional<ErrorMapOptions> error_map = std::nullopt);
+             std::optional<ErrorMapOptions> error_map = std::nullopt, int64_t coarse_factor = 0);
 
   // The next global batch of `global_size` rays; returns this rank's slice
   // [rank*global/world, (rank+1)*global/world).
   RayBatch next(int64_t global_size, int rank = 0, int world = 1);
 
-  // The pixel indices of the next global batch (advances the stream); exposed for tests.
-  torch::Tensor draw(int64_t global_size);
+  // The pixel indices of the next global batch (advances the stream); exposed for tests. The first
+  // `coarse` of them are coarse pixels drawn uniformly (none without a coarse factor), the rest as
+  // before; with coarse = 0 the stream is the one a sampler without coarse pixels draws.
+  torch::Tensor draw(int64_t global_size, int64_t coarse = 0);
+  // Any mix of full and coarse pixels; no host synchronisation (a captured CUDA graph runs it).
   RayBatch gather(const torch::Tensor& flat_indices) const;
 
   // The per-ray squared errors of a drawn global batch, in the order drawn (all of it, every rank
-  // the same), for the error map; nothing without one.
+  // the same), for the error map; nothing without one. A coarse pixel's error is the error of the
+  // tile holding its block's first pixel.
   void observe(const torch::Tensor& flat_indices, const torch::Tensor& squared_error);
+
+  int64_t pixels() const { return pixels_; }
+  int64_t coarse_factor() const { return coarse_factor_; }
+  // Coarse pixels that can be drawn (0 without a coarse factor, or when no block fits or is kept).
+  int64_t coarse_pixels() const { return coarse_ ? coarse_pixels_ : 0; }
   bool error_guided() const { return map_.has_value(); }
 
   // The random stream's state and the error map's (undefined without one), for checkpoints.
@@ -61,6 +79,15 @@ class RaySampler {
   std::optional<ErrorMap> map_;
   // Uniform draws over a mask's kept pixels: an ErrorMap that never observes (uniform share 1).
   std::optional<ErrorMap> kept_;
+  // Coarse pixels: the reduced images (images * h * w, 3) on device, their size, and uniform draws
+  // over the blocks that may be drawn (an ErrorMap that never observes).
+  int64_t coarse_factor_ = 0, coarse_h_ = 0, coarse_w_ = 0, coarse_pixels_ = 0;
+  torch::Tensor coarse_images_;
+  std::optional<ErrorMap> coarse_;
 };
+
+// How many of a step's `rays` are coarse pixels at `fraction` of the schedule: share x rays at the
+// start, falling linearly to none at `until` (train.coarse_pixel_share / _until), rounded.
+int64_t coarse_pixel_rays(int64_t rays, double share, double until, double fraction);
 
 }  // namespace ablenerf

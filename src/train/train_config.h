@@ -89,6 +89,13 @@ struct TrainConfig {
   RaySampling ray_sampling = RaySampling::Uniform;
   int64_t error_tile = 4;
   double error_uniform_share = 0.25;
+  // Coarse pixels first (train/ray_batch.h; docs/MODEL.md, "Coarse pixels first"): a share of a
+  // step's rays are pixels of the training images reduced coarse_pixel_factor times (each the mean
+  // of its block, cast as one wider cone through the block's centre), coarse_pixel_share of the
+  // rays at the start, falling linearly to none at coarse_pixel_until of the schedule. 0 = off.
+  double coarse_pixel_share = 0;
+  int64_t coarse_pixel_factor = 2;
+  double coarse_pixel_until = 0.5;
   // On CUDA (one process, LibTorch >= 2): capture the training step as one CUDA graph and replay
   // it (false: the same device step, run eagerly). Ignored elsewhere.
   bool graph = true;
@@ -131,6 +138,9 @@ struct TrainConfig {
     f("ray_sampling", &ray_sampling);
     f("error_tile", &error_tile);
     f("error_uniform_share", &error_uniform_share);
+    f("coarse_pixel_share", &coarse_pixel_share);
+    f("coarse_pixel_factor", &coarse_pixel_factor);
+    f("coarse_pixel_until", &coarse_pixel_until);
     f("graph", &graph);
   }
 
@@ -166,6 +176,9 @@ struct TrainConfig {
     // The map keeps a masked pixel's place in its tile in 16 bits (train/error_map.h).
     need(error_tile >= 1 && error_tile <= 256, "error_tile", "must be in 1..256 pixels");
     need(error_uniform_share >= 0 && error_uniform_share <= 1, "error_uniform_share", "must be in [0, 1]");
+    need(coarse_pixel_share >= 0 && coarse_pixel_share <= 1, "coarse_pixel_share", "must be in [0, 1]");
+    need(coarse_pixel_factor >= 2 && coarse_pixel_factor <= 64, "coarse_pixel_factor", "must be in 2..64");
+    need(coarse_pixel_until > 0 && coarse_pixel_until <= 1, "coarse_pixel_until", "must be in (0, 1]");
   }
 };
 ABLENERF_CONFIG_SECTION(TrainConfig);

@@ -92,8 +92,11 @@ StepReport Trainer::step() {
   if (!opts_.dist) s.agreed_elapsed = s.local_elapsed();
   const double lr = (*s.schedule)(s.state.step, schedule_step());
   const TrainConfig& tc = config_.get<TrainConfig>();
-  // Every rank draws the same global batch from one identically seeded stream and keeps its slice.
-  const auto all = s.sampler->draw(tc.rays_per_step);
+  // Every rank draws the same global batch from one identically seeded stream and keeps its slice;
+  // its first rays are coarse pixels while train.coarse_pixel_share asks for them.
+  const int64_t coarse =
+      coarse_pixel_rays(tc.rays_per_step, tc.coarse_pixel_share, tc.coarse_pixel_until, schedule_fraction());
+  const auto all = s.sampler->draw(tc.rays_per_step, coarse);
   const int64_t begin = tc.rays_per_step * s.rank / s.world;
   const auto indices = all.slice(0, begin, begin + s.local_rays);
   // BARF's coarse-to-fine window while the cameras are refined (before the step: a captured graph

@@ -129,7 +129,8 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
                                   AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});
   std::optional<ErrorMapOptions> map;
   if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
-  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map);
+  s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map,
+                                           tc.coarse_pixel_share > 0 ? tc.coarse_pixel_factor : 0);
   s.schedule.emplace(tc);
   s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
   s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));

@@ -105,3 +105,102 @@ TEST(RaySampler, MaskedPixelsAreNeverDrawn) {
     }
   }
 }
+
+// Coarse pixels (train.coarse_pixel_*): a coarse pixel's ray is the ray of the camera reduced f times
+// (focal length and principal point divided by f) through that pixel, its radius that camera's, its
+// target the mean of its f x f block; full pixels drawn beside them are unchanged.
+TEST(RaySampler, CoarsePixelsAreTheReducedCamerasPixels) {
+  const int n = 2, h = 7, w = 9, f = 2;  // odd sizes: the last row and column belong to no block
+  Split s = make_split(n, h, w);
+  Intrinsics k = intr(h, w);
+  k.cx = 4.3, k.cy = 3.1;
+  Intrinsics reduced = k;
+  reduced.width = w / f, reduced.height = h / f;
+  reduced.fx = k.fx / f, reduced.fy = k.fy / f, reduced.cx = k.cx / f, reduced.cy = k.cy / f;
+  RaySampler sampler(s, k, torch::kCPU, 5, std::nullopt, f);
+  ASSERT_EQ(sampler.coarse_pixels(), n * (h / f) * (w / f));
+  const int64_t coarse = 30, total = 40;
+  const auto idx = sampler.draw(total, coarse);
+  const RayBatch b = sampler.gather(idx);
+  for (int64_t r = 0; r < total; ++r) {
+    const int64_t flat = idx[r].item<int64_t>();
+    if (r >= coarse) {
+      ASSERT_LT(flat, sampler.pixels());
+      const int64_t img = flat / (h * w), pix = flat % (h * w);
+      const Rays full = rays_for_image(s.c2w[img], k);
+      EXPECT_TRUE(torch::allclose(b.rays.directions[r], full.directions[pix]));
+      EXPECT_TRUE(torch::allclose(b.rays.radii[r], full.radii[pix]));
+      EXPECT_TRUE(torch::equal(b.target[r], s.images[img].reshape({-1, 3})[pix]));
+      continue;
+    }
+    ASSERT_GE(flat, sampler.pixels());
+    const int64_t c = flat - sampler.pixels(), per = reduced.width * reduced.height;
+    const int64_t img = c / per, row = (c % per) / reduced.width, col = (c % per) % reduced.width;
+    ASSERT_LT(img, n);
+    EXPECT_EQ(b.photo[r].item<int64_t>(), img);
+    const Rays ref = rays_for_image(s.c2w[img], reduced);
+    const int64_t at = row * reduced.width + col;
+    EXPECT_TRUE(torch::allclose(b.rays.directions[r], ref.directions[at], 1e-6, 1e-6));
+    EXPECT_TRUE(torch::allclose(b.rays.origins[r], ref.origins[at]));
+    EXPECT_TRUE(torch::allclose(b.rays.radii[r], ref.radii[at], 1e-6, 1e-7));
+    double mean[3] = {0, 0, 0};
+    for (int dy = 0; dy < f; ++dy)
+      for (int dx = 0; dx < f; ++dx)
+        for (int ch = 0; ch < 3; ++ch)
+          mean[ch] += s.images[img][row * f + dy][col * f + dx][ch].item<double>() / (f * f);
+    for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(b.target[r][ch].item<double>(), mean[ch], 1e-6);
+  }
+}
+
+// Without coarse draws the stream is the one a sampler without coarse pixels draws; with a mask,
+// coarse pixels come only from blocks whose every pixel is kept, and all of those are drawn.
+TEST(RaySampler, CoarseDrawsKeepTheStreamAndTheMask) {
+  const int n = 2, h = 8, w = 10, f = 2;
+  Split s = make_split(n, h, w);
+  const Intrinsics k = intr(h, w);
+  {
+    RaySampler plain(s, k, torch::kCPU, 11), with(s, k, torch::kCPU, 11, std::nullopt, f);
+    EXPECT_TRUE(torch::equal(plain.draw(64), with.draw(64, 0)));
+  }
+  auto g = at::detail::createCPUGenerator(4);
+  s.mask = torch::rand({n, h, w}, g).lt(0.8);
+  const auto blocks =
+      s.mask.reshape({n, h / f, f, w / f, f}).permute({0, 1, 3, 2, 4}).reshape({n, h / f, w / f, f * f});
+  const auto whole = blocks.all(-1).reshape({-1});
+  ASSERT_GT(whole.sum().item<int64_t>(), 3);
+  ASSERT_LT(whole.sum().item<int64_t>(), whole.numel());
+  RaySampler sampler(s, k, torch::kCPU, 12, ErrorMapOptions{4, 0.25}, f);
+  const int64_t draws = 200 * whole.numel();
+  const auto idx = sampler.draw(draws, draws);
+  ASSERT_TRUE(idx.ge(sampler.pixels()).all().item<bool>());
+  const auto counts = torch::bincount(idx - sampler.pixels(), {}, whole.numel());
+  EXPECT_EQ(counts.masked_select(whole.logical_not()).sum().item<int64_t>(), 0);
+  EXPECT_GT(counts.masked_select(whole).min().item<int64_t>(), 0);
+}
+
+// A coarse pixel's error reaches the error map as the error of its block's first pixel.
+TEST(RaySampler, CoarsePixelErrorsFeedTheTileOfTheirBlock) {
+  const int n = 2, h = 8, w = 8, f = 2;
+  Split s = make_split(n, h, w);
+  const Intrinsics k = intr(h, w);
+  const ErrorMapOptions options{4, 0.25};
+  RaySampler sampler(s, k, torch::kCPU, 3, options, f);
+  // Coarse pixel (image 1, row 3, column 2) of the 4x4 reduced images: its block starts at full pixel
+  // (image 1, row 6, column 4).
+  const int64_t coarse = sampler.pixels() + 1 * 16 + 3 * 4 + 2, first = 1 * 64 + 6 * 8 + 4;
+  const auto errors = torch::tensor({9.0, 1.0, 4.0}, torch::kDouble);
+  sampler.observe(torch::tensor({coarse, int64_t{3}, int64_t{70}}), errors);
+  ErrorMap reference(n, h, w, options);
+  reference.observe(torch::tensor({first, int64_t{3}, int64_t{70}}), errors);
+  EXPECT_TRUE(torch::equal(sampler.map_state(), reference.state()));
+}
+
+TEST(RaySampler, CoarsePixelShareFallsLinearly) {
+  EXPECT_EQ(coarse_pixel_rays(256, 0.5, 0.5, 0.0), 128);
+  EXPECT_EQ(coarse_pixel_rays(256, 0.5, 0.5, 0.25), 64);
+  EXPECT_EQ(coarse_pixel_rays(256, 0.5, 0.5, 0.5), 0);
+  EXPECT_EQ(coarse_pixel_rays(256, 0.5, 0.5, 0.9), 0);
+  EXPECT_EQ(coarse_pixel_rays(256, 1.0, 1.0, 0.0), 256);
+  EXPECT_EQ(coarse_pixel_rays(256, 0.0, 0.5, 0.0), 0);
+  EXPECT_EQ(coarse_pixel_rays(100, 0.75, 0.6, 0.3), 38);  // 0.75 x (1 - 0.5) x 100 = 37.5, rounded away from 0
+}

@@ -212,6 +212,27 @@ TEST(Trainer, ResumeEqualsUninterruptedWithTheErrorMap) {
   EXPECT_TRUE(any_differs);
 }
 
+TEST(Trainer, ResumeEqualsUninterruptedWithCoarsePixels) {
+  // Coarse pixels (train.coarse_pixel_*): how many a step draws follows the schedule, so a resumed
+  // run, stopped while they are still drawn, draws the same rays as an uninterrupted one.
+  const test::IntraOpThreads threads(1);
+  test::TempDir t;
+  Config c = test::tiny_config();  // 12 steps
+  c.set("train.ray_sampling=\"error\"");
+  c.set("train.coarse_pixel_share=0.8");
+  c.set("train.coarse_pixel_until=0.75");  // still drawn at step 8 of 12
+  test::train_straight_and_in_pieces(c, options, t.path(), 7);
+  expect_same_weights(t / "straight", t / "pieces", 0.0);
+  // Not vacuous: without coarse pixels the same run ends elsewhere.
+  Config plain = test::tiny_config();
+  plain.set("train.ray_sampling=\"error\"");
+  ASSERT_EQ(train(plain, options(t / "plain")), TrainResult::Finished);
+  auto a = weights_of(t / "straight"), b = weights_of(t / "plain");
+  bool any_differs = false;
+  for (const auto& kv : a) any_differs |= !torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor());
+  EXPECT_TRUE(any_differs);
+}
+
 TEST(Trainer, RefusesToOverwriteARun) {
   test::TempDir t;
   Config c = test::tiny_config();
