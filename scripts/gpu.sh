@@ -16,7 +16,9 @@
 #              (LEGO5_SET="k=v k=v": extra settings, e.g. LEGO5_SET=train.ray_sampling=error)
 #   capture    real captures (CAPTURES, default .carry/fox4 .carry/fox4_sfm) for $CAPTURE_BUDGET s each + eval
 #              (CAPTURE_CONFIG, default configs/budget.toml; CAPTURE_SET="k=v ..." for all of them,
-#              CAPTURE_SET_<folder name>="k=v ..." for one, e.g. CAPTURE_SET_fox4_sfm=train.camera_refine=true)
+#              CAPTURE_SET_<name>="k=v ..." for one, e.g. CAPTURE_SET_fox4_sfm=train.camera_refine=true;
+#              CAPTURE_CONFIG_<name> its own preset; CAPTURE_EVAL_<name>="--align-cameras" its eval's options;
+#              an entry DIR@NAME trains DIR under NAME, so one capture can run with several settings)
 #   nccl       a one-process c10d/NCCL training run (WORLD_SIZE=1: the collective code path)
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
@@ -214,22 +216,25 @@ stage_lego5() {
 # CAPTURE_BUDGET seconds (default 120) with configs/budget.toml, then evaluated on its held-out views
 # (every 8th image); CAPTURE_SET="k=v ..." adds settings, DEVICE=cpu makes a dry run here. The run of the first stays in /tmp/cap_<name> for the view stage.
 stage_capture() {
-  local rc=0 dir name run t0 extra kv own
-  for dir in ${CAPTURES:-.carry/fox4 .carry/fox4_sfm}; do
+  local rc=0 entry dir name run t0 extra kv own preset evalopts
+  for entry in ${CAPTURES:-.carry/fox4 .carry/fox4_sfm}; do
+    dir=${entry%@*} name=$(basename "$entry") name=${name#*@}
     [ -d "$dir" ] || { echo "capture: $dir not carried"; rc=1; continue; }
-    name=$(basename "$dir")
     own=CAPTURE_SET_$name extra=()
     for kv in ${CAPTURE_SET:-} ${!own:-}; do extra+=(--set "$kv"); done
+    preset=CAPTURE_CONFIG_$name preset=${!preset:-${CAPTURE_CONFIG:-configs/budget.toml}}
+    evalopts=CAPTURE_EVAL_$name evalopts=${!evalopts:-}
     # fox4_sfm travels without its photos, which are fox4's (scripts/carry.sh).
-    [ "$name" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
+    [ "$(basename "$dir")" = fox4_sfm ] && [ ! -d "$dir/images" ] && cp -r .carry/fox4/images "$dir/images"
     run=/tmp/cap_$name t0=$SECONDS
     rm -rf "$run"
-    $bin train --data "$dir" --config "${CAPTURE_CONFIG:-configs/budget.toml}" --out "$run" --device "${DEVICE:-cuda}" \
+    echo "capture $name: $dir, $preset ${extra[*]}"
+    $bin train --data "$dir" --config "$preset" --out "$run" --device "${DEVICE:-cuda}" \
       --set train.time_budget_s="${CAPTURE_BUDGET:-120}" "${extra[@]}" > "$OUT/cap_${name}_train.log" 2>&1 || {
       rc=1; echo "capture $name: train FAILED"; grep -m3 -E "error|what\(\)" "$OUT/cap_${name}_train.log" | cut -c1-400; continue; }
     echo "capture $name: trained in $((SECONDS - t0)) s wall; $(grep -m1 -iE "unbounded|contract|ndc" "$OUT/cap_${name}_train.log" | cut -c1-200)"
     tail -c 300 "$OUT/cap_${name}_train.log"; echo
-    $bin eval --run "$run" > "$OUT/cap_${name}_eval.log" 2>&1 || { rc=1; tail -5 "$OUT/cap_${name}_eval.log"; continue; }
+    $bin eval --run "$run" $evalopts > "$OUT/cap_${name}_eval.log" 2>&1 || { rc=1; tail -5 "$OUT/cap_${name}_eval.log"; continue; }
     grep '^eval' "$OUT/cap_${name}_eval.log"
     cp "$run/log.jsonl" "$OUT/cap_${name}_log.jsonl"
   done

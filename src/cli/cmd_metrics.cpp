@@ -16,10 +16,10 @@
 #include "eval/lpips.h"
 #include "eval/metrics.h"
 #include "eval/pose_error.h"
+#include "data/transforms_json.h"  // metrics --poses reads camera-to-world matrices as the formats do
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "data/capture.h"
 #include "data/dataset.h"
-#include "data/transforms_json.h"
 #include "geometry/fuse.h"
 #include "geometry/surface_score.h"
 #endif

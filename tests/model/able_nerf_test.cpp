@@ -45,12 +45,14 @@ TEST(AbleNerf, PresetParameterCounts) {
 }
 
 TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
-  // configs/capture.toml (the preset for real captures, docs/BENCHMARKS.md): both of ablenerf's
-  // extensions on, the paper's presets with neither.
-  const AbleNerf capture(preset("capture").get<ModelConfig>());
-  EXPECT_NE(capture->grid(), nullptr);
-  ASSERT_NE(capture->proposal(), nullptr);
-  EXPECT_EQ(capture->proposal()->samples(), 32);
+  // configs/capture.toml and its GPU variant capture_gpu.toml (the presets for real captures,
+  // docs/BENCHMARKS.md): both of ablenerf's extensions on, the paper's presets with neither.
+  for (const char* name : {"capture", "capture_gpu"}) {
+    const AbleNerf capture(preset(name).get<ModelConfig>());
+    EXPECT_NE(capture->grid(), nullptr) << name;
+    ASSERT_NE(capture->proposal(), nullptr) << name;
+    EXPECT_EQ(capture->proposal()->samples(), 32) << name;
+  }
   for (const char* paper : {"blender", "demo"}) {
     const AbleNerf m(preset(paper).get<ModelConfig>());
     EXPECT_EQ(m->grid(), nullptr) << paper;

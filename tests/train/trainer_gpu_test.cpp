@@ -116,6 +116,19 @@ TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement)
   expect_graph_equals_eager(c, data.path());
 }
 
+// Coarse pixels first (docs/MODEL.md): the gather mixes full and reduced pixels with tensor ops and
+// the error map takes a coarse pixel's error at its block's first pixel, all inside the captured
+// step, while the share of coarse rays falls from step to step (the batch's shape stays fixed).
+TEST(TrainerGpu, GraphEqualsEagerWithCoarsePixelsThroughALens) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  test::TempDir data;
+  write_lens_capture(data.path());
+  const Config c =
+      test::config_with(test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "train.ray_sampling=\"error\"",
+                                              "train.coarse_pixel_share=0.8", "train.coarse_pixel_until=0.9"});
+  expect_graph_equals_eager(c, data.path());
+}
+
 TEST(TrainerGpu, DeviceAdamSkipsNonFiniteSteps) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
   const auto dev = torch::TensorOptions().device(torch::kCUDA, 0);
