@@ -49,6 +49,14 @@ torch::Tensor RaySampler::draw(int64_t global_size, int64_t coarse) {
   return torch::cat({coarse_->draw(coarse, gen_) + pixels_, idx});
 }
 
+RaySampler::CoarsePixel RaySampler::split_coarse(const torch::Tensor& coarse_idx) const {
+  const int64_t per_coarse = coarse_h_ * coarse_w_;
+  const auto image = coarse_idx.div(per_coarse, "floor");
+  const auto pix = coarse_idx - image * per_coarse;
+  const auto row = pix.div(coarse_w_, "floor");
+  return {image, row, pix - row * coarse_w_};
+}
+
 RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   auto idx = flat_indices.to(images_.device());
   const int64_t per_image = static_cast<int64_t>(k_.width) * k_.height;
@@ -65,16 +73,16 @@ RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   const auto zero = torch::zeros_like(idx);
   const auto full_idx = torch::where(coarse, zero, idx);
   const auto coarse_idx = torch::where(coarse, idx - pixels_, zero);
-  const int64_t per_coarse = coarse_h_ * coarse_w_;
-  const auto full_image = full_idx.div(per_image, "floor"), coarse_image = coarse_idx.div(per_coarse, "floor");
-  const auto full_pix = full_idx - full_image * per_image, coarse_pix = coarse_idx - coarse_image * per_coarse;
-  const auto full_row = full_pix.div(k_.width, "floor"), coarse_row = coarse_pix.div(coarse_w_, "floor");
-  const auto full_col = full_pix - full_row * k_.width, coarse_col = coarse_pix - coarse_row * coarse_w_;
+  const CoarsePixel c = split_coarse(coarse_idx);
+  const auto full_image = full_idx.div(per_image, "floor");
+  const auto full_pix = full_idx - full_image * per_image;
+  const auto full_row = full_pix.div(k_.width, "floor");
+  const auto full_col = full_pix - full_row * k_.width;
   // A block's centre, in the full image's pixel indices (rays_for_pixels adds half a pixel).
   const double f = static_cast<double>(coarse_factor_), centre = (f - 1.0) / 2.0;
-  const auto image = torch::where(coarse, coarse_image, full_image);
-  const auto col = torch::where(coarse, coarse_col.to(torch::kDouble) * f + centre, full_col.to(torch::kDouble));
-  const auto row = torch::where(coarse, coarse_row.to(torch::kDouble) * f + centre, full_row.to(torch::kDouble));
+  const auto image = torch::where(coarse, c.image, full_image);
+  const auto col = torch::where(coarse, c.col.to(torch::kDouble) * f + centre, full_col.to(torch::kDouble));
+  const auto row = torch::where(coarse, c.row.to(torch::kDouble) * f + centre, full_row.to(torch::kDouble));
   Rays rays = rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image));
   rays.radii = rays.radii * (coarse.to(rays.radii.scalar_type()) * (f - 1.0) + 1.0).unsqueeze(1);
   const auto target =
@@ -93,13 +101,9 @@ void RaySampler::observe(const torch::Tensor& flat_indices, const torch::Tensor&
   if (coarse_factor_ == 0) return map_->observe(flat_indices, squared_error);
   // A coarse pixel counts as its block's first pixel.
   const auto idx = flat_indices.to(torch::kCPU, torch::kLong);
-  const auto coarse_idx = (idx - pixels_).clamp_min(0);
-  const int64_t per_coarse = coarse_h_ * coarse_w_;
-  const auto image = coarse_idx.div(per_coarse, "floor");
-  const auto pix = coarse_idx - image * per_coarse;
-  const auto row = pix.div(coarse_w_, "floor"), col = pix - row * coarse_w_;
-  const auto first =
-      image * (static_cast<int64_t>(k_.width) * k_.height) + row * coarse_factor_ * k_.width + col * coarse_factor_;
+  const CoarsePixel c = split_coarse((idx - pixels_).clamp_min(0));
+  const auto first = c.image * (static_cast<int64_t>(k_.width) * k_.height) + c.row * coarse_factor_ * k_.width +
+                     c.col * coarse_factor_;
   map_->observe(torch::where(idx >= pixels_, first, idx), squared_error);
 }
 

@@ -59,7 +59,6 @@ class RaySampler {
   void observe(const torch::Tensor& flat_indices, const torch::Tensor& squared_error);
 
   int64_t pixels() const { return pixels_; }
-  int64_t coarse_factor() const { return coarse_factor_; }
   // Coarse pixels that can be drawn (0 without a coarse factor, or when no block fits or is kept).
   int64_t coarse_pixels() const { return coarse_ ? coarse_pixels_ : 0; }
   bool error_guided() const { return map_.has_value(); }
@@ -71,6 +70,12 @@ class RaySampler {
   void set_map_state(const torch::Tensor& state);
 
  private:
+  // A coarse pixel's index (counted from pixels_) as the reduced image it lies in, its row and column.
+  struct CoarsePixel {
+    torch::Tensor image, row, col;
+  };
+  CoarsePixel split_coarse(const torch::Tensor& coarse_idx) const;
+
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
   Intrinsics k_;                // the first image's camera (the image size of every image)
   CameraTable cams_;            // on device: one row per image
