@@ -86,7 +86,10 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   EXPECT_GT(before, 1.0);  // the perturbation is there
   EXPECT_LT(after, 0.5 * before) << "perturbed " << before << " deg, refined " << after << " deg";
   // `metrics --poses` after aligning each rig to the truth (BARF's protocol: the motion common to all
-  // cameras is one no photo reveals): measured 0.19 of the given poses' error.
+  // cameras is one no photo reveals): measured 0.19 of the given poses' error, under the fifth the
+  // refinement is asked for; the same at 48 and 64 pixels (0.185, 0.189) and after twice the steps
+  // (0.191), so a floor of this scene and perturbation, not of training time (docs/BENCHMARKS.md,
+  // "Camera refinement's floor"). The bound leaves room for another CPU's rounding.
   const auto aligned_error = [&](const std::string& file) {
     const auto m = test::run_cli("metrics --poses " + file + " --truth " + (t / "data"));
     EXPECT_EQ(m.exit_code, 0) << m.output;
@@ -94,7 +97,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   };
   const double given_aligned = aligned_error(t / "data/transforms_train.json");
   const double refined_aligned = aligned_error(t / "poses.json");
-  EXPECT_LT(refined_aligned, 0.3 * given_aligned) << "given " << given_aligned << ", refined " << refined_aligned;
+  EXPECT_LT(refined_aligned, 0.22 * given_aligned) << "given " << given_aligned << ", refined " << refined_aligned;
 
   // Held-out cameras aligned before scoring: a copy of the capture whose test cameras are turned by
   // 2 degrees scores far below the capture as it is in the plain protocol, and back within 1 dB of
