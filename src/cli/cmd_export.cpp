@@ -133,7 +133,7 @@ void run_export_poses(const ExportArgs& a) {
   }
   torch::NoGradGuard no_grad;
   const auto given_c2w = torch::stack(given).to(refine->parameter().dtype());
-  refine->set_centres(given_c2w.slice(1, 0, 3).select(2, 3));  // the gauge as training had it
+  refine->set_cameras(given_c2w);  // the gauge as training had it
   const auto corrected = refine->corrected(given_c2w).to(torch::kDouble);
   const auto correction = refine->correction().to(torch::kDouble);
   nlohmann::json out;
@@ -151,13 +151,15 @@ void run_export_poses(const ExportArgs& a) {
     nlohmann::json fr;
     fr["file_path"] = f.image;
     fr["transform_matrix"] = m;
-    fr["fl_x"] = f.camera.fx, fr["fl_y"] = f.camera.fy, fr["cx"] = f.camera.cx, fr["cy"] = f.camera.cy;
+    const Intrinsics cam = refine->refined(f.camera);  // the refined focal length, if it learned one
+    fr["fl_x"] = cam.fx, fr["fl_y"] = cam.fy, fr["cx"] = cam.cx, fr["cy"] = cam.cy;
     fr["w"] = f.camera.width, fr["h"] = f.camera.height;
     fr["refined_rotation_deg"] = c.slice(0, 0, 3).norm().item<double>() * 180.0 / M_PI;
     fr["refined_shift"] = c.slice(0, 3, 6).norm().item<double>() / scene.scale;
     out["frames"].push_back(fr);
   }
   out["refined_by"] = "ablenerf train.camera_refine, run " + a.run;
+  if (refine->refines_focal()) out["refined_focal_scale"] = refine->focal_scale_value();
   write_file_atomic(a.poses, out.dump(2) + "\n");
   nlohmann::json j;
   j["poses"] = a.poses;

@@ -179,6 +179,8 @@ void run_render(const RenderArgs& a) {
   if (!frame_dir.empty()) ensure_dir(frame_dir);
 
   AbleNerf model = load_run_model(run, device);
+  // The capture's own cameras with the focal length the run refined, if it did (model/camera_refine.h).
+  if (capture && model->camera_refine()) cams.intrinsics = model->camera_refine()->refined(cams.intrinsics);
   // --look N: the frames with training photo N's appearance code and through its colour map.
   const PhotoLook look = photo_look(*model, a.look, "--look", "");
   if ((a.le_noise > 0 || a.le_zero) && !model->has_le())

@@ -133,7 +133,9 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   double total_seconds = 0;
   for (int64_t i = 0; i < count; ++i) {
     const std::string view = "view " + std::to_string(i + 1) + "/" + std::to_string(count);
-    const Intrinsics& cam = split.cameras.empty() ? k : split.cameras[static_cast<size_t>(i)];
+    // A run that refined the capture's focal length renders every photo with it (model/camera_refine.h).
+    const Intrinsics& given = split.cameras.empty() ? k : split.cameras[static_cast<size_t>(i)];
+    const Intrinsics cam = model->camera_refine() ? model->camera_refine()->refined(given) : given;
     std::optional<CameraAlignment> aligned;
     if (align) {
       align_opts.seed = static_cast<uint64_t>(i);
@@ -245,6 +247,8 @@ nlohmann::json evaluate_run(const RunFolder& run, const EvalOptions& opts) {
   m["near"] = ds.near;
   m["far"] = ds.far;
   m["error_map_max"] = kErrorMapMax;
+  if (model->camera_refine() && model->camera_refine()->refines_focal())
+    m["refined_focal_scale"] = model->camera_refine()->focal_scale_value();  // applied to every view's camera
   m["protocol"] = align && fit_look ? "aligned cameras, fitted look"
                   : align           ? "aligned cameras"
                   : fit_look        ? "fitted look"

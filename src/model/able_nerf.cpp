@@ -118,10 +118,11 @@ void AbleNerfImpl::enable_photo_colour(int64_t photos, PhotoColourMap map) {
   photo_colour_->to(device);
 }
 
-void AbleNerfImpl::enable_camera_refine(int64_t cameras) {
+void AbleNerfImpl::enable_camera_refine(int64_t cameras, bool focal) {
   if (camera_refine_) throw std::logic_error("AbleNerf: camera refinement enabled twice");
   const auto device = ray_token_.device();
-  camera_refine_ = register_module(kCameraRefineModule, CameraRefine(cameras));
+  camera_refine_ =
+      register_module(kCameraRefineModule, CameraRefine(cameras, kCameraRefineLrScale, /*centred=*/true, focal));
   camera_refine_->to(device);
 }
 

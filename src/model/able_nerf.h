@@ -101,7 +101,7 @@ class AbleNerfImpl : public torch::nn::Module {
   PhotoColourImpl* photo_colour() { return photo_colour_ ? photo_colour_.get() : nullptr; }
   // Camera refinement (model/camera_refine.h): likewise registered by the trainer
   // (train.camera_refine) or by load_weights; never read by forward() (the trainer corrects the rays).
-  void enable_camera_refine(int64_t cameras);
+  void enable_camera_refine(int64_t cameras, bool focal = false);  // focal: train.camera_refine_focal
   CameraRefineImpl* camera_refine() { return camera_refine_ ? camera_refine_.get() : nullptr; }
   // Per-photo appearance codes (model/appearance_code.h): likewise registered by the trainer
   // (train.appearance_code) or by load_weights; forward() reads only ForwardOptions::appearance.

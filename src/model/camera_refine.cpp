@@ -6,11 +6,37 @@
 
 namespace ablenerf {
 
-CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale, bool centred)
+CameraRefineImpl::CameraRefineImpl(int64_t cameras, double lr_scale, bool centred, bool focal)
     : lr_scale_(lr_scale), centred_(centred) {
   if (cameras < 1) throw std::invalid_argument("CameraRefine: at least one camera");
   if (!(lr_scale > 0)) throw std::invalid_argument("CameraRefine: the learning-rate scale must be positive");
   param_ = register_parameter("correction", torch::zeros({cameras, 6}));
+  if (focal) focal_ = register_parameter("focal", torch::zeros({1}));
+}
+
+void CameraRefineImpl::set_cameras(const torch::Tensor& c2w) {
+  TORCH_CHECK(c2w.dim() == 3 && c2w.size(0) == cameras() && c2w.size(1) >= 3 && c2w.size(2) == 4,
+              "CameraRefine::set_cameras: expected (", cameras(), ", 3, 4), got ", c2w.sizes());
+  const auto pose = c2w.slice(1, 0, 3);
+  set_centres(pose.select(2, 3));
+  const auto axis = pose.select(2, 2).detach().to(param_.device(), param_.scalar_type());
+  axes_ = (axis / axis.norm(2, 1, /*keepdim=*/true).clamp_min(1e-12)).clone();
+}
+
+torch::Tensor CameraRefineImpl::focal_scale() const {
+  if (!focal_.defined()) return torch::ones({}, param_.options());
+  return torch::exp(focal_.squeeze(0) * lr_scale_);
+}
+
+double CameraRefineImpl::focal_scale_value() const {
+  return focal_.defined() ? std::exp(focal_.detach().cpu().to(torch::kDouble).item<double>() * lr_scale_) : 1.0;
+}
+
+Intrinsics CameraRefineImpl::refined(const Intrinsics& k) const {
+  Intrinsics out = k;
+  const double s = focal_scale_value();
+  out.fx *= s, out.fy *= s;
+  return out;
 }
 
 void CameraRefineImpl::set_centres(const torch::Tensor& centres) {
@@ -61,8 +87,19 @@ Rays CameraRefineImpl::forward(const Rays& rays, const torch::Tensor& photo) {
   const auto dtype = at::promote_types(rays.directions.scalar_type(), param_.scalar_type());
   const auto r = rotations().index_select(0, idx).to(dtype);                  // (B,3,3)
   const auto t = correction().slice(1, 3, 6).index_select(0, idx).to(dtype);  // (B,3)
-  const auto d = torch::matmul(r, rays.directions.to(dtype).unsqueeze(-1)).squeeze(-1);
-  return {rays.origins.to(dtype) + t, d, rays.radii.to(dtype)};
+  auto given = rays.directions.to(dtype);
+  auto radii = rays.radii.to(dtype);
+  if (focal_.defined()) {
+    // The camera of focal length k f (see the header): across the axis / k, along it unchanged.
+    TORCH_CHECK(axes_.defined(), "CameraRefine: focal refinement needs the cameras' axes (set_cameras)");
+    const auto a = axes_.index_select(0, idx).to(dtype);
+    const auto along = (given * a).sum(-1, /*keepdim=*/true) * a;
+    const auto inv_k = 1.0 / focal_scale().to(dtype);
+    given = along + (given - along) * inv_k;
+    radii = radii * inv_k;
+  }
+  const auto d = torch::matmul(r, given.unsqueeze(-1)).squeeze(-1);
+  return {rays.origins.to(dtype) + t, d, radii};
 }
 
 torch::Tensor CameraRefineImpl::corrected(const torch::Tensor& c2w) const {

@@ -14,8 +14,23 @@
 // (correction(): the rig's gauge removed; the scene stays where the poses put it, and held-out
 // cameras still see it), and a small decay (train.camera_refine_decay) keeps corrections that the
 // images do not ask for at zero.
+//
+// Optionally (train.camera_refine_focal) one focal-length scale k = exp(f) for the whole capture,
+// whose photos share one camera model (`process` makes one camera): a camera of focal length k fx,
+// k fy casts the pixel's ray of camera-frame direction (u / k, v / k, -1) where the given one cast
+// (u, v, -1), so in the scene frame the component of a direction across the camera's optical axis
+// a_p shrinks by k and the one along it stays,
+//   direction_k = (d . a_p) a_p + (d - (d . a_p) a_p) / k,   radius_k = radius / k,
+// applied before the turn. For a pinhole this is exactly the camera of focal length k fx; through a
+// lens it scales the undistorted directions (the lens's coefficients act on the given focal length's
+// coordinates), which differs from rescaling the intrinsics by (k - 1) times the distortion: small
+// beside what k corrects. Held-out photos are rendered with the scaled intrinsics (refined()). The
+// parameter is log k over lr_scale, as the corrections'. A capture seen from afar hardly fixes k: a
+// scene scaled by k looks the same to within its depth range over the distance times (k - 1), and
+// the scene's scale is free (docs/MODEL.md, "Camera refinement", 8.).
 #include <torch/torch.h>
 
+#include "data/camera.h"
 #include "data/rays.h"
 
 namespace ablenerf {
@@ -43,12 +58,25 @@ class CameraRefineImpl : public torch::nn::Module {
   // files hold) is the corrections over lr_scale. centred: the rig's gauge is taken out of the
   // corrections (training: see above; set_centres gives its geometry); not for a lone camera fitted
   // on its own (eval/camera_align.h).
-  explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale, bool centred = true);
+  // focal: also learn the capture's focal-length scale (above).
+  explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale, bool centred = true,
+                            bool focal = false);
   // The given cameras' centres (cameras, 3) in the scene frame, which the gauge's turn and scaling
   // move (the trainer and `export --poses` set them from the poses). Until set, all at the origin:
   // the gauge is then the common shift and turn alone, and correction() the parameter minus its mean.
   void set_centres(const torch::Tensor& centres);
-  // The rays of photos `photo` (B,) (int64, < cameras()) as their corrected cameras cast them.
+  // The given camera-to-world matrices (cameras, 3 or 4, 4): their centres (set_centres) and their
+  // optical axes (the third column), which the focal scale needs.
+  void set_cameras(const torch::Tensor& c2w);
+  bool refines_focal() const { return focal_.defined(); }
+  // k, the focal-length scale: a 0-dimensional tensor (1 without focal refinement), and as a number.
+  torch::Tensor focal_scale() const;
+  double focal_scale_value() const;
+  // The intrinsics `k` of a photo of this capture with the refined focal length (k fx, k fy; the
+  // principal point and the lens unchanged): the camera held-out photos and rendered views use.
+  Intrinsics refined(const Intrinsics& k) const;
+  // The rays of photos `photo` (B,) (int64, < cameras()) as their corrected cameras cast them
+  // (with focal refinement, set_cameras must have given the axes).
   Rays forward(const Rays& rays, const torch::Tensor& photo);
   int64_t cameras() const { return param_.size(0); }
   // The corrections applied: (cameras, 6), w (axis times angle, radians) then t; zero = the poses as
@@ -72,7 +100,9 @@ class CameraRefineImpl : public torch::nn::Module {
   double lr_scale_;
   bool centred_;
   torch::Tensor param_;
+  torch::Tensor focal_;    // (1,): log k over lr_scale; undefined without focal refinement
   torch::Tensor centres_;  // (cameras, 3), not a parameter: set_centres
+  torch::Tensor axes_;     // (cameras, 3), the optical axes, not a parameter: set_cameras
 };
 TORCH_MODULE(CameraRefine);
 

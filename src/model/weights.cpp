@@ -108,6 +108,7 @@ std::vector<std::pair<std::string, std::string>> release_name_map(const ModelCon
 }
 
 const char* const kCameraRefineWeight = "camera_refine.correction";
+const char* const kCameraRefineFocalWeight = "camera_refine.focal";
 
 void save_weights(AbleNerf& model, const std::string& path) {
   c10::Dict<std::string, torch::Tensor> dict;
@@ -147,7 +148,8 @@ void load_weights(AbleNerf& model, const std::string& path) {
       model->enable_photo_colour(g, PhotoColourMap::Gain);
   }
   if (!model->camera_refine())
-    if (const int64_t n = rows_of(kCameraRefineWeight, 2, 6, "expected (cameras, 6)")) model->enable_camera_refine(n);
+    if (const int64_t n = rows_of(kCameraRefineWeight, 2, 6, "expected (cameras, 6)"))
+      model->enable_camera_refine(n, rows_of(kCameraRefineFocalWeight, 1, 1, "expected (1): one focal scale") > 0);
   if (!model->appearance_code()) {
     const int64_t width = model->config().width;
     const std::string expected = "expected (photos, " + std::to_string(width) + "): model.width codes";

@@ -60,6 +60,9 @@ struct TrainConfig {
   // the cameras' mean squared correction. Off = the poses as given (the paper).
   bool camera_refine = false;
   double camera_refine_decay = 1e-4;
+  // With camera_refine: also one focal-length scale for the whole capture (model/camera_refine.h),
+  // used by eval, render and `export --poses` too. Off = the focal length as given.
+  bool camera_refine_focal = false;
   // Per-photo appearance codes (model/appearance_code.h; docs/MODEL.md, "Per-photo appearance
   // code"): a code of the model's width per training photo on its rays' view token, held near the
   // photos' mean by appearance_code_decay x the photos' mean squared code. Needs the learnable
@@ -124,6 +127,7 @@ struct TrainConfig {
     f("photo_colour_decay", &photo_colour_decay);
     f("camera_refine", &camera_refine);
     f("camera_refine_decay", &camera_refine_decay);
+    f("camera_refine_focal", &camera_refine_focal);
     f("appearance_code", &appearance_code);
     f("appearance_code_decay", &appearance_code_decay);
     f("camera_refine_c2f_start", &camera_refine_c2f_start);
@@ -163,6 +167,7 @@ struct TrainConfig {
          "must be >= 0");
     need(photo_colour_decay >= 0 && std::isfinite(photo_colour_decay), "photo_colour_decay", "must be >= 0");
     need(camera_refine_decay >= 0 && std::isfinite(camera_refine_decay), "camera_refine_decay", "must be >= 0");
+    need(!camera_refine_focal || camera_refine, "camera_refine_focal", "needs train.camera_refine = true");
     need(appearance_code_decay >= 0 && std::isfinite(appearance_code_decay), "appearance_code_decay", "must be >= 0");
     need(camera_refine_c2f_start >= 0 && camera_refine_c2f_start < 1, "camera_refine_c2f_start", "must be in [0, 1)");
     need(camera_refine_c2f_end == 0 || (camera_refine_c2f_end > camera_refine_c2f_start && camera_refine_c2f_end <= 1),

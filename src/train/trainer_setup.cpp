@@ -114,8 +114,8 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   // per training photo, made before Adam sees the parameters.
   if (tc.photo_colour) s.model->enable_photo_colour(train.size(), tc.photo_colour_map);
   if (tc.camera_refine) {
-    s.model->enable_camera_refine(train.size());
-    s.model->camera_refine()->set_centres(train.c2w.slice(1, 0, 3).select(2, 3));  // the rig's gauge
+    s.model->enable_camera_refine(train.size(), tc.camera_refine_focal);
+    s.model->camera_refine()->set_cameras(train.c2w);  // the rig's gauge and the cameras' axes
   }
   if (tc.appearance_code) {
     try {

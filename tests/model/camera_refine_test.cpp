@@ -1,7 +1,8 @@
 // Camera refinement (model/camera_refine.h): zero is the poses as given; each rotation is
 // Rodrigues' closed form of its axis-angle; centred corrections ignore a common change; a photo's
 // corrected rays are exactly the rays its
-// corrected camera-to-world casts (against data/rays.h); the gradient against central differences;
+// corrected camera-to-world casts (against data/rays.h), with a refined focal length those of the
+// camera with the scaled focal length; the gradients against central differences;
 // weights carry the corrections into a model made without them.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -129,6 +130,84 @@ TEST(CameraRefine, CorrectedRaysAreTheCorrectedCamerasRays) {
   EXPECT_LT(test::max_abs(torch::matmul(r, r.transpose(1, 2)) - torch::eye(3, torch::kDouble)), 1e-12);
 }
 
+// With the focal length refined, a photo's rays are those of its camera with focal length k fx, k fy
+// (pinhole: exact), turned and shifted by its correction: rays_for_pixels through the scaled
+// intrinsics and CameraRefine::corrected(c2w). Eval and render use refined(), the same scaled camera.
+TEST(CameraRefine, RefinedFocalRaysAreTheScaledCamerasRays) {
+  Intrinsics pin;
+  pin.fx = 50, pin.fy = 55, pin.cx = 16, pin.cy = 12, pin.width = 32, pin.height = 24;
+  const auto c2w = torch::tensor({{0.0, -0.6, 0.8, 2.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.8, 0.6, 3.0},
+                                  {1.0, 0.0, 0.0, 0.5, 0.0, 1.0, 0.0, 0.25, 0.0, 0.0, 1.0, 4.0}},
+                                 torch::kDouble)
+                       .view({2, 3, 4});
+  CameraRefine refine(2, kCameraRefineLrScale, /*centred=*/false, /*focal=*/true);
+  refine->to(torch::kDouble);
+  ASSERT_TRUE(refine->refines_focal());
+  EXPECT_DOUBLE_EQ(refine->focal_scale_value(), 1.0);  // zero = the focal length as given
+  const double k = 1.07;
+  {
+    torch::NoGradGuard no_grad;
+    refine->parameter().copy_(
+        torch::tensor({{0.04, -0.03, 0.02, 0.1, -0.05, 0.2}, {-0.02, 0.05, 0.01, -0.3, 0.1, 0.0}}, torch::kDouble) /
+        refine->lr_scale());
+    refine->named_parameters()["focal"].fill_(std::log(k) / refine->lr_scale());
+  }
+  refine->set_cameras(c2w);
+  EXPECT_NEAR(refine->focal_scale_value(), k, 1e-12);
+  const Intrinsics scaled = refine->refined(pin);
+  EXPECT_NEAR(scaled.fx, k * 50, 1e-9);
+  EXPECT_NEAR(scaled.fy, k * 55, 1e-9);
+  EXPECT_EQ(scaled.cx, pin.cx);
+  EXPECT_EQ(scaled.cy, pin.cy);
+  const auto photo = torch::tensor({0, 1, 0, 1, 1, 0}, torch::kLong);
+  const auto col = torch::tensor({0, 5, 31, 16, 7, 20}, torch::kLong);
+  const auto row = torch::tensor({0, 23, 11, 12, 3, 19}, torch::kLong);
+  const Rays given = rays_for_pixels(c2w.index_select(0, photo), col, row, CameraTable::of({pin, pin}).index(photo));
+  torch::NoGradGuard no_grad;
+  const Rays got = refine->forward(given, photo);
+  const Rays want = rays_for_pixels(refine->corrected(c2w).index_select(0, photo), col, row,
+                                    CameraTable::of({scaled, scaled}).index(photo));
+  EXPECT_LT(test::max_abs(got.origins - want.origins), 1e-6);
+  EXPECT_LT(test::max_abs(got.directions - want.directions), 1e-6);
+  EXPECT_LT(test::max_abs(got.radii - want.radii), 1e-9);
+  // Without the focal scale the same corrections give the given focal length's rays: it moved them.
+  const Rays unscaled = rays_for_pixels(refine->corrected(c2w).index_select(0, photo), col, row,
+                                        CameraTable::of({pin, pin}).index(photo));
+  EXPECT_GT(test::max_abs(got.directions - unscaled.directions), 0.01);
+}
+
+// The focal scale's gradient against central differences (the directions' and radii's dependence
+// on k), and the module refuses to cast without the cameras' axes.
+TEST(CameraRefine, FocalGradientMatchesFiniteDifferences) {
+  const Rays rays = test::random_rays(7, 2, torch::kDouble);
+  const auto photo = torch::tensor({2, 0, 2, 1, 0, 2, 2}, torch::kLong);
+  const auto gd = test::seeded_randn({7, 3}, 4), gr = test::seeded_randn(rays.radii.sizes().vec(), 6);
+  const auto c2w = test::seeded_randn({3, 3, 4}, 7);
+  const auto make = [&](const torch::Tensor& f) {
+    CameraRefine cr(3, kCameraRefineLrScale, /*centred=*/false, /*focal=*/true);
+    cr->to(torch::kDouble);
+    torch::NoGradGuard no_grad;
+    cr->named_parameters()["focal"].copy_(f / cr->lr_scale());
+    cr->set_cameras(c2w);
+    return cr;
+  };
+  const test::ScalarFunction f = [&](const std::vector<torch::Tensor>& in) {
+    const Rays moved = make(in[0])(rays, photo);
+    return (moved.directions * gd).sum() + (moved.radii * gr).sum();
+  };
+  const auto f0 = torch::tensor({0.05}, torch::kDouble);
+  const auto numeric = test::numeric_gradient(f, {f0}, 0);
+  CameraRefine cr = make(f0);
+  const Rays moved = cr(rays, photo);
+  ((moved.directions * gd).sum() + (moved.radii * gr).sum()).backward();
+  const auto grad = cr->named_parameters()["focal"].grad() / cr->lr_scale();
+  EXPECT_LT(test::max_abs(grad - numeric), 1e-7);
+  EXPECT_GT(test::max_abs(numeric), 0.1);
+  CameraRefine no_axes(3, kCameraRefineLrScale, /*centred=*/false, /*focal=*/true);
+  no_axes->to(torch::kDouble);
+  EXPECT_THROW(no_axes(rays, photo), c10::Error);
+}
+
 TEST(CameraRefine, GradientMatchesFiniteDifferences) {
   const Rays rays = test::random_rays(7, 2, torch::kDouble);
   const auto photo = torch::tensor({2, 0, 2, 1, 0, 2, 2}, torch::kLong);
@@ -244,6 +323,21 @@ TEST(CameraRefine, WeightsCarryTheCorrectionsIntoAModelMadeWithoutThem) {
   ASSERT_NE(b->camera_refine(), nullptr);
   EXPECT_TRUE(torch::equal(b->camera_refine()->correction(), a->camera_refine()->correction()));
   EXPECT_GT(test::max_abs(b->camera_refine()->correction()), 0.0);
+  EXPECT_FALSE(b->camera_refine()->refines_focal());
+  // With the focal scale: it comes back too.
+  AbleNerf c(cfg);
+  c->enable_camera_refine(4, /*focal=*/true);
+  {
+    torch::NoGradGuard no_grad;
+    c->camera_refine()->named_parameters()["focal"].fill_(0.3);
+  }
+  save_weights(c, dir / "wf.pt");
+  AbleNerf d(cfg);
+  load_weights(d, dir / "wf.pt");
+  ASSERT_NE(d->camera_refine(), nullptr);
+  ASSERT_TRUE(d->camera_refine()->refines_focal());
+  EXPECT_DOUBLE_EQ(d->camera_refine()->focal_scale_value(), c->camera_refine()->focal_scale_value());
+  EXPECT_GT(d->camera_refine()->focal_scale_value(), 1.0);
 }
 
 }  // namespace

@@ -83,18 +83,20 @@ TEST(GridTraining, ResumeWithPhotoColourEqualsUninterrupted) {
 }
 
 // Camera corrections (train.camera_refine) likewise: parameters with their Adam state, so a resumed
-// run ends bit-exact with the straight one; with BARF's coarse-to-fine window opening the IPE bands
-// over steps 1-7 of 12 (the window follows the schedule, so the resumed piece sets it the same).
+// run ends bit-exact with the straight one (the focal scale too); with BARF's coarse-to-fine window opening the IPE
+// bands over steps 1-7 of 12 (the window follows the schedule, so the resumed piece sets it the same).
 TEST(GridTraining, ResumeWithCameraRefineEqualsUninterrupted) {
   const test::IntraOpThreads threads(1);
   test::TempDir t;
-  const Config c = test::config_with(
-      tiny_grid_config(),
-      {"train.camera_refine=true", "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
+  const Config c =
+      test::config_with(tiny_grid_config(), {"train.camera_refine=true", "train.camera_refine_focal=true",
+                                             "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
   test::train_straight_and_in_pieces(c, grid_run_options, t.path(), 7);
   auto a = read_weights_dict(t / "straight/weights.pt"), b = read_weights_dict(t / "pieces/weights.pt");
   ASSERT_TRUE(a.contains("camera_refine.correction"));
   EXPECT_GT(a.at("camera_refine.correction").toTensor().abs().max().item<double>(), 0.0);  // it trained
+  ASSERT_TRUE(a.contains("camera_refine.focal"));  // and the focal scale with it
+  EXPECT_GT(a.at("camera_refine.focal").toTensor().abs().max().item<double>(), 0.0);
   for (const auto& kv : a)
     EXPECT_TRUE(torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor())) << kv.key().toStringRef();
 }

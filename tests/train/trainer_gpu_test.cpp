@@ -109,10 +109,11 @@ TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement)
   test::TempDir data;
   write_lens_capture(data.path());
   const Config c = test::config_with(
-      test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
-                            "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16",
-                            "train.grid_decay=1.0", "train.photo_colour=true", "train.camera_refine=true",
-                            "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
+      test::tiny_config(),
+      {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
+       "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16", "train.grid_decay=1.0",
+       "train.photo_colour=true", "train.camera_refine=true", "train.camera_refine_focal=true",
+       "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
   expect_graph_equals_eager(c, data.path());
 }
 
