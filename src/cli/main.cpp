@@ -14,6 +14,7 @@
 #include "model/model_config.h"
 #include "train/train_config.h"
 #include "cli/command.h"
+#include "kernels/cpu_parallel.h"
 #include "util/errors.h"
 #include "util/log.h"
 
@@ -39,6 +40,7 @@ void keep_freed_memory() {
 int main(int argc, char** argv) {
   using namespace ablenerf;
   keep_freed_memory();
+  flush_subnormals();  // before any thread starts (kernels/cpu_parallel.h)
   CLI::App app{"ablenerf: ABLE-NeRF (attention-based rendering with learnable embeddings) in C++"};
   app.set_version_flag("--version", std::string(ABLENERF_VERSION));
   app.require_subcommand(1);

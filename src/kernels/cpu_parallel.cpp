@@ -1,5 +1,6 @@
 #include "kernels/cpu_parallel.h"
 
+#include <ATen/Context.h>
 #include <dlfcn.h>
 
 #include <algorithm>
@@ -112,6 +113,8 @@ int64_t cpu_workers(int64_t n, int64_t min_per_worker) {
   if (!blas_thread_control_available() || t_in_worker) return 1;
   return std::max<int64_t>(1, std::min(cpu_thread_budget(), n / std::max<int64_t>(1, min_per_worker)));
 }
+
+bool flush_subnormals() { return at::globalContext().setFlushDenormal(true); }
 
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t, int64_t, int64_t)>& fn) {
   workers = std::max<int64_t>(1, std::min(workers, n));

@@ -60,6 +60,17 @@ class SerialIntraOp {
   int held_ = 0;
 };
 
+// Subnormal floats (magnitudes below 1.2e-38) flushed to zero in CPU arithmetic, as inputs and as
+// results, on the calling thread and every thread it starts afterwards (a new thread inherits its
+// creator's floating-point environment; parallel_slices starts its threads per call). Call it
+// first thing in a program. Why: a capture-preset run drifts values into that range (the table's
+// weight decay shrinks rows no ray reads, Adam's second moments of rarely touched rows decay with
+// them), every operation on one costs tens of times a normal one, and the training step slowed to a
+// third of its speed after its first ~2,000 steps (docs/BENCHMARKS.md, "Subnormal floats").
+// Nothing the model renders or learns from lies in that range. False where the CPU has no such
+// mode.
+bool flush_subnormals();
+
 // Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
 // thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the
 // caller's grad mode and inference mode. The first exception thrown by any slice is rethrown

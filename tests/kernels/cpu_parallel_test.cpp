@@ -1,6 +1,8 @@
 // Ray-parallel CPU execution (kernels/cpu_parallel.h): slices cover the range once, errors come
 // back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's and
-// LibTorch's thread counts are single inside and restored after.
+// LibTorch's thread counts are single inside and restored after; subnormal floats flush to zero
+// on the caller and in the threads it starts afterwards.
+#include <ATen/Context.h>
 #include <dlfcn.h>
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -143,6 +145,35 @@ TEST(CpuParallel, WorkerCountFollowsTheBudgetAndTheMinimum) {
   } else {
     EXPECT_EQ(cpu_workers(1 << 20, 8), 1);
   }
+}
+
+// 1e-20 x 1e-20 = 1e-40, a subnormal; with the flush both the product and a subnormal operand
+// (1e-40 x 1) read as zero. volatile: computed at run time, under the thread's mode.
+bool product_flushed() {
+  volatile float a = 1e-20f, b = 1e-20f, one = 1.0f;
+  volatile float tiny = a * b;
+  volatile float through = 1e-40f * one;
+  return tiny == 0.0f && through == 0.0f;
+}
+
+TEST(CpuParallel, SubnormalsFlushOnTheCallerAndInThreadsStartedAfter) {
+  struct Restore {
+    ~Restore() { at::globalContext().setFlushDenormal(false); }
+  } restore;
+  EXPECT_FALSE(product_flushed());  // the IEEE default: 1e-40 is representable
+  if (!flush_subnormals()) GTEST_SKIP() << "this CPU has no flush-to-zero mode";
+  EXPECT_TRUE(product_flushed());
+  // LibTorch's own element-wise loop on the calling thread.
+  const auto t = torch::full({64}, 1e-20f) * torch::full({64}, 1e-20f);
+  EXPECT_EQ(t.count_nonzero().item<int64_t>(), 0);
+  bool in_thread = false;
+  std::thread([&] { in_thread = product_flushed(); }).join();
+  EXPECT_TRUE(in_thread);
+  std::vector<int> in_slices(2, 0);
+  parallel_slices(2, 2, [&](int64_t w, int64_t, int64_t) { in_slices[static_cast<size_t>(w)] = product_flushed(); });
+  EXPECT_EQ(in_slices, (std::vector<int>{1, 1}));
+  at::globalContext().setFlushDenormal(false);
+  EXPECT_FALSE(product_flushed());
 }
 
 }  // namespace
