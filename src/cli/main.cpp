@@ -2,9 +2,12 @@
 // turns what escapes them into one line on stderr and an exit code.
 #include <c10/util/Exception.h>
 #include <malloc.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <iostream>
+#include <string>
 
 // Every section of the run configuration, so that every program knows them all
 // (util/config_section.h: a section is registered by its header).
@@ -35,10 +38,23 @@ void keep_freed_memory() {
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
 }
 
+// Restarts the program with OPENBLAS_CORETYPE set where OpenBLAS fell back to kernels far below
+// the CPU's (kernels/cpu_parallel.h, blas_core_override): OpenBLAS reads the variable only when it
+// is loaded. The same process (execv keeps the pid, so torchrun and c10d see no difference), the
+// same arguments; the variable set stops a second restart. If the restart fails, the program goes
+// on with OpenBLAS's own choice.
+void restart_with_blas_core(char** argv) {
+  const std::string core = ablenerf::blas_core_override();
+  if (core.empty()) return;
+  if (setenv("OPENBLAS_CORETYPE", core.c_str(), 1) != 0) return;
+  execv("/proc/self/exe", argv);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   using namespace ablenerf;
+  restart_with_blas_core(argv);
   keep_freed_memory();
   flush_subnormals();  // before any thread starts (kernels/cpu_parallel.h)
   CLI::App app{"ablenerf: ABLE-NeRF (attention-based rendering with learnable embeddings) in C++"};

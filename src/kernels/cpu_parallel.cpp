@@ -4,6 +4,7 @@
 #include <dlfcn.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <exception>
 #include <mutex>
 #include <thread>
@@ -112,6 +113,27 @@ int64_t cpu_thread_budget() {
 int64_t cpu_workers(int64_t n, int64_t min_per_worker) {
   if (!blas_thread_control_available() || t_in_worker) return 1;
   return std::max<int64_t>(1, std::min(cpu_thread_budget(), n / std::max<int64_t>(1, min_per_worker)));
+}
+
+std::string blas_core_name() {
+  using CoreName = char* (*)();
+  const auto name = reinterpret_cast<CoreName>(dlsym(RTLD_DEFAULT, "openblas_get_corename"));
+  const char* n = name ? name() : nullptr;
+  return n ? std::string(n) : std::string();
+}
+
+std::string blas_core_override() {
+#if defined(__x86_64__)
+  if (std::getenv("OPENBLAS_CORETYPE")) return "";
+  if (blas_core_name() != "Prescott") return "";
+  __builtin_cpu_init();
+  if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma")) return "";
+  const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+                      __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl");
+  return avx512 ? "SkylakeX" : "Haswell";
+#else
+  return "";
+#endif
 }
 
 bool flush_subnormals() { return at::globalContext().setFlushDenormal(true); }

@@ -10,6 +10,7 @@
 #include <torch/torch.h>
 
 #include <functional>
+#include <string>
 
 namespace ablenerf {
 
@@ -70,6 +71,19 @@ class SerialIntraOp {
 // Nothing the model renders or learns from lies in that range. False where the CPU has no such
 // mode.
 bool flush_subnormals();
+
+// OpenBLAS's name for the kernels it chose for this CPU (openblas_get_corename), or "" without
+// OpenBLAS's runtime dispatch.
+std::string blas_core_name();
+
+// The OPENBLAS_CORETYPE this process should have been started with, or "" when OpenBLAS's own choice
+// stands: OpenBLAS 0.3.21 (Debian bookworm's) does not know CPUs newer than its release (Sapphire
+// Rapids among them) and falls back to its Prescott kernels (SSE3, no FMA) on them, 12% of a
+// capture-preset training step's time in a profile on such a 2-vCPU VM. Where it chose Prescott
+// on a CPU with AVX2 and FMA, and the variable is unset: "SkylakeX" with AVX-512 (F, DQ, BW, VL),
+// else "Haswell" (docs/BENCHMARKS.md, "OpenBLAS's kernels"). OpenBLAS reads the variable once, when
+// it is loaded, so the program restarts itself with it (cli/main.cpp).
+std::string blas_core_override();
 
 // Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
 // thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the

@@ -18,6 +18,7 @@
 #include <stdexcept>
 
 #include "eval/camera_path.h"
+#include "kernels/cpu_parallel.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
 #include "train/trainer.h"
@@ -274,6 +275,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["threads"] = m.threads;
   const char* coretype = std::getenv("OPENBLAS_CORETYPE");
   j["openblas_coretype"] = coretype ? nlohmann::json(coretype) : nlohmann::json(nullptr);
+  j["openblas_core"] = blas_core_name();  // the kernels OpenBLAS runs (kernels/cpu_parallel.h)
   j["parameters"] = m.parameters;
   j["repetitions"] = {{"warmup", o.warmup}, {"timed", o.steps}, {"statistic", "median"}};
   j["flops_per_ray"] = {{"forward", f.forward},

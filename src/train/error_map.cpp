@@ -20,7 +20,14 @@ ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOption
   tiles_x_ = (width + opt_.tile - 1) / opt_.tile;
   tiles_y_ = (height + opt_.tile - 1) / opt_.tile;
   error_.assign(static_cast<size_t>(images * tiles_x_ * tiles_y_), 0.0);
-  if (!keep.defined()) return;
+  if (!keep.defined()) {
+    counts_.resize(error_.size());
+    for (int64_t t = 0; t < tiles(); ++t) {
+      const TileRect r = tile_rect(t);
+      counts_[static_cast<size_t>(t)] = static_cast<int32_t>(r.height * r.width);
+    }
+    return;
+  }
   if (keep.dim() != 3 || keep.size(0) != images || keep.size(1) != height || keep.size(2) != width)
     throw std::invalid_argument("ErrorMap: the mask must be (images, height, width)");
   const auto k = keep.to(torch::kCPU, torch::kBool).contiguous();
@@ -34,16 +41,12 @@ ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOption
           kept_.push_back(static_cast<uint16_t>(dr * opt_.tile + dc));
     kept_start_[static_cast<size_t>(t) + 1] = static_cast<int64_t>(kept_.size());
   }
+  counts_.resize(error_.size());
+  for (size_t t = 0; t < counts_.size(); ++t) counts_[t] = static_cast<int32_t>(kept_start_[t + 1] - kept_start_[t]);
   if (kept_.empty()) throw std::invalid_argument("ErrorMap: the mask keeps no pixel");
 }
 
-int64_t ErrorMap::kept_count(int64_t t) const {
-  if (kept_start_.empty()) {
-    const TileRect r = tile_rect(t);
-    return r.height * r.width;
-  }
-  return kept_start_[static_cast<size_t>(t) + 1] - kept_start_[static_cast<size_t>(t)];
-}
+int64_t ErrorMap::kept_count(int64_t t) const { return counts_[static_cast<size_t>(t)]; }
 
 ErrorMap::TileRect ErrorMap::tile_rect(int64_t t) const {
   const int64_t per_image = tiles_x_ * tiles_y_;
@@ -59,31 +62,31 @@ int64_t ErrorMap::tile_of(int64_t pixel) const {
   return (image * tiles_y_ + row / opt_.tile) * tiles_x_ + col / opt_.tile;
 }
 
-torch::Tensor ErrorMap::probabilities() const {
-  const int64_t n = tiles();
-  auto p = torch::empty({n}, torch::kDouble);
-  double* out = p.data_ptr<double>();
+template <class F>
+void ErrorMap::each_probability(F&& f) const {
+  const size_t n = error_.size();
   double sum = 0;
-  for (int64_t t = 0; t < n; ++t)
-    if (kept_count(t) > 0) sum += error_[static_cast<size_t>(t)];
+  for (size_t t = 0; t < n; ++t)
+    if (counts_[t] > 0) sum += error_[t];
   const double pixels =
       static_cast<double>(kept_start_.empty() ? images_ * height_ * width_ : static_cast<int64_t>(kept_.size()));
   const bool by_error = seeded_ && sum > 0;
   const double share = by_error ? opt_.uniform_share : 1.0;
-  for (int64_t t = 0; t < n; ++t) {
-    const int64_t kept = kept_count(t);
-    const double uniform = static_cast<double>(kept) / pixels;
-    out[t] = share * uniform + (by_error && kept > 0 ? (1.0 - share) * error_[static_cast<size_t>(t)] / sum : 0.0);
-  }
+  const double per_pixel = share / pixels, per_error = by_error ? (1.0 - share) / sum : 0.0;
+  for (size_t t = 0; t < n; ++t) f(t, counts_[t] > 0 ? per_pixel * counts_[t] + per_error * error_[t] : 0.0);
+}
+
+torch::Tensor ErrorMap::probabilities() const {
+  auto p = torch::empty({tiles()}, torch::kDouble);
+  double* out = p.data_ptr<double>();
+  each_probability([&](size_t t, double prob) { out[t] = prob; });
   return p;
 }
 
 void ErrorMap::rebuild_cdf() {
-  const auto p = probabilities();
-  const double* pp = p.data_ptr<double>();
   cdf_.resize(error_.size());
   double run = 0;
-  for (size_t t = 0; t < cdf_.size(); ++t) cdf_[t] = (run += pp[t]);
+  each_probability([&](size_t t, double prob) { cdf_[t] = (run += prob); });
   dirty_ = false;
 }
 

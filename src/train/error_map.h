@@ -67,7 +67,13 @@ class ErrorMap {
   // row * opt_.tile + col inside the tile. Empty without a mask.
   std::vector<int64_t> kept_start_;
   std::vector<uint16_t> kept_;
+  // Each tile's drawable pixels (all of its pixels without a mask), counted once: the map's
+  // probabilities are rebuilt every step, over every tile of every image.
+  std::vector<int32_t> counts_;
   int64_t kept_count(int64_t tile) const;
+  // f(tile, P(tile)) for every tile in order, P as probabilities() documents.
+  template <class F>
+  void each_probability(F&& f) const;
   bool seeded_ = false, dirty_ = true;
 };
 

@@ -5,8 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <sstream>
+#include <string>
 
 #include "test_geometry.h"
 #include "test_util.h"
@@ -105,4 +107,32 @@ TEST(Cli, QuietAndVerboseSetHowMuchOfTheLogShows) {
   // Quiet: only the command's result, the run folder it wrote.
   EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 1) << quiet.output;
   EXPECT_NE(quiet.output.find("run written to"), std::string::npos) << quiet.output;
+}
+
+// On a CPU with AVX2 and FMA, `ablenerf` never runs OpenBLAS's Prescott (SSE3) kernels, which
+// Debian's OpenBLAS 0.3.21 falls back to on CPUs it does not know (kernels/cpu_parallel.h,
+// blas_core_override): started without OPENBLAS_CORETYPE, `bench` reports the kernels in use.
+TEST(Cli, BenchRunsBlasKernelsForTheCpusVectorUnits) {
+#if defined(__x86_64__)
+  __builtin_cpu_init();
+  if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma")) GTEST_SKIP() << "no AVX2/FMA on this CPU";
+  const char* given = std::getenv("OPENBLAS_CORETYPE");
+  const std::string saved = given ? given : "";
+  unsetenv("OPENBLAS_CORETYPE");
+  auto r = test::run_cli("bench --config " + test::source_dir() +
+                         "/configs/demo.toml --rays 8 --steps 1 --warmup 0 --matmul 32 --image 8");
+  if (given) setenv("OPENBLAS_CORETYPE", saved.c_str(), 1);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
+  const std::string core = j["openblas_core"].get<std::string>();
+  if (core.empty()) GTEST_SKIP() << "BLAS without OpenBLAS's runtime dispatch";
+  EXPECT_NE(core, "Prescott");
+  // Either OpenBLAS knew the CPU, or the program restarted itself with a type for it.
+  if (!j["openblas_coretype"].is_null()) {
+    const std::string type = j["openblas_coretype"].get<std::string>();
+    EXPECT_TRUE(type == "Haswell" || type == "SkylakeX") << type;
+  }
+#else
+  GTEST_SKIP() << "x86-64 only";
+#endif
 }
