@@ -20,30 +20,30 @@ ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOption
   tiles_x_ = (width + opt_.tile - 1) / opt_.tile;
   tiles_y_ = (height + opt_.tile - 1) / opt_.tile;
   error_.assign(static_cast<size_t>(images * tiles_x_ * tiles_y_), 0.0);
-  if (!keep.defined()) {
-    counts_.resize(error_.size());
-    for (int64_t t = 0; t < tiles(); ++t) {
-      const TileRect r = tile_rect(t);
-      counts_[static_cast<size_t>(t)] = static_cast<int32_t>(r.height * r.width);
-    }
-    return;
+  torch::Tensor k;
+  if (keep.defined()) {
+    if (keep.dim() != 3 || keep.size(0) != images || keep.size(1) != height || keep.size(2) != width)
+      throw std::invalid_argument("ErrorMap: the mask must be (images, height, width)");
+    k = keep.to(torch::kCPU, torch::kBool).contiguous();
+    kept_start_.assign(error_.size() + 1, 0);
   }
-  if (keep.dim() != 3 || keep.size(0) != images || keep.size(1) != height || keep.size(2) != width)
-    throw std::invalid_argument("ErrorMap: the mask must be (images, height, width)");
-  const auto k = keep.to(torch::kCPU, torch::kBool).contiguous();
-  const bool* kp = k.data_ptr<bool>();
-  kept_start_.assign(error_.size() + 1, 0);
+  const bool* kp = k.defined() ? k.data_ptr<bool>() : nullptr;
+  counts_.resize(error_.size());
   for (int64_t t = 0; t < tiles(); ++t) {
     const TileRect r = tile_rect(t);
+    const auto slot = static_cast<size_t>(t);
+    if (!kp) {
+      counts_[slot] = static_cast<int32_t>(r.height * r.width);
+      continue;
+    }
     for (int64_t dr = 0; dr < r.height; ++dr)
       for (int64_t dc = 0; dc < r.width; ++dc)
         if (kp[(r.image * height_ + r.row + dr) * width_ + r.col + dc])
           kept_.push_back(static_cast<uint16_t>(dr * opt_.tile + dc));
-    kept_start_[static_cast<size_t>(t) + 1] = static_cast<int64_t>(kept_.size());
+    kept_start_[slot + 1] = static_cast<int64_t>(kept_.size());
+    counts_[slot] = static_cast<int32_t>(kept_start_[slot + 1] - kept_start_[slot]);
   }
-  counts_.resize(error_.size());
-  for (size_t t = 0; t < counts_.size(); ++t) counts_[t] = static_cast<int32_t>(kept_start_[t + 1] - kept_start_[t]);
-  if (kept_.empty()) throw std::invalid_argument("ErrorMap: the mask keeps no pixel");
+  if (kp && kept_.empty()) throw std::invalid_argument("ErrorMap: the mask keeps no pixel");
 }
 
 int64_t ErrorMap::kept_count(int64_t t) const { return counts_[static_cast<size_t>(t)]; }
