@@ -45,12 +45,22 @@ GridEmbeddingImpl::GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, 
   resolution_ = register_buffer("resolution", torch::tensor(res));
 }
 
+torch::Tensor GridEmbeddingImpl::unit_coordinates(const torch::Tensor& mean) const {
+  return ((mean.to(torch::kFloat).reshape({-1, 3}) - cube_.lo) / (cube_.hi - cube_.lo)).contiguous();
+}
+
+torch::Tensor GridEmbeddingImpl::inside(const torch::Tensor& mean) const {
+  const auto unit = unit_coordinates(mean);
+  auto lead = mean.sizes().vec();
+  lead.pop_back();
+  return ((unit >= 0) & (unit <= 1)).all(-1).reshape(lead);
+}
+
 torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov) {
   const double side = cube_.hi - cube_.lo;
   auto lead = mean.sizes().vec();
   lead.pop_back();
-  const auto m = mean.to(torch::kFloat).reshape({-1, 3});
-  const auto unit = ((m - cube_.lo) / side).contiguous();
+  const auto unit = unit_coordinates(mean);
   const auto inside = ((unit >= 0) & (unit <= 1)).all(-1, /*keepdim=*/true);  // (N,1)
   // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
   const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);

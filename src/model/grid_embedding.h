@@ -40,6 +40,8 @@ class GridEmbeddingImpl : public torch::nn::Module {
   GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, double lr_scale);
   // Gaussians (mean, cov: (..., 3), cov the diagonal) -> features (..., levels * features).
   torch::Tensor forward(const torch::Tensor& mean, const torch::Tensor& cov);
+  // Whether each point (..., 3) lies in the grid's cube (faces included) -> (...) bool.
+  torch::Tensor inside(const torch::Tensor& mean) const;
   int64_t width() const { return int64_t{shape_.levels} * shape_.features; }
   const HashGridShape& shape() const { return shape_; }
   // The table as the lookup reads it: (levels, table_size, features).
@@ -52,6 +54,9 @@ class GridEmbeddingImpl : public torch::nn::Module {
   HashGridShape shape_;
   GridCube cube_;
   double lr_scale_;
+  // The points (N,3) in the cube's unit coordinates.
+  torch::Tensor unit_coordinates(const torch::Tensor& mean) const;
+
   torch::Tensor table_;       // the parameter: the table / lr_scale
   torch::Tensor resolution_;  // (levels) cells per side, a buffer for the weights
 };

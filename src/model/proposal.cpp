@@ -41,7 +41,10 @@ ProposalImpl::ProposalImpl(const ModelConfig& cfg, GridCube cube) : samples_(cfg
 torch::Tensor ProposalImpl::density(const Gaussians& g) {
   const auto features = grid_(g.mean, g.cov);
   const auto logit = out_(torch::relu(hidden_(features.to(hidden_->weight.dtype())))).squeeze(-1);
-  return torch::exp(logit.to(torch::kFloat).clamp_max(kMaxLogDensity));
+  // No density outside the grid's cube: there the grid reads zeros and the field would give every
+  // point one learned constant, a fog in front of a bounded scene's objects (docs/MODEL.md, "Proposal
+  // sampling", item 1).
+  return torch::exp(logit.to(torch::kFloat).clamp_max(kMaxLogDensity)) * grid_->inside(g.mean);
 }
 
 }  // namespace ablenerf

@@ -12,7 +12,8 @@
 //
 // The field: a multiresolution hash grid (model/grid_embedding.h, anti-aliased as the front end's,
 // proposal_levels levels up to proposal_max_resolution cells) -> Linear(16) -> ReLU -> Linear(1) ->
-// density exp(x), in the sample space of the scene (contracted or NDC as the front end's grid).
+// density exp(x), in the sample space of the scene (contracted or NDC as the front end's grid), and
+// zero outside the grid's cube.
 // Densities count per unit of the normalised ray coordinate s in [0, 1] (model/contraction.h for
 // unbounded scenes; (t - near) / (far - near) otherwise), so the field's scale does not depend on
 // the scene's units.

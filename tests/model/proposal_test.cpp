@@ -51,6 +51,23 @@ TEST(Proposal, FencePostsFollowTheWeightsWithAnEvenShare) {
   EXPECT_LE(padded.max().item<double>(), 1.0);
 }
 
+TEST(Proposal, TheFieldHasNoDensityOutsideTheGridsCube) {
+  // Outside the cube the grid reads zeros, so the field's MLP alone would give every such point one
+  // learned constant: a fog in front of a bounded scene's objects. The field is zero there.
+  torch::manual_seed(5);
+  Proposal field(test::proposal_model_config(), GridCube{-1.5, 1.5});
+  // Two rays of three points: inside, on a face, just outside, far outside.
+  const auto mean = torch::tensor(
+      {{{0.0, 0.2, -0.4}, {1.5, 0.0, 0.0}, {1.51, 0.0, 0.0}}, {{-0.3, 1.49, 0.0}, {0.0, 0.0, -1.6}, {3.0, -3.0, 3.0}}},
+      torch::kFloat);
+  const auto density = field->density({mean, torch::full({2, 3, 3}, 1e-4, torch::kFloat)});
+  ASSERT_EQ(density.sizes(), (std::vector<int64_t>{2, 3}));
+  for (const auto& at : {std::pair{0, 0}, std::pair{0, 1}, std::pair{1, 0}})
+    EXPECT_GT(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second;
+  for (const auto& at : {std::pair{0, 2}, std::pair{1, 1}, std::pair{1, 2}})
+    EXPECT_EQ(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second;
+}
+
 TEST(Proposal, TheModelDrawsItsCoarseSamplesFromTheField) {
   torch::manual_seed(2);
   AbleNerf model(test::proposal_model_config());
