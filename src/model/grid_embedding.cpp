@@ -49,11 +49,12 @@ torch::Tensor GridEmbeddingImpl::unit_coordinates(const torch::Tensor& mean) con
   return ((mean.to(torch::kFloat).reshape({-1, 3}) - cube_.lo) / (cube_.hi - cube_.lo)).contiguous();
 }
 
+torch::Tensor GridEmbeddingImpl::in_unit_cube(const torch::Tensor& unit) { return ((unit >= 0) & (unit <= 1)).all(-1); }
+
 torch::Tensor GridEmbeddingImpl::inside(const torch::Tensor& mean) const {
-  const auto unit = unit_coordinates(mean);
   auto lead = mean.sizes().vec();
   lead.pop_back();
-  return ((unit >= 0) & (unit <= 1)).all(-1).reshape(lead);
+  return in_unit_cube(unit_coordinates(mean)).reshape(lead);
 }
 
 torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov) {
@@ -61,7 +62,7 @@ torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch:
   auto lead = mean.sizes().vec();
   lead.pop_back();
   const auto unit = unit_coordinates(mean);
-  const auto inside = ((unit >= 0) & (unit <= 1)).all(-1, /*keepdim=*/true);  // (N,1)
+  const auto inside = in_unit_cube(unit).unsqueeze(-1);  // (N,1)
   // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
   const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
   // The lookup is linear in the table: scaling its output by lr_scale reads table(), without

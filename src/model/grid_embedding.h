@@ -54,8 +54,9 @@ class GridEmbeddingImpl : public torch::nn::Module {
   HashGridShape shape_;
   GridCube cube_;
   double lr_scale_;
-  // The points (N,3) in the cube's unit coordinates.
+  // The points (N,3) in the cube's unit coordinates, and whether each lies in [0, 1]^3 -> (N) bool.
   torch::Tensor unit_coordinates(const torch::Tensor& mean) const;
+  static torch::Tensor in_unit_cube(const torch::Tensor& unit);
 
   torch::Tensor table_;       // the parameter: the table / lr_scale
   torch::Tensor resolution_;  // (levels) cells per side, a buffer for the weights
