@@ -46,8 +46,6 @@ const ThreadControl& omp_threads() {
 
 // Set in the threads of a running parallel_slices: nested calls stay serial.
 thread_local bool t_in_worker = false;
-// The slice this thread runs (parallel_slice_index()).
-thread_local int64_t t_slice = 0;
 
 // LibTorch's thread count before a SerialIntraOp on this thread took it to 1 (0 outside one): it
 // still counts in the thread budget, so the ray split inside such a scope keeps its threads.
@@ -61,20 +59,13 @@ thread_local int t_held_threads = 0;
 // held to one thread (docs/BENCHMARKS.md, "One OpenMP team per slice").
 class WorkerScope {
  public:
-  explicit WorkerScope(int64_t slice) : previous_(t_in_worker), previous_slice_(t_slice) {
-    t_in_worker = true;
-    t_slice = slice;
-  }
-  ~WorkerScope() {
-    t_in_worker = previous_;
-    t_slice = previous_slice_;
-  }
+  WorkerScope() : previous_(t_in_worker) { t_in_worker = true; }
+  ~WorkerScope() { t_in_worker = previous_; }
   WorkerScope(const WorkerScope&) = delete;
   WorkerScope& operator=(const WorkerScope&) = delete;
 
  private:
   bool previous_;
-  int64_t previous_slice_;
   SerialIntraOp serial_;
 };
 
@@ -147,8 +138,6 @@ std::string blas_core_override() {
 
 bool flush_subnormals() { return at::globalContext().setFlushDenormal(true); }
 
-int64_t parallel_slice_index() { return t_slice; }
-
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t, int64_t, int64_t)>& fn) {
   workers = std::max<int64_t>(1, std::min(workers, n));
   if (workers == 1) {
@@ -162,7 +151,7 @@ void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_
   std::exception_ptr error;
   const auto run = [&](int64_t w) {
     try {
-      const WorkerScope scope(w);
+      const WorkerScope scope;
       fn(w, n * w / workers, n * (w + 1) / workers);
     } catch (...) {
       const std::lock_guard<std::mutex> lock(error_mutex);

@@ -91,8 +91,4 @@ std::string blas_core_override();
 // after every thread has finished. W == 1 calls fn(0, 0, n) directly, BLAS untouched.
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn);
 
-// The slice w the calling thread is running for the innermost parallel_slices around it, 0 outside
-// one: state that a slice writes (a gradient buffer per slice, model/grid_embedding.h) is picked by it.
-int64_t parallel_slice_index();
-
 }  // namespace ablenerf

@@ -53,17 +53,11 @@ HashGridShape shape_of(const torch::Tensor& table, const std::vector<int64_t>& r
   return s;
 }
 
-// The optional gradient sink, wrapped: LibTorch 1.13's Function::apply refuses an undefined tensor
-// argument, and a wrapped one is passed through as a plain value.
-struct Sink {
-  torch::Tensor tensor;
-};
-
 // Saved for backward: the positions (the rows and weights are recomputed) and the resolutions.
 class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
  public:
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& positions,
-                               const torch::Tensor& table, const std::vector<int64_t>& res, const Sink& grad_sink) {
+                               const torch::Tensor& table, const std::vector<int64_t>& res) {
     const HashGridShape s = shape_of(table, res);
     const int64_t n = positions.size(0);
     auto out = torch::empty({n, s.levels, s.features}, table.options());
@@ -80,7 +74,6 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     }
     ctx->save_for_backward({positions, table});
     ctx->saved_data["res"] = res;
-    if (grad_sink.tensor.defined()) ctx->saved_data["sink"] = grad_sink.tensor;
     return out;
   }
 
@@ -95,10 +88,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     // The positions' gradient only where something upstream asks for it (camera refinement); the
     // table's whenever the table trains.
     if (ctx->needs_input_grad(0)) grad_positions = torch::empty_like(positions);
-    // The table's gradient goes to the sink when there is one (added to it), else to a fresh
-    // dense tensor that autograd accumulates.
-    const auto sink = ctx->saved_data.count("sink") ? ctx->saved_data["sink"].toTensor() : torch::Tensor();
-    if (ctx->needs_input_grad(1)) grad_table = sink.defined() ? sink : torch::zeros_like(table);
+    if (ctx->needs_input_grad(1)) grad_table = torch::zeros_like(table);
     if (positions.is_cpu()) {
       if (grad_table.defined())
         hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, grad_table.data_ptr<float>());
@@ -118,7 +108,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
                                                            stream));
 #endif
     }
-    return {grad_positions, sink.defined() ? torch::Tensor() : grad_table, torch::Tensor(), torch::Tensor()};
+    return {grad_positions, grad_table, torch::Tensor()};
   }
 };
 
@@ -143,17 +133,9 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
   return s;
 }
 
-torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
-                               const torch::Tensor& grad_sink) {
+torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape) {
   check_inputs(positions, table, shape);
-  if (grad_sink.defined()) {
-    TORCH_CHECK(grad_sink.sizes() == table.sizes() && grad_sink.device() == table.device(), kOp,
-                ": grad_sink must be shaped and placed as the table, got ", grad_sink.sizes(), " on ",
-                grad_sink.device());
-    kernel_checks::dtype(kOp, "grad_sink", grad_sink, torch::kFloat);
-    kernel_checks::contiguous(kOp, "grad_sink", grad_sink);
-  }
-  return HashGridFunction::apply(positions, table, resolutions(shape), Sink{grad_sink});
+  return HashGridFunction::apply(positions, table, resolutions(shape));
 }
 
 torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,

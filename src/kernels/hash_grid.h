@@ -24,13 +24,7 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 // gradient is added level by level, points in order: no lock, the same sums every run); CUDA tensors the
 // kernels (atomic adds), or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
 // argument on bad input.
-//
-// grad_sink (optional): a float32 tensor of the table's shape on its device. When given, the
-// backward adds the table's gradient into it and hands autograd none for the table (its .grad is
-// not written): a training step that keeps one such buffer per CPU slice skips the dense tensor
-// autograd would allocate, zero and add per lookup (model/grid_embedding.h, keep_gradient).
-torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
-                               const torch::Tensor& grad_sink = {});
+torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape);
 
 // The same in plain LibTorch ops (index_select and products; autograd gives the table's and the
 // positions' gradients),

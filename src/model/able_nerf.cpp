@@ -93,13 +93,6 @@ void AbleNerfImpl::set_frequency_window(double alpha) {
   band_alpha_ = alpha;
 }
 
-std::vector<GridEmbeddingImpl*> AbleNerfImpl::grids() {
-  std::vector<GridEmbeddingImpl*> out;
-  if (grid_) out.push_back(grid_.get());
-  if (proposal_) out.push_back(&proposal_->grid());
-  return out;
-}
-
 int64_t AbleNerfImpl::cpu_ray_workers(int64_t rays, bool draws_randomness) const {
   if (!ray_token_.device().is_cpu() || compute_.cpu_split != CpuSplit::Rays || draws_randomness) return 1;
   return ray_workers(rays);

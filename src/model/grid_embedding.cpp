@@ -2,7 +2,6 @@
 
 #include <cmath>
 
-#include "kernels/cpu_parallel.h"
 #include "kernels/hash_grid.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
@@ -68,70 +67,10 @@ torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch:
   const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
   // The lookup is linear in the table: scaling its output by lr_scale reads table(), without
   // materialising the scaled table.
-  const auto weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;  // (N,L)
-  torch::Tensor sink;
-  if (!slots_.empty() && torch::GradMode::is_enabled() && table_.requires_grad()) {
-    const auto slice = static_cast<size_t>(parallel_slice_index());
-    TORCH_CHECK(slice < slots_.size(), "grid: ray slice ", slice, " has no gradient buffer (", slots_.size(), " kept)");
-    sink = slots_[slice];
-  }
-  const auto features = hash_grid_encode(unit, table_, shape_, sink) * weights.unsqueeze(-1);  // (N,L,F)
+  const auto weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;     // (N,L)
+  const auto features = hash_grid_encode(unit, table_, shape_) * weights.unsqueeze(-1);  // (N,L,F)
   lead.push_back(width());
   return features.reshape(lead);
-}
-
-void GridEmbeddingImpl::keep_gradient(int64_t slots) {
-  TORCH_CHECK(slots >= 0, "grid: keep_gradient needs slots >= 0");
-  slots_.clear();
-  grad_ = torch::Tensor();
-  if (slots == 0) return;
-  TORCH_CHECK(table_.is_cpu() && table_.scalar_type() == torch::kFloat,
-              "grid: keep_gradient is the CPU float32 step's path");
-  for (int64_t i = 0; i < slots; ++i) slots_.push_back(torch::zeros_like(table_));
-}
-
-torch::Tensor GridEmbeddingImpl::take_gradient(double decay) {
-  TORCH_CHECK(keeps_gradient(), "grid: take_gradient without keep_gradient");
-  torch::NoGradGuard no_grad;
-  auto& grad = table_.mutable_grad();
-  const bool add = grad.defined();  // something else wrote a gradient first: add to it
-  if (!add) {
-    if (!grad_.defined()) grad_ = torch::empty_like(table_);
-    grad = grad_;
-  }
-  TORCH_CHECK(grad.is_contiguous() && grad.scalar_type() == torch::kFloat,
-              "grid: the table's .grad is not dense float32");
-  const int64_t n = table_.numel(), k = static_cast<int64_t>(slots_.size());
-  std::vector<float*> slot(static_cast<size_t>(k));
-  for (int64_t s = 0; s < k; ++s) slot[static_cast<size_t>(s)] = slots_[static_cast<size_t>(s)].data_ptr<float>();
-  const float* w = table_.data_ptr<float>();
-  float* g = grad.data_ptr<float>();
-  const float two_decay = static_cast<float>(2 * decay);
-  // Element by element (the slots added in slice order, as the step's other gradients are); the
-  // squared norm in double per worker, the workers' sums added in order.
-  constexpr int64_t kElementsPerTask = 1 << 16;
-  const int64_t workers = cpu_workers(n, kElementsPerTask);
-  std::vector<double> norm(static_cast<size_t>(workers), 0.0);
-  parallel_slices(n, workers, [&](int64_t worker, int64_t lo, int64_t hi) {
-    double sq = 0;
-    for (int64_t j = lo; j < hi; ++j) {
-      float sum = slot[0][j];
-      slot[0][j] = 0.f;
-      for (int64_t s = 1; s < k; ++s) {
-        sum += slot[static_cast<size_t>(s)][j];
-        slot[static_cast<size_t>(s)][j] = 0.f;
-      }
-      if (decay != 0) {  // the table itself is read only for the decay
-        sum += two_decay * w[j];
-        sq += double(w[j]) * w[j];
-      }
-      g[j] = add ? g[j] + sum : sum;
-    }
-    norm[static_cast<size_t>(worker)] = sq;
-  });
-  double total = 0;
-  for (const double v : norm) total += v;
-  return torch::tensor(static_cast<float>(decay * total));
 }
 
 }  // namespace ablenerf

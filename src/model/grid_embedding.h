@@ -16,8 +16,6 @@
 // and schedule of the project applies unchanged.
 #include <torch/torch.h>
 
-#include <vector>
-
 #include "kernels/hash_grid_shape.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
@@ -52,19 +50,6 @@ class GridEmbeddingImpl : public torch::nn::Module {
   const torch::Tensor& table_parameter() const { return table_; }
   double lr_scale() const { return lr_scale_; }
 
-  // The CPU training step's fast path for the table's gradient (keep_gradient(slots), slots > 0; 0
-  // = off, the default: autograd writes the table's .grad as for any parameter). Each lookup's
-  // backward adds into a table-sized buffer of the ray slice it ran in (kernels/cpu_parallel.h,
-  // parallel_slice_index), and take_gradient() then writes, in one pass over the table, the sum of
-  // the slots plus the gradient of decay x the parameter's squared norm into the parameter's .grad,
-  // zeroes the slots and returns decay x the squared norm (0-d, float32). Why: autograd gives each
-  // of a step's lookups (coarse and fine, per slice) a fresh dense gradient that is zeroed, scattered
-  // into, added to the others and then decayed, five passes over a table of 2^16 rows per level
-  // where this makes one (docs/BENCHMARKS.md, "The table's gradient in one pass").
-  void keep_gradient(int64_t slots);
-  bool keeps_gradient() const { return !slots_.empty(); }
-  torch::Tensor take_gradient(double decay);
-
  private:
   HashGridShape shape_;
   GridCube cube_;
@@ -73,10 +58,8 @@ class GridEmbeddingImpl : public torch::nn::Module {
   torch::Tensor unit_coordinates(const torch::Tensor& mean) const;
   static torch::Tensor in_unit_cube(const torch::Tensor& unit);
 
-  torch::Tensor table_;               // the parameter: the table / lr_scale
-  torch::Tensor resolution_;          // (levels) cells per side, a buffer for the weights
-  std::vector<torch::Tensor> slots_;  // keep_gradient's per-slice buffers (not module state)
-  torch::Tensor grad_;                // the .grad take_gradient writes, reused across steps
+  torch::Tensor table_;       // the parameter: the table / lr_scale
+  torch::Tensor resolution_;  // (levels) cells per side, a buffer for the weights
 };
 TORCH_MODULE(GridEmbedding);
 

@@ -44,7 +44,6 @@ class ProposalImpl : public torch::nn::Module {
   // Densities (B,N) of the interval Gaussians (mean, cov: (B,N,3)).
   torch::Tensor density(const Gaussians& g);
   int64_t samples() const { return samples_; }
-  GridEmbeddingImpl& grid() { return *grid_; }
 
  private:
   int64_t samples_;

@@ -150,21 +150,11 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       }
     }
   }
-  // The decays once per step, this process's share of them (ranks add their gradients): the front
-  // end's table's, in the same pass that writes a grid's kept gradient into its .grad
-  // (GridEmbeddingImpl::keep_gradient, the trainer's CPU path),
+  // The decays once per step, this process's share of them (ranks add their gradients): the table's,
   const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
-  for (GridEmbeddingImpl* grid : model->grids()) {
-    const bool decays = tc.grid_decay > 0 && grid == model->grid();
-    const double coeff =
-        decays ? grid_decay_coefficient(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share) : 0.0;
-    if (grid->keeps_gradient()) {
-      const auto value = grid->take_gradient(coeff);
-      if (decays) add_decay(kTermGridDecay, value);
-    } else if (decays) {
-      add_decay(kTermGridDecay,
-                add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share));
-    }
+  if (tc.grid_decay > 0 && model->grid()) {
+    const auto& grid = model->grid();
+    add_decay(kTermGridDecay, add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share));
   }
   // and the photo colour maps', appearance codes' and camera corrections': each weight times the mean
   // over photos of the squared deviation from the identity.

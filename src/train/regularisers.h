@@ -39,8 +39,6 @@ torch::Tensor grid_weight_decay(const torch::Tensor& table);
 // model's largest tensor (2^19 rows in the capture preset) and those passes were a fifth of a CPU
 // step. Returns the term's value (0-d, param's dtype); no graph is recorded.
 torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight);
-// That coefficient, weight * scale^2 / (rows * features): the decay is coefficient * sum(param^2).
-double grid_decay_coefficient(const torch::Tensor& param, double scale, double weight);
 
 // weight x the mean over param's first dimension of its rows' squared norms (the per-photo colour
 // maps and camera corrections, each row one photo's), its gradient added straight into param's .grad

@@ -7,7 +7,6 @@
 #include <stdexcept>
 
 #include "data/load_options.h"
-#include "kernels/cpu_parallel.h"
 #include "model/compute.h"
 #include "train/distributed.h"
 #include "train/trainer_state.h"
@@ -125,10 +124,6 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
       throw InputError(config_.source, "train.appearance_code", e.what());
     }
   }
-  // On the CPU each ray slice's lookups add the tables' gradients into a buffer of their own, written
-  // into .grad once per step (model/grid_embedding.h, keep_gradient).
-  if (opts_.device.is_cpu())
-    for (GridEmbeddingImpl* grid : s.model->grids()) grid->keep_gradient(cpu_thread_budget());
   const bool device_form = opts_.dist == nullptr && Adam::device_form_available(opts_.device);
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
                                   AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});

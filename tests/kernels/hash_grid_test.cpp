@@ -2,7 +2,7 @@
 // against their closed forms, exactness on a field that is linear inside a cell, the CPU loops
 // against the plain LibTorch reference (values, the table's and the positions' gradients), the
 // reference's gradient against finite differences, the loops' gradient the same with one thread and with several, and
-// the input checks; every row width the loops are compiled for; the gradient sink in autograd's place.
+// the input checks; every row width the loops are compiled for.
 #include <gtest/gtest.h>
 
 #include <ATen/Parallel.h>
@@ -203,27 +203,6 @@ TEST(HashGrid, GradientIsTheSameOnAnyThreadCount) {
   }
   at::set_num_threads(before);
   EXPECT_TRUE(torch::equal(grads[0], grads[1]));
-}
-
-// With a gradient sink the table's gradient is added into it (what it held stays), equal to the
-// reference's, and autograd writes no .grad for the table.
-TEST(HashGrid, SinkReceivesTheTablesGradientInsteadOfAutograd) {
-  const HashGridShape s = mixed_shape();
-  const auto p = points(400, 15);
-  const auto table = table_for(s, 16);
-  const auto g = test::seeded_randn({p.size(0), s.levels, s.features}, 17).to(torch::kFloat);
-  const auto before = test::seeded_randn({s.levels, s.table_size, s.features}, 18).to(torch::kFloat);
-  auto sink = before.clone();
-  auto t1 = table.clone().requires_grad_(), t2 = table.clone().requires_grad_();
-  const auto got = hash_grid_encode(p, t1, s, sink), want = hash_grid_encode_reference(p, t2, s);
-  EXPECT_LT(test::max_abs(got - want), 1e-5);
-  got.backward(g);
-  want.backward(g);
-  EXPECT_FALSE(t1.grad().defined());
-  EXPECT_LT(test::max_abs(sink - before - t2.grad()), 1e-4);
-  EXPECT_GT(test::max_abs(t2.grad()), 0.1);
-  test::expect_error_naming([&] { hash_grid_encode(p, t1, s, sink.slice(1, 0, 64).contiguous()); }, "grad_sink");
-  test::expect_error_naming([&] { hash_grid_encode(p, t1, s, sink.to(torch::kDouble)); }, "grad_sink");
 }
 
 TEST(HashGrid, BadInputsAreRefusedNamingTheArgument) {

@@ -2,13 +2,12 @@
 // form, the features of a Gaussian as the grid's interpolation at its mean times those weights
 // (computed here independently, in float64), zeros outside the cube, the cube of each scene kind,
 // and the assembled model with model.embedding = "grid": its table, its gradient, the paper's model
-// untouched, and the release's weights refused for it; the table's gradient kept per ray slice.
+// untouched, and the release's weights refused for it.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include <cmath>
 
-#include "kernels/cpu_parallel.h"
 #include "kernels/hash_grid.h"
 #include "model/able_nerf.h"
 #include "model/grid_embedding.h"
@@ -129,43 +128,6 @@ TEST(GridEmbedding, ModelWithTheGridTrainsItsTable) {
   AbleNerf paper(ipe);
   EXPECT_FALSE(paper->named_parameters().contains("grid.table"));
   EXPECT_EQ(paper->named_parameters()["volume_embedding.linear0.weight"].size(1), 6 * ipe.ipe_degrees);
-}
-
-// keep_gradient: two ray slices, run side by side, each add their lookups' table gradient into a
-// buffer of their own; take_gradient writes their sum plus the decay's gradient (2 decay x table)
-// into .grad, returns decay x the squared norm and leaves the buffers at zero. Against plain
-// autograd on the same lookups.
-TEST(GridEmbedding, KeptGradientIsTheSlicesSumPlusTheDecay) {
-  torch::manual_seed(9);
-  const HashGridShape shape = hash_grid_shape(3, 2, 7, 2, 16);
-  GridEmbedding kept(shape, GridCube{-1, 1}, 3.0), plain(shape, GridCube{-1, 1}, 3.0);
-  torch::NoGradGuard no_grad;
-  plain->table_parameter().copy_(kept->table_parameter());
-  auto gen = at::detail::createCPUGenerator(10);
-  const auto mean = (torch::rand({2, 64, 3}, gen) * 2.2 - 1.1).to(torch::kFloat);  // some outside the cube
-  const auto cov = (torch::rand({2, 64, 3}, gen) * 1e-3).to(torch::kFloat);
-  const auto weight = torch::randn({2, 64, kept->width()}, gen).to(torch::kFloat);
-  const double decay = 0.25;
-  kept->keep_gradient(2);
-  {
-    torch::AutoGradMode grad(true);
-    for (int pass = 0; pass < 2; ++pass)  // two lookups per slice, as a coarse and a fine pass
-      parallel_slices(
-          2, 2, [&](int64_t w, int64_t, int64_t) { (kept->forward(mean[w], cov[w]) * weight[w]).sum().backward(); });
-    EXPECT_FALSE(kept->table_parameter().grad().defined());
-    for (int pass = 0; pass < 2; ++pass)
-      for (int64_t w = 0; w < 2; ++w) (plain->forward(mean[w], cov[w]) * weight[w]).sum().backward();
-  }
-  const auto& t = plain->table_parameter();
-  const auto value = kept->take_gradient(decay);
-  const auto want = plain->table_parameter().grad() + 2 * decay * t;
-  EXPECT_LT((kept->table_parameter().grad() - want).abs().max().item<double>(), 1e-4);
-  EXPECT_GT(plain->table_parameter().grad().abs().max().item<double>(), 0.1);
-  EXPECT_NEAR(value.item<double>(), decay * t.pow(2).sum().item<double>(), 1e-6 * t.pow(2).sum().item<double>());
-  // The buffers are empty again: the next step's gradient is only its own.
-  kept->table_parameter().mutable_grad() = torch::Tensor();
-  kept->take_gradient(0.0);
-  EXPECT_EQ(kept->table_parameter().grad().abs().max().item<double>(), 0.0);
 }
 
 TEST(GridEmbedding, ReleaseWeightsAreRefusedForAGridModel) {

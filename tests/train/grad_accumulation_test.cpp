@@ -117,56 +117,6 @@ TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
   EXPECT_GT(std::abs(accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0).loss.item<double>() - ref_loss), 1e-9);
 }
 
-TEST(GradAccumulation, KeptTableGradientsEqualAutogradsWithTheDecay) {
-  // The trainer's CPU path keeps the grids' table gradients per ray slice and writes them, with the
-  // front end's decay, into .grad once per step (model/grid_embedding.h, keep_gradient): every
-  // parameter's gradient and the loss's terms as with autograd's own accumulation (float32, so
-  // summation order separates them), over micro-batches and the ray split.
-  const test::IntraOpThreads threads(2);
-  ModelConfig cfg = test::proposal_model_config();
-  cfg.embedding = Embedding::Grid;
-  cfg.grid_levels = 4;
-  cfg.grid_log2_table = 10;
-  cfg.grid_max_resolution = 64;
-  torch::manual_seed(31);
-  AbleNerf model(cfg);
-  model->train();
-  Compute compute;
-  compute.cpu_split = CpuSplit::Rays;
-  model->set_compute(compute);
-  TrainConfig tc;
-  tc.grid_decay = 0.7;
-  const int64_t n = 48;
-  auto gen = at::detail::createCPUGenerator(32);
-  const RayBatch batch{test::random_rays(n, 33, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
-  const auto step = [&](std::vector<torch::Tensor>* grads) {
-    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
-    const StepSums s = accumulate_gradients(model, batch, 16, tc, n, 2.0, 6.0);
-    for (auto& p : model->parameters()) grads->push_back(p.grad().defined() ? p.grad().clone() : torch::Tensor());
-    return s;
-  };
-  std::vector<torch::Tensor> plain, kept;
-  const StepSums a = step(&plain);
-  ASSERT_EQ(model->grids().size(), 2u);
-  for (GridEmbeddingImpl* grid : model->grids()) grid->keep_gradient(std::max<int64_t>(2, cpu_thread_budget()));
-  const StepSums b = step(&kept);
-  EXPECT_NEAR(b.loss.item<double>(), a.loss.item<double>(), 1e-6 * a.loss.item<double>());
-  EXPECT_NEAR(b.terms[kTermGridDecay].item<double>(), a.terms[kTermGridDecay].item<double>(),
-              1e-5 * a.terms[kTermGridDecay].item<double>());
-  EXPECT_GT(a.terms[kTermGridDecay].item<double>(), 0);
-  const auto names = model->named_parameters().keys();
-  for (size_t i = 0; i < plain.size(); ++i) {
-    ASSERT_EQ(plain[i].defined(), kept[i].defined()) << names[i];
-    if (!plain[i].defined()) continue;
-    const double scale = plain[i].abs().max().item<double>();
-    EXPECT_LT((kept[i] - plain[i]).abs().max().item<double>(), 1e-5 * (1 + scale)) << names[i];
-  }
-  // Both tables had gradients to keep.
-  const auto params = model->named_parameters();
-  EXPECT_GT(params["grid.table"].grad().abs().max().item<double>(), 0);
-  EXPECT_GT(params["proposal.grid.table"].grad().abs().max().item<double>(), 0);
-}
-
 TEST(GradAccumulation, ReportedFineMseIsTheBatchMse) {
   torch::manual_seed(9);
   AbleNerf model(test::two_head_model());
