@@ -1,6 +1,11 @@
 // An LLFF capture: poses_bounds.npy (N x 17: a 3x5 matrix per image, the pose in LLFF's
 // [down, right, backwards] axes plus a column [height, width, focal], then the near and far depth of
 // the scene in that image) and the images of ROOT/images/ in name order. Torch-free.
+//
+// LLFF's own release (nerf_llff_data) also ships minified copies in images_N/ named image000.png,
+// image001.png, ... while images/ keeps the camera's names: NeRF's load_llff pairs the rows with the
+// copies in sorted order, and so does this reader when no copy shares a photo's stem. A capture with
+// only images_N/ (no full-size photos) loads at data.downscale = N, the camera from the npy's size.
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -26,13 +31,31 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   if (a.shape.size() != 2 || a.shape[1] != kLlffColumns || a.shape[0] < 1)
     throw InputError(file, "shape", "expected (N, 17) poses and bounds");
   const int64_t n = a.shape[0];
-  const fs::path dir = fs::path(root) / "images";
-  if (!fs::is_directory(dir)) throw InputError(root, "images", "folder not found (LLFF keeps its images in images/)");
+  const std::string copies_name = "images_" + std::to_string(downscale);
+  const fs::path dir = fs::path(root) / "images", copies = fs::path(root) / copies_name;
+  const bool have_copies = downscale > 1 && fs::is_directory(copies);
+  const bool copies_only = !fs::is_directory(dir) && have_copies;
+  if (!fs::is_directory(dir) && !copies_only)
+    throw InputError(root, "images",
+                     "folder not found (LLFF keeps its images in images/, or only their copies in images_N/ "
+                     "for data.downscale = N)");
+  const fs::path listed = copies_only ? copies : dir;
   std::vector<std::string> names;
-  for (const auto& f : image_files(dir.string())) names.push_back(fs::path(f).filename().string());
+  for (const auto& f : image_files(listed.string())) names.push_back(fs::path(f).filename().string());
   if (static_cast<int64_t>(names.size()) != n)
-    throw InputError(file, "shape",
-                     std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + dir.string());
+    throw InputError(
+        file, "shape",
+        std::to_string(n) + " poses but " + std::to_string(names.size()) + " images in " + listed.string());
+  // The copies paired by sorted order (LLFF's release naming) when none shares the first photo's stem.
+  std::vector<std::string> copies_by_order;
+  if (have_copies && !copies_only) {
+    std::vector<std::string> c;
+    for (const auto& f : image_files(copies.string())) c.push_back(fs::path(f).filename().string());
+    const std::string stem0 = fs::path(names.front()).stem().string();
+    const bool shared =
+        std::any_of(c.begin(), c.end(), [&](const std::string& x) { return fs::path(x).stem() == stem0; });
+    if (!shared && static_cast<int64_t>(c.size()) == n) copies_by_order = std::move(c);
+  }
   out.format = "llff";
   std::vector<CaptureFrame> frames;
   for (int64_t i = 0; i < n; ++i) {
@@ -55,29 +78,47 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
     CaptureFrame fr;
     fr.field = where;
     fr.pose = checked_pose(c2w, file, where);
-    fr.image = resolve_in_root(root, "images/" + names[static_cast<size_t>(i)], file, where);
-    // The npy's size is the one the poses were computed at; the stored images may be another
-    // (LLFF ships full-size photos): the camera follows the image.
-    const auto hw = image_size(fr.image);
-    const double s = static_cast<double>(hw.second) / w;
-    fr.camera.width = hw.second;
-    fr.camera.height = hw.first;
-    fr.camera.fx = fr.camera.fy = f * s;
-    fr.camera.cx = 0.5 * hw.second;
-    fr.camera.cy = 0.5 * hw.first;
-    if (std::abs(h * s - hw.first) > 1.0)
-      throw InputError(fr.image, where, "aspect ratio differs from the npy's height and width");
+    const std::string name = names[static_cast<size_t>(i)];
+    if (copies_only) {
+      // No full-size photo: the camera at the npy's size, the copy decoded as it is (the dataset
+      // checks that it is that size / N).
+      fr.image = resolve_in_root(root, copies_name + "/" + name, file, where);
+      fr.prescaled = true;
+      fr.camera.width = static_cast<int>(std::lround(w));
+      fr.camera.height = static_cast<int>(std::lround(h));
+      fr.camera.fx = fr.camera.fy = f;
+      fr.camera.cx = 0.5 * w;
+      fr.camera.cy = 0.5 * h;
+    } else {
+      fr.image = resolve_in_root(root, "images/" + name, file, where);
+      // The npy's size is the one the poses were computed at; the stored images may be another
+      // (LLFF ships full-size photos): the camera follows the image.
+      const auto hw = image_size(fr.image);
+      const double s = static_cast<double>(hw.second) / w;
+      fr.camera.width = hw.second;
+      fr.camera.height = hw.first;
+      fr.camera.fx = fr.camera.fy = f * s;
+      fr.camera.cx = 0.5 * hw.second;
+      fr.camera.cy = 0.5 * hw.first;
+      if (std::abs(h * s - hw.first) > 1.0)
+        throw InputError(fr.image, where, "aspect ratio differs from the npy's height and width");
+    }
     if (frames.empty()) {
-      out.width = hw.second, out.height = hw.first;
-    } else if (hw.second != out.width || hw.first != out.height) {
+      out.width = fr.camera.width, out.height = fr.camera.height;
+    } else if (fr.camera.width != out.width || fr.camera.height != out.height) {
       throw InputError(fr.image, where, "image size differs from the first image's");
     }
     const double near = r[15], far = r[16];
     if (!(near > 0 && far > near)) throw InputError(file, where + ": bounds", "need 0 < near < far");
-    fr.mask = mask_in_folder(root, fr.image, where);
-    fr.mask_field = "masks/";
-    const std::string small = resolve_downscaled(root, fr.image, downscale);
-    if (!small.empty()) fr.image = small, fr.prescaled = true;
+    if (!copies_only) {
+      fr.mask = mask_in_folder(root, fr.image, where);
+      fr.mask_field = "masks/";
+      const std::string small =
+          copies_by_order.empty()
+              ? resolve_downscaled(root, fr.image, downscale)
+              : resolve_in_root(root, copies_name + "/" + copies_by_order[static_cast<size_t>(i)], file, where);
+      if (!small.empty()) fr.image = small, fr.prescaled = true;
+    }
     out.bounds.push_back({near, far});
     frames.push_back(std::move(fr));
   }

@@ -270,6 +270,70 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
   test::expect_input_error([&] { Dataset::load(t.path(), o); }, t / "poses_bounds.npy", "shape", "9 images", true);
 }
 
+// LLFF's release (nerf_llff_data) names its minified copies images_N/image000.png, ... while images/
+// keeps the camera's names (IMG_4026.JPG, ...): NeRF's load_llff pairs the npy's rows with the copies
+// in sorted order. Each copy here has its own value, so a frame's pixels say which copy it got and its
+// rays say which row; then the capture with its copies alone (no images/) loads the same.
+TEST(Captures, LlffReleaseCopiesPairByOrderAndLoadWithoutThePhotos) {
+  test::TempDir t;
+  const int W = 64, H = 48;
+  const auto frames = ring(10, kTarget, kUp);
+  std::vector<double> rows;
+  for (const Frame3& f : frames) {
+    const double hwf[3] = {1.0 * H, 1.0 * W, 50.0};  // the photos' size, as LLFF's release
+    for (int r = 0; r < 3; ++r) {
+      const size_t rr = static_cast<size_t>(r);
+      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
+    }
+    rows.push_back(3.0);
+    rows.push_back(6.0);
+  }
+  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+  const auto copy_value = [](int i) { return 20 + 10 * i; };
+  for (int i = 0; i < 10; ++i) {
+    write_image(t / ("images/IMG_" + std::to_string(4026 + i) + ".png"), W, H, 5);
+    char name[32];
+    std::snprintf(name, sizeof name, "images_2/image%03d.png", i);
+    write_image(t / name, W / 2, H / 2, copy_value(i));
+  }
+  LoadOptions o;
+  o.scene = SceneKind::Bounded;
+  o.downscale = 2;
+  const auto check = [&](const std::string& what) {
+    SCOPED_TRACE(what);
+    const Dataset ds = Dataset::load(t.path(), o);
+    EXPECT_EQ(ds.format, "llff");
+    EXPECT_EQ(ds.intrinsics.width, W / 2);
+    EXPECT_NEAR(ds.intrinsics.fx, 25.0, 1e-9);
+    ASSERT_EQ(ds.split("test").size(), 2);
+    EXPECT_EQ(name_of(ds.split("test"), 0), "image000.png");
+    EXPECT_EQ(name_of(ds.split("test"), 1), "image008.png");
+    const Lens lens{25.0, 25.0, 0.5 * W / 2, 0.5 * H / 2};
+    for (const auto& [sname, split] : ds.splits) {
+      for (int64_t k = 0; k < split.size(); ++k) {
+        const int idx = std::stoi(name_of(split, k).substr(5, 3));
+        EXPECT_NEAR(split.images[k].mean().item<double>(), copy_value(idx) / 255.0, 1e-6);
+        const Frame3& f = frames[static_cast<size_t>(idx)];
+        for (const V3& X : kPoints) {
+          const V3 d = sub3(X, f.eye);
+          const double z = -dot3(d, f.back);
+          const V3 down_axis{-f.up[0], -f.up[1], -f.up[2]};
+          const auto [u, v] = lens.project(dot3(d, f.right) / z, dot3(d, down_axis) / z);
+          expect_ray_hits(ds, split, k, u, v, X, 2e-5, sname + " " + name_of(split, k));
+        }
+      }
+    }
+  };
+  check("images/ and images_2/ named apart");
+  fs::remove_all(t / "images");
+  check("images_2/ alone");
+  // Without the photos, only the copies' own scale loads; any other names the missing images/.
+  o.downscale = 1;
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, t.path(), "images", "images_N/", true);
+  o.downscale = 4;
+  test::expect_input_error([&] { Dataset::load(t.path(), o); }, t.path(), "images", "images_N/", true);
+}
+
 TEST(Captures, NerfstudioFisheyeOwnSplitAndPrescaledCopies) {
   test::TempDir t;
   const int W = 80, H = 60;
@@ -590,12 +654,14 @@ TEST(Captures, RealCapturesWhenPresent) {
     int64_t frames;
     int downscale;
     const char* bounds;
+    SceneKind kind = SceneKind::Unbounded;
   };
   const Want wants[] = {{"fox50", "instant-ngp", 50, 8, "cameras"},
                         {"fox_colmap", "colmap", 67, 2, "points"},
                         {"fox_colmap_txt", "colmap", 67, 2, "points"},
                         {"fox_ns", "nerfstudio", 67, 2, "points"},
-                        {"ethiopianhead_llff", "llff", 66, 8, "llff bounds"}};
+                        {"ethiopianhead_llff", "llff", 66, 8, "llff bounds"},
+                        {"fern_llff", "llff", 20, 8, "llff bounds", SceneKind::ForwardFacing}};
   int found = 0;
   for (const Want& w : wants) {
     const fs::path dir = base / w.dir;
@@ -609,10 +675,11 @@ TEST(Captures, RealCapturesWhenPresent) {
     EXPECT_EQ(ds.split("train").size() + ds.split("test").size(), w.frames);
     EXPECT_EQ(ds.split("test").size(), (w.frames + 7) / 8);
     EXPECT_EQ(ds.scene.bounds_source, w.bounds);
-    EXPECT_EQ(ds.scene.kind, SceneKind::Unbounded);
-    // Every camera inside the unit sphere, the farthest on it.
-    const auto c = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3).norm(2, 1);
-    EXPECT_NEAR(c.max().item<double>(), 1.0, 1e-5);
+    EXPECT_EQ(ds.scene.kind, w.kind);
+    if (w.kind == SceneKind::Unbounded) {  // every camera inside the unit sphere, the farthest on it
+      const auto c = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3).norm(2, 1);
+      EXPECT_NEAR(c.max().item<double>(), 1.0, 1e-5);
+    }
     // Real photos: neither blank nor saturated.
     const double mean = ds.split("train").images.mean().item<double>();
     EXPECT_GT(mean, 0.1);
