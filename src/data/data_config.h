@@ -46,6 +46,9 @@ struct DataConfig {
   double far = 6.0;
   SceneKind scene = SceneKind::Auto;
   bool bounds_from_config = false;  // data.bounds_from_config: use near/far for captures too
+  // data.ndc: whether `auto` may give a forward-facing capture NDC rays (data/scene_frame.h); false
+  // contracts it as an unbounded scene, centred on what its cameras look at.
+  bool ndc = true;
   // Off by default: on the gold cape (object masks) training on the masked pixels only cost 0.8 dB
   // on the object at 15 minutes (docs/BENCHMARKS.md, "The capture preset and the peer").
   MaskSource masks = MaskSource::None;
@@ -58,6 +61,7 @@ struct DataConfig {
     f("far", &far);
     f("scene", &scene);
     f("bounds_from_config", &bounds_from_config);
+    f("ndc", &ndc);
     f("masks", &masks);
   }
 

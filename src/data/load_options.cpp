@@ -11,6 +11,7 @@ LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
   o.far = c.get<DataConfig>().far;
   o.scene = c.get<DataConfig>().scene;
   o.bounds_from_config = c.get<DataConfig>().bounds_from_config;
+  o.ndc = c.get<DataConfig>().ndc;
   o.masks = c.get<DataConfig>().masks;
   o.splits = std::move(splits);
   return o;

@@ -227,7 +227,7 @@ std::string SceneFrame::describe() const {
 }
 
 SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKind requested, double near, double far,
-                           bool bounds_from_config) {
+                           bool bounds_from_config, bool auto_ndc) {
   SceneFrame f;
   if (cap.synthetic) {
     f.kind = requested == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
@@ -280,7 +280,7 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
                      "forward needs cameras that all look the same way (none may turn more than " +
                          std::to_string(static_cast<int>(kForwardFacingMaxAngleDeg)) +
                          " degrees from their mean direction); use unbounded");
-  if (requested == SceneKind::ForwardFacing || (requested == SceneKind::Auto && facing_one_way && has_near))
+  if (requested == SceneKind::ForwardFacing || (requested == SceneKind::Auto && auto_ndc && facing_one_way && has_near))
     return fit_forward_facing(cap, poses, mean, back, up, root);
 
   V3 focus;

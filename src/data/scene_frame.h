@@ -54,11 +54,12 @@ constexpr double kUnboundedFar = 1e6;
 // must share one frame). Forward-facing captures get another frame: centred on the mean camera,
 // rotated so that the cameras look down -z with their mean up towards +y, scaled by
 // kForwardNearFraction (model/ndc.h); `auto` picks it when the layout is forward-facing and the
-// capture has sparse points or LLFF bounds, and `forward` without either is refused. `requested`
+// capture has sparse points or LLFF bounds (and `auto_ndc`, data.ndc, allows it: without, such a
+// capture is fitted as an unbounded one), and `forward` without either is refused. `requested`
 // is data.scene; `near`/`far` are data.near/data.far, used for Blender scenes and, with
 // `bounds_from_config`, for every capture. InputError(root, "poses", ...)
 // for degenerate layouts (all cameras at one point).
 SceneFrame fit_scene_frame(const Capture& capture, const std::string& root, SceneKind requested, double near,
-                           double far, bool bounds_from_config);
+                           double far, bool bounds_from_config, bool auto_ndc = true);
 
 }  // namespace ablenerf

@@ -202,6 +202,12 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   const SceneFrame g = SceneFrame::from_json(f.to_json(), "scene.json");
   EXPECT_EQ(g.kind, SceneKind::ForwardFacing);
   EXPECT_EQ(g.ndc_a, f.ndc_a);
+  // With data.ndc = false auto fits the same capture as an unbounded scene, and forward is still
+  // there to be asked for.
+  const SceneFrame u = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false, /*auto_ndc=*/false);
+  EXPECT_EQ(u.kind, SceneKind::Unbounded);
+  EXPECT_EQ(u.far, kUnboundedFar);
+  EXPECT_EQ(fit_scene_frame(cap, "cap", SceneKind::ForwardFacing, 2, 6, false, false).kind, SceneKind::ForwardFacing);
   // Without points or bounds auto stays unbounded, and an explicit forward is refused.
   const Capture bare = capture_of(poses);
   EXPECT_EQ(fit_scene_frame(bare, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);

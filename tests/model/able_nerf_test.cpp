@@ -12,6 +12,7 @@
 #include "test_util.h"
 #include "model/compute_config.h"
 #include "model/model_config.h"
+#include "data/data_config.h"
 
 namespace ablenerf {
 namespace {
@@ -52,6 +53,8 @@ TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
     EXPECT_NE(capture->grid(), nullptr) << name;
     ASSERT_NE(capture->proposal(), nullptr) << name;
     EXPECT_EQ(capture->proposal()->samples(), 32) << name;
+    // and forward-facing captures contracted, not in NDC (docs/BENCHMARKS.md, "A forward-facing capture").
+    EXPECT_FALSE(preset(name).get<DataConfig>().ndc) << name;
   }
   for (const char* paper : {"blender", "demo"}) {
     const AbleNerf m(preset(paper).get<ModelConfig>());
