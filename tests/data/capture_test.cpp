@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <sstream>
 
@@ -126,6 +127,36 @@ const V3 kUp = unit3({0.2, -0.3, 1.0});
 // World points near the target (what the cameras see).
 const std::vector<V3> kPoints{{1.0, 2.0, 3.0}, {1.4, 1.7, 3.2}, {0.6, 2.3, 2.7}, {1.2, 2.5, 3.4}, {0.8, 1.6, 2.9}};
 
+// LLFF's poses_bounds.npy in `dir` for `frames`: row i = the 3x5 matrix [down | right | back | eye |
+// (h, w, f)] row-major, then frame i's near and far, `bounds(i)`.
+void write_llff_npy(const fs::path& dir, const std::vector<Frame3>& frames, const std::array<double, 3>& hwf,
+                    const std::function<std::pair<double, double>(size_t)>& bounds) {
+  std::vector<double> rows;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const Frame3& f = frames[i];
+    for (size_t r = 0; r < 3; ++r)
+      for (double v : {-f.up[r], f.right[r], f.back[r], f.eye[r], hwf[r]}) rows.push_back(v);
+    const auto [near, far] = bounds(i);
+    rows.push_back(near);
+    rows.push_back(far);
+  }
+  test::write_file(dir / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+}
+
+// Every point of kPoints, projected by hand through frame `f` as an LLFF camera (looking along
+// -back, x along right, y along down) and `lens`, lies on the loader's ray through that pixel of
+// image i of `split`.
+void expect_llff_projection(const Dataset& ds, const Split& split, int64_t i, const Frame3& f, const Lens& lens,
+                            const std::string& what) {
+  for (const V3& X : kPoints) {
+    const V3 d = sub3(X, f.eye);
+    const double z = -dot3(d, f.back);
+    const V3 down_axis{-f.up[0], -f.up[1], -f.up[2]};
+    const auto [u, v] = lens.project(dot3(d, f.right) / z, dot3(d, down_axis) / z);
+    expect_ray_hits(ds, split, i, u, v, X, 2e-5, what);
+  }
+}
+
 }  // namespace
 
 TEST(Captures, ColmapPosesAndLensesMatchAHandProjection) {
@@ -204,22 +235,11 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
   test::TempDir t;
   const int W = 64, H = 48;
   const auto frames = ring(10, kTarget, kUp);
-  // poses_bounds.npy: row i = the 3x5 matrix [down | right | back | eye | (h, w, f)] row-major,
-  // then near and far. The npy's size is twice the stored images' (LLFF keeps the size the poses
-  // were computed at): the loaded focal must be halved.
-  const double f_npy = 2 * 50.0;
-  std::vector<double> rows;
-  for (size_t i = 0; i < frames.size(); ++i) {
-    const Frame3& f = frames[i];
-    const double hwf[3] = {2.0 * H, 2.0 * W, f_npy};
-    for (int r = 0; r < 3; ++r) {
-      const size_t rr = static_cast<size_t>(r);
-      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
-    }
-    rows.push_back(3.0 + 0.1 * static_cast<double>(i));  // near
-    rows.push_back(5.0 + 0.2 * static_cast<double>(i));  // far
-  }
-  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+  // The npy's size is twice the stored images' (LLFF keeps the size the poses were computed at):
+  // the loaded focal must be halved.
+  write_llff_npy(t.path(), frames, {2.0 * H, 2.0 * W, 2 * 50.0}, [](size_t i) {
+    return std::make_pair(3.0 + 0.1 * static_cast<double>(i), 5.0 + 0.2 * static_cast<double>(i));
+  });
   for (size_t i = 0; i < frames.size(); ++i) {
     const std::string stem = "IMG_" + std::to_string(100 + i);
     write_image(t / ("images/" + stem + ".png"), W, H, 100);
@@ -253,15 +273,7 @@ TEST(Captures, LlffAxesBoundsAndPrescaledImagesMatchAHandProjection) {
     for (const auto& [sname, split] : ds.splits) {
       for (int64_t i = 0; i < split.size(); ++i) {
         const int idx = std::stoi(name_of(split, i).substr(4, 3)) - 100;
-        const Frame3& f = frames[static_cast<size_t>(idx)];
-        for (const V3& X : kPoints) {
-          // LLFF: the camera looks along -back; x along right, y along down.
-          const V3 d = sub3(X, f.eye);
-          const double z = -dot3(d, f.back);
-          const V3 down_axis{-f.up[0], -f.up[1], -f.up[2]};
-          const auto [u, v] = lens.project(dot3(d, f.right) / z, dot3(d, down_axis) / z);
-          expect_ray_hits(ds, split, i, u, v, X, 2e-5, sname + " " + name_of(split, i));
-        }
+        expect_llff_projection(ds, split, i, frames[static_cast<size_t>(idx)], lens, sname + " " + name_of(split, i));
       }
     }
   }
@@ -278,17 +290,8 @@ TEST(Captures, LlffReleaseCopiesPairByOrderAndLoadWithoutThePhotos) {
   test::TempDir t;
   const int W = 64, H = 48;
   const auto frames = ring(10, kTarget, kUp);
-  std::vector<double> rows;
-  for (const Frame3& f : frames) {
-    const double hwf[3] = {1.0 * H, 1.0 * W, 50.0};  // the photos' size, as LLFF's release
-    for (int r = 0; r < 3; ++r) {
-      const size_t rr = static_cast<size_t>(r);
-      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
-    }
-    rows.push_back(3.0);
-    rows.push_back(6.0);
-  }
-  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+  // The npy at the photos' size, as LLFF's release.
+  write_llff_npy(t.path(), frames, {1.0 * H, 1.0 * W, 50.0}, [](size_t) { return std::make_pair(3.0, 6.0); });
   const auto copy_value = [](int i) { return 20 + 10 * i; };
   for (int i = 0; i < 10; ++i) {
     write_image(t / ("images/IMG_" + std::to_string(4026 + i) + ".png"), W, H, 5);
@@ -313,14 +316,7 @@ TEST(Captures, LlffReleaseCopiesPairByOrderAndLoadWithoutThePhotos) {
       for (int64_t k = 0; k < split.size(); ++k) {
         const int idx = std::stoi(name_of(split, k).substr(5, 3));
         EXPECT_NEAR(split.images[k].mean().item<double>(), copy_value(idx) / 255.0, 1e-6);
-        const Frame3& f = frames[static_cast<size_t>(idx)];
-        for (const V3& X : kPoints) {
-          const V3 d = sub3(X, f.eye);
-          const double z = -dot3(d, f.back);
-          const V3 down_axis{-f.up[0], -f.up[1], -f.up[2]};
-          const auto [u, v] = lens.project(dot3(d, f.right) / z, dot3(d, down_axis) / z);
-          expect_ray_hits(ds, split, k, u, v, X, 2e-5, sname + " " + name_of(split, k));
-        }
+        expect_llff_projection(ds, split, k, frames[static_cast<size_t>(idx)], lens, sname + " " + name_of(split, k));
       }
     }
   };
@@ -537,17 +533,7 @@ TEST(Captures, MasksFolderKeepsWhitePixelsAtEveryDownscale) {
   test::TempDir t;
   const int W = 16, H = 12;
   const auto frames = ring(10, kTarget, kUp);
-  std::vector<double> rows;
-  for (const Frame3& f : frames) {
-    const double hwf[3] = {H, W, 20.0};
-    for (int r = 0; r < 3; ++r) {
-      const size_t rr = static_cast<size_t>(r);
-      for (double v : {-f.up[rr], f.right[rr], f.back[rr], f.eye[rr], hwf[r]}) rows.push_back(v);
-    }
-    rows.push_back(3.0);
-    rows.push_back(5.0);
-  }
-  test::write_file(t / "poses_bounds.npy", test::llff_poses_bounds_npy(rows));
+  write_llff_npy(t.path(), frames, {H, W, 20.0}, [](size_t) { return std::make_pair(3.0, 5.0); });
   for (size_t i = 0; i < frames.size(); ++i) {
     const std::string stem = "IMG_" + std::to_string(100 + i);
     write_image(t / ("images/" + stem + ".png"), W, H, 100);
