@@ -33,15 +33,20 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   const int64_t n = a.shape[0];
   const std::string copies_name = "images_" + std::to_string(downscale);
   const fs::path dir = fs::path(root) / "images", copies = fs::path(root) / copies_name;
+  const bool have_photos = fs::is_directory(dir);
   const bool have_copies = downscale > 1 && fs::is_directory(copies);
-  const bool copies_only = !fs::is_directory(dir) && have_copies;
-  if (!fs::is_directory(dir) && !copies_only)
+  const bool copies_only = !have_photos && have_copies;
+  if (!have_photos && !copies_only)
     throw InputError(root, "images",
                      "folder not found (LLFF keeps its images in images/, or only their copies in images_N/ "
                      "for data.downscale = N)");
+  const auto file_names = [](const fs::path& folder) {
+    std::vector<std::string> out;
+    for (const auto& f : image_files(folder.string())) out.push_back(fs::path(f).filename().string());
+    return out;
+  };
   const fs::path listed = copies_only ? copies : dir;
-  std::vector<std::string> names;
-  for (const auto& f : image_files(listed.string())) names.push_back(fs::path(f).filename().string());
+  const std::vector<std::string> names = file_names(listed);
   if (static_cast<int64_t>(names.size()) != n)
     throw InputError(
         file, "shape",
@@ -49,8 +54,7 @@ void read_llff_capture(const std::string& root, const std::vector<std::string>& 
   // The copies paired by sorted order (LLFF's release naming) when none shares the first photo's stem.
   std::vector<std::string> copies_by_order;
   if (have_copies && !copies_only) {
-    std::vector<std::string> c;
-    for (const auto& f : image_files(copies.string())) c.push_back(fs::path(f).filename().string());
+    std::vector<std::string> c = file_names(copies);
     const std::string stem0 = fs::path(names.front()).stem().string();
     const bool shared =
         std::any_of(c.begin(), c.end(), [&](const std::string& x) { return fs::path(x).stem() == stem0; });
