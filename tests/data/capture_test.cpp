@@ -641,13 +641,16 @@ TEST(Captures, RealCapturesWhenPresent) {
     int downscale;
     const char* bounds;
     SceneKind kind = SceneKind::Unbounded;
+    int64_t width = 0;  // the images' width as read, when checked
   };
   const Want wants[] = {{"fox50", "instant-ngp", 50, 8, "cameras"},
                         {"fox_colmap", "colmap", 67, 2, "points"},
                         {"fox_colmap_txt", "colmap", 67, 2, "points"},
                         {"fox_ns", "nerfstudio", 67, 2, "points"},
                         {"ethiopianhead_llff", "llff", 66, 8, "llff bounds"},
-                        {"fern_llff", "llff", 20, 8, "llff bounds", SceneKind::ForwardFacing}};
+                        {"fern_llff", "llff", 20, 8, "llff bounds", SceneKind::ForwardFacing, 504},
+                        // LLFF's 1/8 copies alone (no images/): read as they are, not reduced again.
+                        {"horns_llff", "llff", 62, 8, "llff bounds", SceneKind::ForwardFacing, 504}};
   int found = 0;
   for (const Want& w : wants) {
     const fs::path dir = base / w.dir;
@@ -666,6 +669,7 @@ TEST(Captures, RealCapturesWhenPresent) {
       const auto c = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3).norm(2, 1);
       EXPECT_NEAR(c.max().item<double>(), 1.0, 1e-5);
     }
+    if (w.width > 0) EXPECT_EQ(ds.split("train").images.size(2), w.width);
     // Real photos: neither blank nor saturated.
     const double mean = ds.split("train").images.mean().item<double>();
     EXPECT_GT(mean, 0.1);
