@@ -44,6 +44,7 @@ ErrorMap::ErrorMap(int64_t images, int64_t height, int64_t width, ErrorMapOption
     counts_[slot] = static_cast<int32_t>(kept_start_[slot + 1] - kept_start_[slot]);
   }
   if (kp && kept_.empty()) throw std::invalid_argument("ErrorMap: the mask keeps no pixel");
+  rebuild_tree();
 }
 
 int64_t ErrorMap::kept_count(int64_t t) const { return counts_[static_cast<size_t>(t)]; }
@@ -62,53 +63,91 @@ int64_t ErrorMap::tile_of(int64_t pixel) const {
   return (image * tiles_y_ + row / opt_.tile) * tiles_x_ + col / opt_.tile;
 }
 
-template <class F>
-void ErrorMap::each_probability(F&& f) const {
+int64_t ErrorMap::drawable_pixels() const {
+  return kept_start_.empty() ? images_ * height_ * width_ : static_cast<int64_t>(kept_.size());
+}
+
+int64_t ErrorMap::fixed_error(size_t t) const {
+  if (counts_[t] == 0) return 0;
+  const double e = std::clamp(error_[t], 0.0, kMaxTileError);
+  return static_cast<int64_t>(std::llround(e * kFixedScale));
+}
+
+void ErrorMap::rebuild_tree() {
   const size_t n = error_.size();
-  double sum = 0;
-  for (size_t t = 0; t < n; ++t)
-    if (counts_[t] > 0) sum += error_[t];
-  const double pixels =
-      static_cast<double>(kept_start_.empty() ? images_ * height_ * width_ : static_cast<int64_t>(kept_.size()));
-  const bool by_error = seeded_ && sum > 0;
-  const double share = by_error ? opt_.uniform_share : 1.0;
-  const double per_pixel = share / pixels, per_error = by_error ? (1.0 - share) / sum : 0.0;
-  for (size_t t = 0; t < n; ++t) f(t, counts_[t] > 0 ? per_pixel * counts_[t] + per_error * error_[t] : 0.0);
+  fixed_.resize(n);
+  tree_.assign(n, 0);
+  fixed_total_ = 0;
+  for (size_t t = 0; t < n; ++t) {
+    fixed_[t] = fixed_error(t);
+    fixed_total_ += fixed_[t];
+    tree_[t] += fixed_[t];
+    // Node i (1-based, here t + 1) passes its sum to its parent i + lowbit(i).
+    const size_t i = t + 1, parent = i + (i & (~i + 1));
+    if (parent <= n) tree_[parent - 1] += tree_[t];
+  }
+}
+
+void ErrorMap::add_to_tree(size_t t, int64_t d) {
+  fixed_total_ += d;
+  for (size_t i = t + 1; i <= tree_.size(); i += i & (~i + 1)) tree_[i - 1] += d;
+}
+
+size_t ErrorMap::tree_find(int64_t target) const {
+  // The largest prefix of tiles whose sum is <= target; the tile after it holds target.
+  const size_t n = tree_.size();
+  size_t pos = 0, step = 1;
+  while (step * 2 <= n) step *= 2;
+  for (; step > 0; step /= 2)
+    if (pos + step <= n && tree_[pos + step - 1] <= target) {
+      pos += step;
+      target -= tree_[pos - 1];
+    }
+  return std::min(pos, n - 1);
 }
 
 torch::Tensor ErrorMap::probabilities() const {
   auto p = torch::empty({tiles()}, torch::kDouble);
   double* out = p.data_ptr<double>();
-  each_probability([&](size_t t, double prob) { out[t] = prob; });
+  const bool by_error = seeded_ && fixed_total_ > 0;
+  const double share = by_error ? opt_.uniform_share : 1.0;
+  const double per_pixel = share / static_cast<double>(drawable_pixels());
+  const double per_error = by_error ? (1.0 - share) / static_cast<double>(fixed_total_) : 0.0;
+  for (size_t t = 0; t < error_.size(); ++t)
+    out[t] = counts_[t] > 0 ? per_pixel * counts_[t] + per_error * static_cast<double>(fixed_[t]) : 0.0;
   return p;
 }
 
-void ErrorMap::rebuild_cdf() {
-  cdf_.resize(error_.size());
-  double run = 0;
-  each_probability([&](size_t t, double prob) { cdf_[t] = (run += prob); });
-  dirty_ = false;
-}
-
 torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
-  if (dirty_) rebuild_cdf();
   const auto u = torch::rand({n, 3}, gen, torch::kDouble);
   const auto ua = u.accessor<double, 2>();
   auto out = torch::empty({n}, torch::kLong);
   int64_t* idx = out.data_ptr<int64_t>();
-  const double total = cdf_.back();
+  const bool by_error = seeded_ && fixed_total_ > 0;
+  const double share = by_error ? opt_.uniform_share : 1.0;
+  const int64_t pixels = drawable_pixels();
   // A uniform in [0, 1) to an offset in [0, size).
   const auto offset = [](double u, int64_t size) {
     return std::min<int64_t>(static_cast<int64_t>(u * static_cast<double>(size)), size - 1);
   };
   for (int64_t i = 0; i < n; ++i) {
-    const auto it = std::upper_bound(cdf_.begin(), cdf_.end(), ua[i][0] * total);
-    int64_t t = std::min<int64_t>(it - cdf_.begin(), tiles() - 1);
-    if (!kept_start_.empty()) {
-      // Rounding can land past the last drawable tile: step back to one that has kept pixels.
-      while (kept_count(t) == 0 && t > 0) --t;
-      while (kept_count(t) == 0) ++t;
+    const double pick = ua[i][0];
+    if (pick < share) {
+      // The uniform part: a drawable pixel, each equally likely.
+      const int64_t k = offset(pick / share, pixels);
+      if (kept_start_.empty()) {
+        idx[i] = k;
+        continue;
+      }
+      const auto t =
+          static_cast<int64_t>(std::upper_bound(kept_start_.begin(), kept_start_.end(), k) - kept_start_.begin()) - 1;
+      const TileRect r = tile_rect(t);
+      const int64_t in_tile = kept_[static_cast<size_t>(k)];
+      idx[i] = (r.image * height_ + r.row + in_tile / opt_.tile) * width_ + r.col + in_tile % opt_.tile;
+      continue;
     }
+    // The error part: a tile in proportion to its error, then a drawable pixel inside it.
+    const auto t = static_cast<int64_t>(tree_find(offset((pick - share) / (1.0 - share), fixed_total_)));
     const TileRect r = tile_rect(t);
     int64_t row, col;
     if (kept_start_.empty()) {
@@ -139,15 +178,18 @@ void ErrorMap::observe(const torch::Tensor& pixels, const torch::Tensor& squared
     if (finite == 0) return;
     std::fill(error_.begin(), error_.end(), sum / static_cast<double>(finite));
     seeded_ = true;
+    rebuild_tree();
   }
   const int64_t pixel_count = images_ * height_ * width_;
   for (int64_t i = 0; i < n; ++i) {
     if (p[i] < 0 || p[i] >= pixel_count) throw std::invalid_argument("ErrorMap::observe: pixel index out of range");
     if (!std::isfinite(e[i])) continue;  // a skipped (non-finite) step teaches nothing
-    double& slot = error_[static_cast<size_t>(tile_of(p[i]))];
-    slot += kErrorBlend * (e[i] - slot);
+    const auto t = static_cast<size_t>(tile_of(p[i]));
+    error_[t] += kErrorBlend * (e[i] - error_[t]);
+    const int64_t f = fixed_error(t);
+    add_to_tree(t, f - fixed_[t]);
+    fixed_[t] = f;
   }
-  dirty_ = true;
 }
 
 torch::Tensor ErrorMap::state() const {
@@ -164,7 +206,7 @@ void ErrorMap::set_state(const torch::Tensor& state) {
   const double* d = s.data_ptr<double>();
   seeded_ = d[0] != 0.0;
   std::copy(d + 1, d + 1 + tiles(), error_.begin());
-  dirty_ = true;
+  rebuild_tree();
 }
 
 }  // namespace ablenerf

@@ -8,6 +8,12 @@
 //
 // Deterministic: the draws come from the caller's CPU generator and the errors arrive in batch
 // order, so every process of a data-parallel group holding the same map draws the same batch.
+//
+// A step costs O(rays x log(tiles)), not O(tiles): the error part is drawn through a Fenwick tree
+// (a binary indexed tree of prefix sums) over the tiles' errors in fixed point, updated per observed
+// ray, and the uniform part straight from the pixels. Integer sums make the tree a function of the
+// errors alone, whatever order the updates came in, so a map restored from a checkpoint draws what
+// the map that was saved would have drawn.
 #include <torch/torch.h>
 
 #include <cstdint>
@@ -22,6 +28,11 @@ struct ErrorMapOptions {
 
 class ErrorMap {
  public:
+  // The draws' fixed point: a tile's error in units of 2^-32, clamped to kMaxTileError (a ray's
+  // squared RGB error is at most 3 for colours in [0, 1]), so that the int64 total holds 10^8 tiles.
+  static constexpr double kFixedScale = 4294967296.0;
+  static constexpr double kMaxTileError = 16.0;
+
   // `keep`, when defined, is (images, height, width) bool: only its true pixels are ever drawn (a
   // capture's masks, Split::mask). Tiles then count their kept pixels only: the uniform share is
   // spread over kept pixels, a tile with none is never drawn, and a ray lands on one of its tile's
@@ -30,7 +41,8 @@ class ErrorMap {
            const torch::Tensor& keep = torch::Tensor());
 
   // Flat pixel indices (image * H * W + row * W + col), int64 on the CPU, of `n` rays: a tile with
-  // probability `probabilities()[tile]`, then a pixel uniformly inside it (three uniforms per ray).
+  // probability `probabilities()[tile]`, then a pixel uniformly inside it (three uniforms per ray:
+  // the first picks the uniform or the error part and, rescaled, the pixel or the tile).
   torch::Tensor draw(int64_t n, torch::Generator& gen);
 
   // Records the per-ray squared error (any float dtype, any device; (n,)) of the rays at `pixels`
@@ -41,7 +53,8 @@ class ErrorMap {
 
   // P(tile) = (1 - share) * e_tile / sum(e) + share * pixels_tile / pixels (uniform until the first
   // observation or when every error is zero), pixels counting kept pixels only and e_tile 0 for a
-  // tile without any. float64, (tiles,).
+  // tile without any; e_tile as the draws see it, in fixed point (multiples of 2^-32, at most
+  // kMaxTileError). float64, (tiles,).
   torch::Tensor probabilities() const;
   int64_t tiles() const { return static_cast<int64_t>(error_.size()); }
   int64_t tile_of(int64_t pixel) const;
@@ -56,25 +69,29 @@ class ErrorMap {
     int64_t image, row, col, height, width;
   };
   TileRect tile_rect(int64_t tile) const;
-  void rebuild_cdf();
+  // A tile's error as the tree holds it: fixed point, 0 for a tile without drawable pixels.
+  int64_t fixed_error(size_t tile) const;
+  void rebuild_tree();                       // O(tiles), from error_
+  void add_to_tree(size_t tile, int64_t d);  // O(log tiles)
+  size_t tree_find(int64_t target) const;    // the tile whose prefix range holds target
 
   int64_t images_, height_, width_;
   ErrorMapOptions opt_;
   int64_t tiles_x_, tiles_y_;
   std::vector<double> error_;
-  std::vector<double> cdf_;  // inclusive running sum of the tiles' probabilities
+  // The Fenwick tree over fixed_error(t) (tree_[i] sums the tiles (i - lowbit(i), i], 1-based), the
+  // fixed-point error each tile holds in it, and their total.
+  std::vector<int64_t> tree_, fixed_;
+  int64_t fixed_total_ = 0;
   // With a mask: tile t's kept pixels are kept_[kept_start_[t] .. kept_start_[t + 1]), each as its
   // row * opt_.tile + col inside the tile. Empty without a mask.
   std::vector<int64_t> kept_start_;
   std::vector<uint16_t> kept_;
-  // Each tile's drawable pixels (all of its pixels without a mask), counted once: the map's
-  // probabilities are rebuilt every step, over every tile of every image.
+  // Each tile's drawable pixels (all of its pixels without a mask), counted once.
   std::vector<int32_t> counts_;
   int64_t kept_count(int64_t tile) const;
-  // f(tile, P(tile)) for every tile in order, P as probabilities() documents.
-  template <class F>
-  void each_probability(F&& f) const;
-  bool seeded_ = false, dirty_ = true;
+  int64_t drawable_pixels() const;
+  bool seeded_ = false;
 };
 
 }  // namespace ablenerf

@@ -121,6 +121,36 @@ TEST(ErrorMap, StateContinuesTheSameDraws) {
   EXPECT_THROW(ErrorMap(1, 5, 6, {4, 0.25}).set_state(a.state()), std::invalid_argument);
 }
 
+// The draws go through a tree of fixed-point sums updated ray by ray: after many updates it must
+// equal a map rebuilt from the saved errors (the same probabilities to the bit, the same draws), and
+// its probabilities the closed form of the errors in double precision.
+TEST(ErrorMap, ManyUpdatesEqualAMapRebuiltFromItsState) {
+  const int64_t images = 3, h = 37, w = 53;
+  ErrorMap a(images, h, w, {4, 0.3});
+  auto g = gen(17);
+  for (int step = 0; step < 300; ++step) {
+    const auto px = torch::randint(images * h * w, {64}, g, torch::kLong);
+    a.observe(px, torch::rand({64}, g, torch::kDouble).pow(3) * 2.0);
+  }
+  ErrorMap b(images, h, w, {4, 0.3});
+  b.set_state(a.state());
+  EXPECT_TRUE(torch::equal(a.probabilities(), b.probabilities()));
+  auto ga = gen(9), gb = gen(9);
+  EXPECT_TRUE(torch::equal(a.draw(5000, ga), b.draw(5000, gb)));
+  // The closed form, each tile's drawable pixels counted from its rectangle.
+  const auto st = a.state();
+  const int64_t tx = (w + 3) / 4, ty = (h + 3) / 4;
+  ASSERT_EQ(a.tiles(), images * tx * ty);
+  const double sum = st.slice(0, 1).sum().item<double>();
+  const auto p = a.probabilities();
+  for (int64_t t = 0; t < a.tiles(); ++t) {
+    const int64_t in_image = t % (tx * ty), row = in_image / tx * 4, col = in_image % tx * 4;
+    const double area = static_cast<double>(std::min<int64_t>(4, h - row) * std::min<int64_t>(4, w - col));
+    const double want = 0.3 * area / static_cast<double>(images * h * w) + 0.7 * st[t + 1].item<double>() / sum;
+    ASSERT_NEAR(p[t].item<double>(), want, 1e-9 * want) << t;
+  }
+}
+
 // A mask (a capture's masks, Split::mask): tiles count their kept pixels only, a tile without any
 // is never drawn, and a ray lands on one of its tile's kept pixels, each equally likely.
 TEST(ErrorMap, MaskedPixelsAreNeverDrawnAndTheRestUniformly) {
