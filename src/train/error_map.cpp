@@ -106,13 +106,20 @@ size_t ErrorMap::tree_find(int64_t target) const {
   return std::min(pos, n - 1);
 }
 
+double ErrorMap::uniform_share_now() const { return seeded_ && fixed_total_ > 0 ? opt_.uniform_share : 1.0; }
+
+int64_t ErrorMap::kept_pixel(int64_t t, int64_t at) const {
+  const TileRect r = tile_rect(t);
+  const int64_t in_tile = kept_[static_cast<size_t>(at)];
+  return (r.image * height_ + r.row + in_tile / opt_.tile) * width_ + r.col + in_tile % opt_.tile;
+}
+
 torch::Tensor ErrorMap::probabilities() const {
   auto p = torch::empty({tiles()}, torch::kDouble);
   double* out = p.data_ptr<double>();
-  const bool by_error = seeded_ && fixed_total_ > 0;
-  const double share = by_error ? opt_.uniform_share : 1.0;
+  const double share = uniform_share_now();
   const double per_pixel = share / static_cast<double>(drawable_pixels());
-  const double per_error = by_error ? (1.0 - share) / static_cast<double>(fixed_total_) : 0.0;
+  const double per_error = share < 1.0 ? (1.0 - share) / static_cast<double>(fixed_total_) : 0.0;
   for (size_t t = 0; t < error_.size(); ++t)
     out[t] = counts_[t] > 0 ? per_pixel * counts_[t] + per_error * static_cast<double>(fixed_[t]) : 0.0;
   return p;
@@ -123,8 +130,7 @@ torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
   const auto ua = u.accessor<double, 2>();
   auto out = torch::empty({n}, torch::kLong);
   int64_t* idx = out.data_ptr<int64_t>();
-  const bool by_error = seeded_ && fixed_total_ > 0;
-  const double share = by_error ? opt_.uniform_share : 1.0;
+  const double share = uniform_share_now();
   const int64_t pixels = drawable_pixels();
   // A uniform in [0, 1) to an offset in [0, size).
   const auto offset = [](double u, int64_t size) {
@@ -141,23 +147,17 @@ torch::Tensor ErrorMap::draw(int64_t n, torch::Generator& gen) {
       }
       const auto t =
           static_cast<int64_t>(std::upper_bound(kept_start_.begin(), kept_start_.end(), k) - kept_start_.begin()) - 1;
-      const TileRect r = tile_rect(t);
-      const int64_t in_tile = kept_[static_cast<size_t>(k)];
-      idx[i] = (r.image * height_ + r.row + in_tile / opt_.tile) * width_ + r.col + in_tile % opt_.tile;
+      idx[i] = kept_pixel(t, k);
       continue;
     }
     // The error part: a tile in proportion to its error, then a drawable pixel inside it.
     const auto t = static_cast<int64_t>(tree_find(offset((pick - share) / (1.0 - share), fixed_total_)));
-    const TileRect r = tile_rect(t);
-    int64_t row, col;
-    if (kept_start_.empty()) {
-      row = r.row + offset(ua[i][1], r.height), col = r.col + offset(ua[i][2], r.width);
-    } else {
-      const int64_t at = kept_start_[static_cast<size_t>(t)] + offset(ua[i][1], kept_count(t));
-      const int64_t in_tile = kept_[static_cast<size_t>(at)];
-      row = r.row + in_tile / opt_.tile, col = r.col + in_tile % opt_.tile;
+    if (!kept_start_.empty()) {
+      idx[i] = kept_pixel(t, kept_start_[static_cast<size_t>(t)] + offset(ua[i][1], kept_count(t)));
+      continue;
     }
-    idx[i] = (r.image * height_ + row) * width_ + col;
+    const TileRect r = tile_rect(t);
+    idx[i] = (r.image * height_ + r.row + offset(ua[i][1], r.height)) * width_ + r.col + offset(ua[i][2], r.width);
   }
   return out;
 }

@@ -91,6 +91,10 @@ class ErrorMap {
   std::vector<int32_t> counts_;
   int64_t kept_count(int64_t tile) const;
   int64_t drawable_pixels() const;
+  // The uniform part's share of the draws: the option's once an error is known, else all of them.
+  double uniform_share_now() const;
+  // The flat pixel index of kept_[at], a kept pixel of tile t.
+  int64_t kept_pixel(int64_t t, int64_t at) const;
   bool seeded_ = false;
 };
 
