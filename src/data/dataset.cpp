@@ -217,6 +217,14 @@ void check_memory(const std::vector<CaptureSplit>& specs, int h, int w, const Lo
 
 }  // namespace
 
+std::string small_image_note(int full_h, int full_w, int downscale) {
+  const int h = full_h / downscale, w = full_w / downscale;
+  if (downscale <= 1 || std::min(h, w) >= kSmallImageSide) return "";
+  return "data.downscale = " + std::to_string(downscale) + " trains on " + std::to_string(w) + "x" + std::to_string(h) +
+         "-pixel images (the photos are " + std::to_string(full_w) + "x" + std::to_string(full_h) +
+         "); --set data.downscale=1 keeps their size";
+}
+
 const Split& Dataset::split(const std::string& name) const {
   auto it = splits.find(name);
   if (it == splits.end()) throw InputError(root, "split", "the dataset has no '" + name + "' split");
@@ -259,6 +267,10 @@ Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& op
     ds.splits[spec.name] = decode_split(spec, opts, h, w, ds.scene, progress ? &*progress : nullptr, done, total);
   ds.intrinsics = ds.splits.begin()->second.cameras.front();
   ds.notes = js.notes;
+  if (const std::string small = small_image_note(h, w, opts.downscale); !small.empty()) {
+    ds.notes.push_back(small);
+    log_warn("load: " + root + ": " + small);
+  }
   ds.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (log_enabled(LogLevel::Debug)) {
     std::ostringstream line;

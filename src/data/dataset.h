@@ -80,6 +80,14 @@ struct Dataset {
   static Dataset load(Capture capture, const std::string& root, const LoadOptions& opts);
 };
 
+// Below this many pixels on the short side a downscaled image keeps too little of a scene to learn
+// its surfaces (a 100x100 render under the capture preset's factor 8 becomes 12x12): the loader
+// then says so in Dataset::notes and the log, and trains as asked.
+inline constexpr int kSmallImageSide = 64;
+// That note for photos of full_h x full_w at `downscale`, or "" when the images stay large enough
+// (or are not downscaled at all).
+std::string small_image_note(int full_h, int full_w, int downscale);
+
 // Reads a camera list (Blender/transforms json) for rendering: poses (N,3,4) and intrinsics,
 // without loading images. `width`/`height` > 0 rescale the intrinsics to that size.
 struct CameraList {

@@ -8,7 +8,8 @@
 
 namespace ablenerf {
 
-LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays) {
+LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
+                   const torch::Tensor& distortion_scale) {
   const double inv = 1.0 / (static_cast<double>(kRgbChannels) * static_cast<double>(global_rays));
   const auto se_c = (out.rgb_coarse - target).pow(2).sum();
   const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
@@ -20,6 +21,7 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
   if (tc.distortion_weight > 0) {
     parts[kTermDistortion] = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
                              (tc.distortion_weight / static_cast<double>(global_rays));
+    if (distortion_scale.defined()) parts[kTermDistortion] = parts[kTermDistortion] * distortion_scale;
     loss = loss + parts[kTermDistortion];
   }
   if (tc.proposal_weight > 0 && out.proposal_weights.defined()) {
@@ -72,16 +74,16 @@ ForwardOptions with_appearance(AbleNerf& model, ForwardOptions opts, const torch
 // The loss terms of some rays of the step: through the corrected cameras, the model with the photos'
 // appearance codes and the photo colour maps.
 LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions& opts, const TrainConfig& tc,
-                     int64_t global_rays, double near, double far) {
+                     int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale) {
   const ModelOutput out = model->forward(through_camera_refine(model, rays.rays, rays.photo), near, far,
                                          with_appearance(model, opts, rays.photo));
-  return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays);
+  return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays, distortion_scale);
 }
 
 }  // namespace
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
-                              int64_t global_rays, double near, double far) {
+                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale) {
   TORCH_CHECK(micro > 0, "accumulate_gradients: micro-batch must be positive");
   const auto params = model->parameters();
   // In the parameters' dtype (fp32 in training; float64 in tests).
@@ -108,7 +110,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
     const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
     if (workers == 1) {
-      const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far);
+      const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far, distortion_scale);
       t.loss.backward();
       add(t);
       continue;
@@ -117,7 +119,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     std::vector<LossTerms> parts(static_cast<size_t>(workers));
     parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
       const RayBatch s = mb.slice(lo, hi);
-      LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far);
+      LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far, distortion_scale);
       // Gradients returned, not accumulated, so the threads never write the same .grad.
       grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
                                                             /*retain_graph=*/false, /*create_graph=*/false,

@@ -51,8 +51,11 @@ struct LossTerms {
 // The loss of some rays of a step of `global_rays` rays: (coarse_weight * SE_coarse + fine_weight *
 // SE_fine) / (3 * global_rays), SE = summed squared error over rays and channels, so that
 // micro-batches, threads and ranks add up to the weighted MSE of the whole global batch; plus
-// distortion_weight times the rays' distortion loss (train/regularisers.h) over global_rays.
-LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays);
+// distortion_weight times the rays' distortion loss (train/regularisers.h) over global_rays, times
+// `distortion_scale` (a 0-d tensor on the rays' device: train.distortion_start's ramp, which the
+// trainer writes before each step so that a captured CUDA graph reads it) when it is defined.
+LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
+                   const torch::Tensor& distortion_scale = {});
 
 struct StepSums {
   torch::Tensor
@@ -64,8 +67,8 @@ struct StepSums {
 
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add
 // into the parameters' .grad (zero them first), and the grid table's decay (train.grid_decay, its
-// share batch / global_rays) once. Returns the summed loss terms.
+// share batch / global_rays) once. `distortion_scale` as ray_loss's. Returns the summed loss terms.
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
-                              int64_t global_rays, double near, double far);
+                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale = {});
 
 }  // namespace ablenerf

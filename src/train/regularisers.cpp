@@ -1,6 +1,13 @@
 #include "train/regularisers.h"
 
+#include <algorithm>
+
 namespace ablenerf {
+
+double distortion_ramp(double start, double fraction) {
+  if (start <= 0) return 1.0;
+  return std::clamp((fraction - start) / kDistortionRamp, 0.0, 1.0);
+}
 
 torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor& s) {
   TORCH_CHECK(weights.dim() == 2 && s.dim() == 2 && s.size(0) == weights.size(0) && s.size(1) == weights.size(1) + 1,

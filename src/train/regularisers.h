@@ -11,6 +11,12 @@ namespace ablenerf {
 // evaluated in O(S) with prefix sums: sum_ij = 2 sum_i w_i (m_i W_<i - (wm)_<i).
 torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor& s);
 
+// The share of train.distortion_weight a step carries at `fraction` of the schedule when the term
+// begins at `start` (train.distortion_start): 0 before it, rising linearly to 1 over the next
+// kDistortionRamp of the schedule, 1 after; 1 throughout when start is 0.
+inline constexpr double kDistortionRamp = 0.1;
+double distortion_ramp(double start, double fraction);
+
 // The ray token's attention over the samples as a distribution: weights (B,S) / their sum. The
 // attention the ray token pays itself (column 0, dropped from the weights) is no place along the
 // ray; a distortion loss on the raw weights is lowered by moving attention there, which says

@@ -37,6 +37,14 @@ struct TrainConfig {
   // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):
   // pulls each ray's attention onto one compact stretch. 0 = off (the paper).
   double distortion_weight = 0.0;
+  // Where in the schedule (its share, as for coarse_pixel_until) the distortion term begins: off
+  // before it, then its weight rises linearly to the full distortion_weight over the next tenth of
+  // the schedule (train/regularisers.h, distortion_ramp). 0 = on from the first step. From the start,
+  // 0.01 gathered the attention of a phone video's rays before they had found its surfaces and left
+  // them there (-6 dB); begun at 0.5 the same weight reads the depth of lego and the demo scene
+  // and costs no image (docs/BENCHMARKS.md, "The demo scene at its own size, and the distortion
+  // term begun halfway").
+  double distortion_start = 0.0;
   // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over
   // levels of each level's mean squared feature), weighted by this. 0 = off.
   double grid_decay = 0.0;
@@ -119,6 +127,7 @@ struct TrainConfig {
     f("coarse_weight", &coarse_weight);
     f("fine_weight", &fine_weight);
     f("distortion_weight", &distortion_weight);
+    f("distortion_start", &distortion_start);
     f("grid_decay", &grid_decay);
     f("proposal_weight", &proposal_weight);
     f("proposal_attention_weight", &proposal_attention_weight);
@@ -161,6 +170,7 @@ struct TrainConfig {
     need(adam_eps > 0 && std::isfinite(adam_eps), "adam_eps", "must be > 0");
     need(coarse_weight >= 0 && fine_weight >= 0, "fine_weight", "loss weights must be >= 0");
     need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
+    need(distortion_start >= 0 && distortion_start < 1, "distortion_start", "must be in [0, 1)");
     need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");
     need(proposal_attention_weight >= 0 && std::isfinite(proposal_attention_weight), "proposal_attention_weight",

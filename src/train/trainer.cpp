@@ -24,6 +24,7 @@
 #include "model/camera_refine.h"
 #include "train/lr_schedule.h"
 #include "train/ray_batch.h"
+#include "train/regularisers.h"
 #include "train/trainer_state.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -104,6 +105,12 @@ StepReport Trainer::step() {
   if (tc.camera_refine && tc.camera_refine_c2f_end > 0)
     s.model->set_frequency_window(coarse_to_fine_alpha(schedule_fraction(), tc.camera_refine_c2f_start,
                                                        tc.camera_refine_c2f_end, s.model->ipe_bands()));
+  if (s.distortion_scale.defined()) {
+    // Written only when it changes: on a GPU a copy from the host is queued on the step's stream.
+    const double share = distortion_ramp(tc.distortion_start, schedule_fraction());
+    if (share != s.distortion_share) s.distortion_scale.fill_(share);
+    s.distortion_share = share;
+  }
   StepReport r = s.cuda ? device_step(all, indices, lr) : host_step(all, indices, lr);
   s.state.step++;
   s.state.elapsed_seconds = s.local_elapsed();
@@ -121,7 +128,8 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   std::optional<SerialIntraOp> serial;
   if (s.model->cpu_ray_workers(s.micro, /*draws_randomness=*/false) > 1) serial.emplace();
   const RayBatch batch = s.sampler->gather(indices);
-  const StepSums sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
+  const StepSums sums =
+      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far, s.distortion_scale);
   StepReport r;
   r.step = s.state.step + 1;
   r.lr = lr;
@@ -167,7 +175,7 @@ void Trainer::device_body() {
   {
     // One autocast scope around every micro-batch: each weight is cast to bf16 once per step.
     const AutocastScope autocast(s.model->compute().precision, opts_.device);
-    sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far);
+    sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far, s.distortion_scale);
   }
   s.adam->step_device(sums.loss);
   torch::NoGradGuard no_grad;

@@ -134,6 +134,8 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.schedule.emplace(tc);
   s.local_rays = tc.rays_per_step * (s.rank + 1) / s.world - tc.rays_per_step * s.rank / s.world;
   s.micro = std::min<int64_t>(tc.micro_batch, std::max<int64_t>(s.local_rays, 1));
+  if (tc.distortion_weight > 0 && tc.distortion_start > 0)
+    s.distortion_scale = torch::zeros({}, torch::TensorOptions().device(opts_.device).dtype(torch::kFloat));
   if (s.leader && log_enabled(LogLevel::Debug)) {
     std::ostringstream line;
     line << "train: " << s.model->parameter_count() << " parameters on " << opts_.device << ", " << s.local_rays

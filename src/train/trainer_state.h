@@ -51,6 +51,11 @@ struct Trainer::State {
   std::optional<LrSchedule> schedule;
   TrainState state;
   int64_t local_rays = 0, micro = 0;
+  // train.distortion_start's ramp (train/regularisers.h): the share of the distortion weight this
+  // step carries, a 0-d tensor on the training device that the step (and a captured graph) reads;
+  // undefined when the term is on throughout. `distortion_share` is its value on the host.
+  torch::Tensor distortion_scale;
+  double distortion_share = -1;
   // Device form.
   std::unique_ptr<CudaStep> cuda;
   torch::Tensor indices_dev;      // this step's ray indices on the device (the graph's input)

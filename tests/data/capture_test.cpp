@@ -669,7 +669,9 @@ TEST(Captures, RealCapturesWhenPresent) {
       const auto c = torch::cat({ds.split("train").c2w, ds.split("test").c2w}).select(2, 3).norm(2, 1);
       EXPECT_NEAR(c.max().item<double>(), 1.0, 1e-5);
     }
-    if (w.width > 0) EXPECT_EQ(ds.split("train").images.size(2), w.width);
+    if (w.width > 0) {
+      EXPECT_EQ(ds.split("train").images.size(2), w.width);
+    }
     // Real photos: neither blank nor saturated.
     const double mean = ds.split("train").images.mean().item<double>();
     EXPECT_GT(mean, 0.1);

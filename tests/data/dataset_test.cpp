@@ -108,6 +108,27 @@ TEST(Dataset, FocalFromAngleAfterDownscale) {
   EXPECT_EQ(ds.split("train").images.sizes(), (std::vector<int64_t>{2, 4, 4, 3}));
 }
 
+TEST(Dataset, NotesADownscaleThatLeavesTinyImages) {
+  // 128x96 photos: factor 2 keeps 64x48 (short side under kSmallImageSide), factor 1 never warns,
+  // and a 1024x768 capture at factor 8 keeps 128x96.
+  EXPECT_EQ(small_image_note(96, 128, 1), "");
+  EXPECT_EQ(small_image_note(768, 1024, 8), "");
+  EXPECT_EQ(small_image_note(128, 128, 2), "");
+  const std::string note = small_image_note(96, 128, 2);
+  EXPECT_NE(note.find("64x48"), std::string::npos) << note;
+  EXPECT_NE(note.find("data.downscale = 2"), std::string::npos) << note;
+  EXPECT_NE(note.find("128x96"), std::string::npos) << note;
+  // The loader puts it among the dataset's notes (what `info` prints).
+  test::TempDir t;
+  make_blender(t.path(), 2, 16, 16);
+  LoadOptions o;
+  o.downscale = 4;
+  const Dataset ds = Dataset::load(t.path(), o);
+  ASSERT_FALSE(ds.notes.empty());
+  EXPECT_NE(ds.notes.back().find("4x4-pixel"), std::string::npos) << ds.notes.back();
+  EXPECT_TRUE(Dataset::load(t.path()).notes.empty());
+}
+
 TEST(Dataset, LoadingKeepsTheCallersThreadCount) {
   // Loading leaves LibTorch's intra-op thread count alone: the count is per thread, and a thread
   // that starts later takes the last value any thread set, so a change made while decoding would

@@ -19,7 +19,7 @@ namespace {
 
 RayBatch some_batch(int64_t n) {
   auto gen = at::detail::createCPUGenerator(18);
-  return {test::random_rays(n, 17, torch::kDouble), torch::rand({n, 3}, gen, torch::kDouble)};
+  return {test::random_rays(n, 17, torch::kDouble), torch::rand({n, 3}, gen, torch::kDouble), torch::Tensor()};
 }
 
 // Reference: the whole batch in one forward, the loss written out, one backward.

@@ -54,9 +54,9 @@ ModelConfig regulariser_model(bool grid) {
 // its reported terms, which must add up to the loss, the fine one being the fine MSE (fine_weight 1).
 std::map<std::string, torch::Tensor> step_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro,
                                                     const TrainConfig& tc, int64_t global, double* loss,
-                                                    torch::Tensor* terms) {
+                                                    torch::Tensor* terms, const torch::Tensor& distortion_scale = {}) {
   for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
-  const StepSums sums = accumulate_gradients(model, batch, micro, tc, global, 2.0, 6.0);
+  const StepSums sums = accumulate_gradients(model, batch, micro, tc, global, 2.0, 6.0, distortion_scale);
   *loss = sums.loss.item<double>();
   *terms = sums.terms.to(torch::kDouble);
   EXPECT_NEAR(terms->sum().item<double>(), *loss, 1e-6 * *loss);
@@ -234,7 +234,8 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   }
   auto gen = at::detail::createCPUGenerator(7);
   const int64_t n = 12, global = 36;  // this process's share of a 36-ray step
-  const RayBatch batch{test::random_rays(n, 8, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
+  const RayBatch batch{test::random_rays(n, 8, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat),
+                       torch::Tensor()};
   torch::Tensor reported;  // the last step's terms (StepSums::terms)
   const auto grads_of = [&](const TrainConfig& tc, double* loss) {
     return step_gradients(model, batch, 5, tc, global, loss, &reported);
@@ -275,6 +276,58 @@ TEST(Regularisers, StepGradientsAreTheColourLossPlusTheTerms) {
   EXPECT_GT(model->named_parameters()["fine.blocks.1.attn.in_proj_weight"].grad().abs().max().item<double>(), 1e-5);
 }
 
+TEST(Regularisers, DistortionRampFollowsTheSchedule) {
+  // train.distortion_start: off on the whole schedule's first part, then a linear rise over
+  // kDistortionRamp of it; no start means the full weight from the first step.
+  for (const double f : {0.0, 0.3, 1.0}) EXPECT_EQ(distortion_ramp(0.0, f), 1.0);
+  EXPECT_EQ(distortion_ramp(0.5, 0.0), 0.0);
+  EXPECT_EQ(distortion_ramp(0.5, 0.5), 0.0);
+  EXPECT_NEAR(distortion_ramp(0.5, 0.5 + 0.25 * kDistortionRamp), 0.25, 1e-12);
+  EXPECT_NEAR(distortion_ramp(0.5, 0.5 + 0.75 * kDistortionRamp), 0.75, 1e-12);
+  EXPECT_NEAR(distortion_ramp(0.5, 0.5 + kDistortionRamp), 1.0, 1e-12);
+  EXPECT_EQ(distortion_ramp(0.5, 0.5 + 2 * kDistortionRamp), 1.0);
+  // Begun late, the rise is cut off where the schedule ends.
+  EXPECT_NEAR(distortion_ramp(0.95, 1.0), 0.05 / kDistortionRamp, 1e-12);
+}
+
+TEST(Regularisers, DistortionScaleScalesOnlyTheDistortionTerm) {
+  // The ramp's share enters as a 0-d tensor: the step's gradient with share a is the colour loss's
+  // plus a times the full term's, and the reported term is a times the full one.
+  torch::manual_seed(16);
+  AbleNerf model(regulariser_model(false));
+  model->eval();
+  auto gen = at::detail::createCPUGenerator(17);
+  const int64_t n = 10, global = 20;
+  const RayBatch batch{test::random_rays(n, 18, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat),
+                       torch::Tensor()};
+  TrainConfig colour;
+  TrainConfig with = colour;
+  with.distortion_weight = 0.4;
+  double l0 = 0, l1 = 0, la = 0;
+  torch::Tensor t0, t1, ta;
+  const auto g0 = step_gradients(model, batch, 5, colour, global, &l0, &t0);
+  const auto g1 = step_gradients(model, batch, 5, with, global, &l1, &t1);
+  const auto ga = step_gradients(model, batch, 5, with, global, &la, &ta, torch::full({}, 0.25, torch::kFloat));
+  ASSERT_GT(t1[kTermDistortion].item<double>(), 0);
+  EXPECT_NEAR(ta[kTermDistortion].item<double>(), 0.25 * t1[kTermDistortion].item<double>(),
+              1e-6 * t1[kTermDistortion].item<double>());
+  EXPECT_NEAR(la, l0 + 0.25 * (l1 - l0), 1e-6 * l1);
+  for (const auto& kv : g0) {
+    const auto want = kv.second + 0.25 * (g1.at(kv.first) - kv.second);
+    const double tol = 1e-5 * (1 + g1.at(kv.first).abs().max().item<double>());
+    EXPECT_LT((ga.at(kv.first) - want).abs().max().item<double>(), tol) << kv.first;
+  }
+  // A share of 0 leaves the colour loss's gradient.
+  double lz = 0;
+  torch::Tensor tz;
+  const auto gz = step_gradients(model, batch, 5, with, global, &lz, &tz, torch::zeros({}, torch::kFloat));
+  EXPECT_EQ(tz[kTermDistortion].item<double>(), 0);
+  for (const auto& kv : g0)
+    EXPECT_LT((gz.at(kv.first) - kv.second).abs().max().item<double>(),
+              1e-6 * (1 + kv.second.abs().max().item<double>()))
+        << kv.first;
+}
+
 TEST(Regularisers, ProposalAttentionTermMovesOnlyTheAttention) {
   // train.proposal_attention_weight: the proposal loss with the field held constant, on the fine
   // attention. The step's gradients less those without it are exactly that loss's gradient written
@@ -284,7 +337,8 @@ TEST(Regularisers, ProposalAttentionTermMovesOnlyTheAttention) {
   model->eval();  // no jitter: every forward sees the same samples
   auto gen = at::detail::createCPUGenerator(12);
   const int64_t n = 16, global = 32;
-  const RayBatch batch{test::random_rays(n, 13, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat)};
+  const RayBatch batch{test::random_rays(n, 13, torch::kFloat), torch::rand({n, 3}, gen, torch::kFloat),
+                       torch::Tensor()};
   torch::Tensor reported;
   double loss = 0;
   const auto grads_of = [&](const TrainConfig& tc) {

@@ -5,6 +5,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 
 #include "kernels/cpu_parallel.h"
@@ -231,6 +232,32 @@ TEST(Trainer, ResumeEqualsUninterruptedWithCoarsePixels) {
   bool any_differs = false;
   for (const auto& kv : a) any_differs |= !torch::equal(kv.value().toTensor(), b.at(kv.key()).toTensor());
   EXPECT_TRUE(any_differs);
+}
+
+TEST(Trainer, DistortionTermBeginsWhereTheScheduleSays) {
+  // train.distortion_start = 0.5 on a 12-step run: the step at schedule position p = s/12 (s steps
+  // done) carries distortion_ramp(0.5, p) of the weight, so logged steps 1-7 (p <= 0.5) have no
+  // distortion term, step 8 (p = 7/12) part of it and steps 9-12 all of it; without a start every
+  // step has it.
+  test::TempDir t;
+  const auto distortion_by_step = [&](const Config& c, const std::string& name) {
+    EXPECT_EQ(train(c, options(t / name)), TrainResult::Finished);
+    std::map<int64_t, double> d;
+    for (const auto& j : read_log(t / name))
+      if (j["type"] == "train")
+        d[j["step"].get<int64_t>()] = j["terms"].value("distortion", 0.0);  // terms at 0 are not logged
+    return d;
+  };
+  const Config late = test::config_with(
+      test::tiny_config(), {"train.log_every=1", "train.distortion_weight=0.5", "train.distortion_start=0.5"});
+  const auto d = distortion_by_step(late, "late");
+  ASSERT_EQ(d.size(), 12u);
+  for (int64_t step = 1; step <= 7; ++step) EXPECT_EQ(d.at(step), 0.0) << "step " << step;
+  for (int64_t step = 8; step <= 12; ++step) EXPECT_GT(d.at(step), 0.0) << "step " << step;
+  const auto always = distortion_by_step(
+      test::config_with(test::tiny_config(), {"train.log_every=1", "train.distortion_weight=0.5"}), "always");
+  ASSERT_EQ(always.size(), 12u);
+  for (const auto& [step, v] : always) EXPECT_GT(v, 0.0) << "step " << step;
 }
 
 TEST(Trainer, RefusesToOverwriteARun) {
