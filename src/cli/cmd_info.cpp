@@ -25,6 +25,7 @@ nlohmann::json dataset_summary(const Dataset& ds) {
   j["camera"] = ds.intrinsics.describe();
   j["scene"] = name_of(ds.scene.kind);
   j["scene_frame"] = ds.scene.describe();
+  j["faces_one_way"] = ds.scene.faces_one_way;  // the cameras' layout (data/scene_frame.h)
   j["bounds_source"] = ds.scene.bounds_source;
   j["notes"] = ds.notes;
   j["load_seconds"] = ds.load_seconds;

@@ -115,6 +115,7 @@ SceneFrame fit_forward_facing(const Capture& cap, const std::vector<Pose34>& pos
                               const V3& up_sum, const std::string& root) {
   SceneFrame f;
   f.kind = SceneKind::ForwardFacing;
+  f.faces_one_way = true;
   f.centre = to_array(mean);
   // Rows of R: right = up x back, up' = back x right, back (so R back = +z, the cameras look down -z).
   V3 right = cross(up_sum, back);
@@ -181,6 +182,7 @@ std::string SceneFrame::to_json() const {
   j["near"] = near;
   j["far"] = far;
   j["bounds_source"] = bounds_source;
+  j["faces_one_way"] = faces_one_way;
   if (kind == SceneKind::ForwardFacing) {
     j["ndc_a"] = ndc_a;
     j["ndc_b"] = ndc_b;
@@ -205,6 +207,7 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
     f.near = j.at("near").get<double>();
     f.far = j.at("far").get<double>();
     f.bounds_source = j.value("bounds_source", "");
+    f.faces_one_way = j.value("faces_one_way", f.kind == SceneKind::ForwardFacing);  // absent before it was kept
   } catch (const nlohmann::json::exception& e) {
     throw InputError(origin, "", std::string("not a scene frame: ") + e.what());
   }
@@ -220,6 +223,7 @@ std::string SceneFrame::describe() const {
   std::ostringstream o;
   o << name_of(kind) << " scene, near " << near << " far " << far << " (" << bounds_source << ")";
   if (kind == SceneKind::ForwardFacing) o << ", NDC rays (ndc_a " << ndc_a << ", ndc_b " << ndc_b << ")";
+  if (kind != SceneKind::ForwardFacing && faces_one_way) o << ", cameras facing one way";
   if (!identity())
     o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << "), scale " << scale
       << ", up (" << rotation[6] << ", " << rotation[7] << ", " << rotation[8] << ") -> +z";
@@ -300,6 +304,7 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
   for (const auto& p : poses) radius = std::max(radius, length(column(p, 3) - to_vec3(f.centre)));
   f.scale = 1.0 / radius;
   f.kind = requested == SceneKind::Bounded ? SceneKind::Bounded : SceneKind::Unbounded;
+  f.faces_one_way = facing_one_way;
 
   // Bounds, in scene units.
   if (bounds_from_config) {

@@ -25,6 +25,11 @@ struct SceneFrame {
   // ForwardFacing: the NDC projection's focal factors 2 fx / W and 2 fy / H (model/ndc.h).
   double ndc_a = 0, ndc_b = 0;
   std::string bounds_source = "config";  // "points" | "llff bounds" | "cameras" | "config"
+  // The cameras' layout, whatever the kind: every optical axis within kForwardFacingMaxAngleDeg of
+  // their mean (LLFF's captures; true for every ForwardFacing scene). A forward-facing capture
+  // contracted as an unbounded scene (data.ndc = false) keeps it, for the settings that depend on
+  // the layout rather than on the ray parametrisation (train.distortion_forward_facing).
+  bool faces_one_way = false;
 
   bool identity() const;
   // A camera-to-world pose in capture coordinates -> scene coordinates (and back).

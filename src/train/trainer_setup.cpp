@@ -61,6 +61,11 @@ void Trainer::setup() {
   // data.scene resolved from the capture, recorded in the run's config with the scene frame (so
   // that eval and render place samples as training did).
   if (config_.get<DataConfig>().scene == SceneKind::Auto) config_.get<DataConfig>().scene = s.ds->scene.kind;
+  // The distortion term kept off a capture whose cameras face one way, when the config says so
+  // (train.distortion_forward_facing), recorded in the run's config like the scene kind.
+  TrainConfig& tc = config_.get<TrainConfig>();
+  const bool distortion_off = tc.distortion_weight > 0 && !tc.distortion_forward_facing && s.ds->scene.faces_one_way;
+  if (distortion_off) tc.distortion_weight = 0;
   s.run.config = config_;
   if (s.leader) {
     write_file_atomic(s.run.path("config.toml"), config_.to_toml());
@@ -68,6 +73,9 @@ void Trainer::setup() {
     if (!opts_.quiet) {
       log_info("train: " + s.ds->format + " capture, " + s.ds->scene.describe());
       for (const auto& note : s.ds->notes) log_info("train: " + note);
+      if (distortion_off)
+        log_info(
+            "train: the cameras face one way: the distortion term is off (train.distortion_forward_facing = false)");
     }
   }
 

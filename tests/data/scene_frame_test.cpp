@@ -72,6 +72,7 @@ TEST(SceneFrame, RingAroundATiltedTargetIsCentredUprightAndUnitSized) {
   const auto poses = ring_poses(12, target, up, 3.0, 1.0);
   const SceneFrame f = fit_scene_frame(capture_of(poses), "cap", SceneKind::Auto, 2, 6, false);
   EXPECT_EQ(f.kind, SceneKind::Unbounded);  // auto: a real capture is unbounded
+  EXPECT_FALSE(f.faces_one_way);            // cameras all round their target
   // The cameras look at `target`: it becomes the origin.
   for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(f.centre[c], target[c], 1e-5);
   // Every camera is sqrt(3^2 + 1^2) from the target: scale puts them on the unit sphere.
@@ -184,6 +185,7 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   cap.points = {{0, 3, 1}, {0.5, 5, 1.2}, {-0.4, 7, 0.8}};  // depths 5..9 from the grid
   const SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false);
   ASSERT_EQ(f.kind, SceneKind::ForwardFacing);
+  EXPECT_TRUE(f.faces_one_way);
   EXPECT_DOUBLE_EQ(f.near, 0);
   EXPECT_DOUBLE_EQ(f.far, 1);
   EXPECT_NEAR(f.ndc_a, 70.0 / 40, 1e-12);
@@ -207,6 +209,17 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   const SceneFrame u = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false, /*auto_ndc=*/false);
   EXPECT_EQ(u.kind, SceneKind::Unbounded);
   EXPECT_EQ(u.far, kUnboundedFar);
+  // Contracted, it keeps its layout (through scene.json too; a scene.json written before the key
+  // was kept reads it from the kind).
+  EXPECT_TRUE(u.faces_one_way);
+  EXPECT_TRUE(SceneFrame::from_json(u.to_json(), "scene.json").faces_one_way);
+  EXPECT_NE(u.describe().find("cameras facing one way"), std::string::npos) << u.describe();
+  std::string old_json = u.to_json();
+  old_json.replace(old_json.find("\"faces_one_way\": true"), 21, "\"x\": 0");
+  EXPECT_FALSE(SceneFrame::from_json(old_json, "scene.json").faces_one_way);
+  old_json = f.to_json();
+  old_json.replace(old_json.find("\"faces_one_way\": true"), 21, "\"x\": 0");
+  EXPECT_TRUE(SceneFrame::from_json(old_json, "scene.json").faces_one_way);
   EXPECT_EQ(fit_scene_frame(cap, "cap", SceneKind::ForwardFacing, 2, 6, false, false).kind, SceneKind::ForwardFacing);
   // Without points or bounds auto stays unbounded, and an explicit forward is refused.
   const Capture bare = capture_of(poses);
@@ -217,6 +230,7 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   Capture round = capture_of(ring_poses(8, {0, 0, 0}, {0, 0, 1}, 3, 1));
   round.points = {{0, 0, 0}};
   EXPECT_EQ(fit_scene_frame(round, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::Unbounded);
+  EXPECT_FALSE(fit_scene_frame(round, "cap", SceneKind::Auto, 2, 6, false).faces_one_way);
   test::expect_input_error([&] { fit_scene_frame(round, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
                            "data.scene", "same way", true);
 }

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "eval/camera_path.h"
@@ -21,6 +22,7 @@
 #include "util/fs.h"
 #include "util/image_io.h"
 #include "data/data_config.h"
+#include "train/train_config.h"
 
 using namespace ablenerf;
 
@@ -136,4 +138,42 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
     const auto view = -path[i].select(1, 2);
     EXPECT_NEAR((to_focus / to_focus.norm()).dot(view).item<double>(), 1.0, 1e-5);
   }
+}
+
+TEST(ForwardFacing, DistortionTermStaysOffCamerasFacingOneWayWhenAsked) {
+  // train.distortion_forward_facing = false (configs/capture.toml) keeps the distortion term off a
+  // capture whose cameras all face one way, contracted (data.ndc = false) as the preset trains it:
+  // the run's config records weight 0 and no logged step carries the term. Kept on, every step
+  // does; and the same setting leaves a capture with cameras all round it (the tiny Blender scene)
+  // its term.
+  test::TempDir t;
+  const test::IntraOpThreads threads(2);
+  write_forward_capture(t / "data", 16);
+  const auto run_with = [&](const std::string& data, const char* keep, const std::string& name) {
+    Config c = test::config_with(test::tiny_config(), {"data.ndc=false", "train.steps=3", "train.log_every=1",
+                                                       "train.ckpt_every=0", "train.distortion_weight=0.5", keep});
+    EXPECT_EQ(train(c, test::quiet_run(t / name, data)), TrainResult::Finished);
+    int with_term = 0, steps = 0;
+    std::ifstream in(t / name + "/log.jsonl");
+    for (std::string line; std::getline(in, line);) {
+      const auto j = nlohmann::json::parse(line);
+      if (j["type"] != "train") continue;
+      ++steps;
+      with_term += j["terms"].value("distortion", 0.0) > 0;  // terms at 0 are not logged
+    }
+    EXPECT_EQ(steps, 3) << name;
+    const RunFolder run = RunFolder::open(t / name);
+    return std::make_pair(with_term, run.config.get<TrainConfig>().distortion_weight);
+  };
+  const auto off = run_with(t / "data", "train.distortion_forward_facing=false", "off");
+  EXPECT_EQ(off.first, 0);
+  EXPECT_EQ(off.second, 0.0);
+  EXPECT_EQ(RunFolder::open(t / "off").scene().kind, SceneKind::Unbounded);
+  EXPECT_TRUE(RunFolder::open(t / "off").scene().faces_one_way);
+  const auto on = run_with(t / "data", "train.distortion_forward_facing=true", "on");
+  EXPECT_EQ(on.first, 3);
+  EXPECT_EQ(on.second, 0.5);
+  const auto round = run_with(test::tiny_dataset(), "train.distortion_forward_facing=false", "round");
+  EXPECT_EQ(round.first, 3);
+  EXPECT_EQ(round.second, 0.5);
 }
