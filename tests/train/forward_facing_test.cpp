@@ -154,9 +154,7 @@ TEST(ForwardFacing, DistortionTermStaysOffCamerasFacingOneWayWhenAsked) {
                                                        "train.ckpt_every=0", "train.distortion_weight=0.5", keep});
     EXPECT_EQ(train(c, test::quiet_run(t / name, data)), TrainResult::Finished);
     int with_term = 0, steps = 0;
-    std::ifstream in(t / name + "/log.jsonl");
-    for (std::string line; std::getline(in, line);) {
-      const auto j = nlohmann::json::parse(line);
+    for (const auto& j : test::read_log(t / name)) {
       if (j["type"] != "train") continue;
       ++steps;
       with_term += j["terms"].value("distortion", 0.0) > 0;  // terms at 0 are not logged

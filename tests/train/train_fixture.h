@@ -1,11 +1,14 @@
 #pragma once
 // The training tests' fixture: a tiny dataset, a tiny config with a short schedule, quiet run options,
-// config overrides, a straight-versus-resumed run and a held-out score.
+// config overrides, a run's log, a straight-versus-resumed run and a held-out score.
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <functional>
 #include <initializer_list>
+#include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "eval/evaluate.h"
 #include "run/run_folder.h"
@@ -16,6 +19,14 @@
 #include "model/model_config.h"
 
 namespace ablenerf::test {
+
+// The lines of a run's log.jsonl, parsed, in order.
+inline std::vector<nlohmann::json> read_log(const std::string& run) {
+  std::vector<nlohmann::json> out;
+  std::ifstream in(run + "/log.jsonl");
+  for (std::string line; std::getline(in, line);) out.push_back(nlohmann::json::parse(line));
+  return out;
+}
 
 // tiny_model_config() with the default IPE (16 degrees: the training tests' figures were measured
 // with it) and a 12-step schedule of 32-ray steps (seconds on 2 cores).

@@ -39,14 +39,6 @@ void expect_same_weights(const std::string& run_a, const std::string& run_b, dou
   }
 }
 
-std::vector<nlohmann::json> read_log(const std::string& run) {
-  std::vector<nlohmann::json> out;
-  std::ifstream in(run + "/log.jsonl");
-  std::string line;
-  while (std::getline(in, line)) out.push_back(nlohmann::json::parse(line));
-  return out;
-}
-
 TrainOptions options(const std::string& out) { return test::quiet_run(out); }
 
 // A tiny run for a time budget of `seconds`: 10^6 schedule steps (the budget ends it), lr 1e-3 ->
@@ -79,7 +71,7 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
   for (const char* f : {"config.toml", "run.json", "weights.pt", "checkpoint.pt", "log.jsonl"})
     EXPECT_TRUE(fs::exists(t / ("run/" + std::string(f)))) << f;
-  auto log = read_log(t / "run");
+  auto log = test::read_log(t / "run");
   std::vector<double> losses;
   int evals = 0;
   for (const auto& j : log) {
@@ -125,7 +117,7 @@ TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
   test::TempDir t;
   const Config c = time_budget_config(3, 0);
   ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
-  const auto log = read_log(t / "run");
+  const auto log = test::read_log(t / "run");
   ASSERT_GE(log.size(), 3u);
   const auto& first = log.front();
   const auto& last = log.back();
@@ -149,7 +141,7 @@ TEST(Trainer, TimeBudgetKeepsTheWarmUpInOptimiserSteps) {
   Config c = time_budget_config(2, 100000);
   c.set("train.lr_warmup_mult=0.01");
   ASSERT_EQ(train(c, options(t / "run")), TrainResult::Finished);
-  const auto log = read_log(t / "run");
+  const auto log = test::read_log(t / "run");
   ASSERT_GE(log.size(), 3u);
   ASSERT_LT(log.back()["step"].get<int64_t>(), 5000);  // far inside the warm-up
   for (const auto& j : log) {
@@ -243,7 +235,7 @@ TEST(Trainer, DistortionTermBeginsWhereTheScheduleSays) {
   const auto distortion_by_step = [&](const Config& c, const std::string& name) {
     EXPECT_EQ(train(c, options(t / name)), TrainResult::Finished);
     std::map<int64_t, double> d;
-    for (const auto& j : read_log(t / name))
+    for (const auto& j : test::read_log(t / name))
       if (j["type"] == "train")
         d[j["step"].get<int64_t>()] = j["terms"].value("distortion", 0.0);  // terms at 0 are not logged
     return d;
