@@ -29,6 +29,7 @@ fi
 packages=(
   g++ cmake make ninja-build pkg-config     # Ninja keeps both cores busy through the unity build
   libcli11-dev nlohmann-json3-dev libtomlplusplus-dev libpng-dev libjpeg-dev
+  libsleef-dev                            # vector erf / exp for the CPU kernels (kernels/gelu_cpu.h)
   libgloo-dev                             # headers for c10d's Gloo backend (multi-process training)
   libgtest-dev libgmock-dev
   ffmpeg                                  # MP4 output of `ablenerf render`

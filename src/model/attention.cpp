@@ -4,6 +4,7 @@
 
 #include <cmath>
 
+#include "kernels/block_tail.h"
 #include "kernels/packed_attention.h"
 #include "model/ab_transformer.h"
 #include "model/linear_tokens.h"
@@ -21,6 +22,12 @@ namespace {
 constexpr double kLayerNormEps = 1e-5;  // PyTorch default, used by the release
 // Widths the fused LayerNorm kernel takes (kernels/residual_layer_norm.h): a multiple of a warp.
 constexpr int64_t kWarp = 32, kMaxFusedWidth = 1024;
+// The widest block whose tail runs as kernels/block_tail.h on the CPU: its products are the
+// project's register-blocked loops, which pay off for narrow matrices (the capture and demo
+// presets' 32 and 48); at the blender preset's 192 (feed-forward 576) the tail's chunked weight
+// gradients made the step 20% slower than the plain path's BLAS (docs/BENCHMARKS.md, "The block
+// tail fused").
+constexpr int64_t kMaxFusedTailWidth = 64;
 }  // namespace
 
 MultiHeadAttentionImpl::MultiHeadAttentionImpl(int64_t width, int64_t heads) : width_(width), heads_(heads) {
@@ -53,7 +60,8 @@ bool MultiHeadAttentionImpl::is_ray_mask(const torch::Tensor& mask) {
 }
 
 torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const torch::Tensor& mask,
-                                                   RayQueryProbe* probe) {
+                                                   RayQueryProbe* probe, bool project) {
+  const auto projected = [&](const torch::Tensor& heads) { return project ? linear_tokens(out_proj, heads) : heads; };
   const int64_t b = x.size(0), l = x.size(1), dh = width_ / heads_;
   const auto packed = linear_tokens(x, in_proj_weight, in_proj_bias);  // (B, L, 3E)
 #ifdef ABLENERF_CUDA_KERNELS
@@ -64,15 +72,15 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
     const RayAttentionResult r = ray_attention(packed, heads_, mask.defined());
     if (probe && !probe->keep_graph) probe->row0 = r.row0;
     if (probe && probe->keep_graph) fill_probe(packed, b, l, probe);
-    return linear_tokens(out_proj, r.out);
+    return projected(r.out);
   }
 #endif
   if (probe) fill_probe(packed, b, l, probe);
   if (kernel_ == AttentionKernel::Fused && packed_attention_available(x))
-    return linear_tokens(out_proj, packed_self_attention(packed, heads_, mask, scale()));
+    return projected(packed_self_attention(packed, heads_, mask, scale()));
   // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
   const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
-  return attend(qkv[0], qkv[1], qkv[2], mask);
+  return projected(attend(qkv[0], qkv[1], qkv[2], mask));
 }
 
 void MultiHeadAttentionImpl::fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const {
@@ -85,7 +93,8 @@ void MultiHeadAttentionImpl::fill_probe(const torch::Tensor& packed, int64_t b, 
 }
 
 torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in,
-                                                    RayQueryProbe* probe) {
+                                                    RayQueryProbe* probe, bool project) {
+  const auto projected = [&](const torch::Tensor& heads) { return project ? linear_tokens(out_proj, heads) : heads; };
   const int64_t dh = width_ / heads_;
   const auto wq = in_proj_weight.slice(0, 0, width_), bq = in_proj_bias.slice(0, 0, width_);
   const auto wkv = in_proj_weight.slice(0, width_), bkv = in_proj_bias.slice(0, width_);
@@ -98,8 +107,8 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
     probe->k = probe->keep_graph ? kv_heads[0] : kv_heads[0].detach();
   }
   if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in))
-    return linear_tokens(out_proj, packed_cross_attention(q, kv, heads_, scale()));
-  return attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor());
+    return projected(packed_cross_attention(q, kv, heads_, scale()));
+  return projected(attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor()));
 }
 
 double MultiHeadAttentionImpl::scale() const { return 1.0 / std::sqrt(static_cast<double>(width_ / heads_)); }
@@ -124,7 +133,7 @@ torch::Tensor MultiHeadAttentionImpl::attend(const torch::Tensor& q_in, const to
     if (mask.defined()) scores = scores + mask;
     o = torch::matmul(torch::softmax(scores, -1), v);
   }
-  return linear_tokens(out_proj, o.transpose(1, 2).reshape({b, lq, width_}));
+  return o.transpose(1, 2).reshape({b, lq, width_});
 }
 
 TransformerBlockImpl::TransformerBlockImpl(int64_t width, int64_t heads, int64_t ff_width) {
@@ -160,13 +169,28 @@ torch::Tensor TransformerBlockImpl::finish(const torch::Tensor& x, const torch::
   return norm2(h + ff);
 }
 
+bool TransformerBlockImpl::fused_tail(const torch::Tensor& x) const {
+  return attn->kernel() == AttentionKernel::Fused && x.device().is_cpu() && x.scalar_type() == torch::kFloat &&
+         x.size(-1) <= kMaxFusedTailWidth && attn->in_proj_weight.device().is_cpu() &&
+         attn->in_proj_weight.scalar_type() == torch::kFloat;
+}
+
+torch::Tensor TransformerBlockImpl::fused_finish(const torch::Tensor& x, const torch::Tensor& heads) {
+  const BlockTailWeights w{attn->out_proj->weight, attn->out_proj->bias, norm1->weight,  norm1->bias,
+                           ff_in->weight,          ff_in->bias,          ff_out->weight, ff_out->bias,
+                           norm2->weight,          norm2->bias};
+  return block_tail(x, heads, w, kLayerNormEps);
+}
+
 torch::Tensor TransformerBlockImpl::forward_self(const torch::Tensor& x, const torch::Tensor& mask,
                                                  RayQueryProbe* probe) {
+  if (fused_tail(x)) return fused_finish(x, attn->forward_self(x, mask, probe, /*project=*/false));
   return finish(x, attn->forward_self(x, mask, probe));
 }
 
 torch::Tensor TransformerBlockImpl::forward_cross(const torch::Tensor& q, const torch::Tensor& kv,
                                                   RayQueryProbe* probe) {
+  if (fused_tail(q)) return fused_finish(q, attn->forward_cross(q, kv, probe, /*project=*/false));
   return finish(q, attn->forward_cross(q, kv, probe));
 }
 

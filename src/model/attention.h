@@ -30,11 +30,14 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
  public:
   MultiHeadAttentionImpl(int64_t width, int64_t heads);
   // Self-attention. x: (B,L,E); mask: additive (L,L) (0 = may attend, -inf = blocked) or
-  // undefined for none. Fills `probe` when given.
-  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask, RayQueryProbe* probe = nullptr);
+  // undefined for none. Fills `probe` when given. With `project` false the result is the
+  // concatenated heads before the output projection (for a caller that fuses it with what follows).
+  torch::Tensor forward_self(const torch::Tensor& x, const torch::Tensor& mask, RayQueryProbe* probe = nullptr,
+                             bool project = true);
   // Cross-attention without mask. q: (Bq,Lq,E) with Bq == B or 1 (broadcast); kv: (B,Lk,E).
-  // Fills `probe` (q0 = the first query) when given.
-  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr);
+  // Fills `probe` (q0 = the first query) when given. `project` as for forward_self.
+  torch::Tensor forward_cross(const torch::Tensor& q, const torch::Tensor& kv, RayQueryProbe* probe = nullptr,
+                              bool project = true);
   void reset_parameters();
   // Which attention kernel this layer runs (model/compute.h); set by AbleNerf::set_compute.
   void set_kernel(AttentionKernel kernel) { kernel_ = kernel; }
@@ -48,7 +51,7 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   double scale() const;  // 1/sqrt(head width)
   // The probe's q0 and k from the packed projections (B,L,3E) of a self-attention.
   void fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const;
-  // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E) after the output projection.
+  // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E), the heads concatenated (no output projection).
   torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
                        const torch::Tensor& mask);
   // True when `mask` is the ray mask of kernels/ray_attention.h (checked once per mask tensor).
@@ -77,6 +80,12 @@ class TransformerBlockImpl : public torch::nn::Module {
 
  private:
   torch::Tensor finish(const torch::Tensor& x, const torch::Tensor& attn_out);
+  // True when the tail after the attention core runs as kernels/block_tail.h (CPU float32 under
+  // compute.attention = "fused", blocks up to 64 wide): the attention then returns its heads
+  // unprojected.
+  bool fused_tail(const torch::Tensor& x) const;
+  // The tail on the attention's concatenated heads (B,L,E): kernels/block_tail.h.
+  torch::Tensor fused_finish(const torch::Tensor& x, const torch::Tensor& heads);
 };
 TORCH_MODULE(TransformerBlock);
 

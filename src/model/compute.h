@@ -1,7 +1,9 @@
 #pragma once
 // How the model's arithmetic runs, without changing what it computes:
 //  - the attention kernel: "fused" = on the CPU the direct-BLAS kernel over the packed projections
-//    (kernels/packed_attention.h); on CUDA the project's ray-attention kernel where it applies
+//    (kernels/packed_attention.h) and, in blocks up to 64 wide, each block's tail after it as one
+//    node (kernels/block_tail.h: output projection, residual, LayerNorm, feed-forward, residual,
+//    LayerNorm); on CUDA the project's ray-attention kernel where it applies
 //    (kernels/ray_attention.h), else scaled_dot_product_attention (LibTorch >= 2), and the
 //    project's residual + LayerNorm and bias + GELU kernels in every transformer block;
 //    "plain" = explicit softmax(Q K^T / sqrt(d) + mask) V and LibTorch's own ops;

@@ -22,8 +22,8 @@ struct ComputeConfig {
   static constexpr int kOrder = 4;
 
   Precision precision = Precision::Fp32;  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
-  // "fused" (CPU: packed BLAS kernel; CUDA: the project's ray-attention kernel where it applies,
-  // else SDPA) | "plain" (explicit softmax)
+  // "fused" (CPU: packed BLAS kernel and the fused block tail; CUDA: the project's ray-attention kernel where it
+  // applies, else SDPA) | "plain" (explicit softmax)
   AttentionKernel attention = AttentionKernel::Fused;
   // CPU threads: "rays" = each thread runs a slice of the rays through the whole model with
   // single-threaded BLAS; "ops" = one ray batch, threads only inside the libraries' ops.

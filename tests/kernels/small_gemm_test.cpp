@@ -58,6 +58,10 @@ std::vector<Shape> shapes() {
   out.push_back({17, 24, 17, true});
   out.push_back({kSmallGemmMaxDim, kSmallGemmMaxDim, kSmallGemmMaxDim, true});
   out.push_back({kSmallGemmMaxDim, kSmallGemmMaxDim, kSmallGemmMaxDim, false});
+  // The token layers of a fused block (kernels/block_tail.h): a chunk of rows through a projection,
+  // and a weight's gradient over a chunk (a long reduction with A transposed).
+  out.push_back({300, 96, 32, false});
+  out.push_back({32, 64, 257, true});
   return out;
 }
 

@@ -194,5 +194,37 @@ TEST(Attention, PlainEqualsFusedOnTheCpu) {
   }
 }
 
+// In float32 the fused path also runs each block's tail as one node (kernels/block_tail.h): the
+// block's output and the gradients of its inputs and of every parameter equal the plain path's,
+// with the ray mask and without, in self- and cross-attention (the LE's shared queries included).
+TEST(Attention, FusedTailEqualsPlainInFloat32OnTheCpu) {
+  torch::manual_seed(31);
+  TransformerBlock blk(32, 2, 64);
+  const auto mask = ray_attention_mask(16);
+  for (const bool masked : {true, false}) {
+    std::vector<torch::Tensor> outs, grads;
+    for (const AttentionKernel k : {AttentionKernel::Plain, AttentionKernel::Fused}) {
+      blk->attn->set_kernel(k);
+      blk->zero_grad();
+      torch::manual_seed(32);
+      const auto x = torch::randn({5, 17, 32}).requires_grad_(true);
+      const auto le = torch::randn({1, 8, 32}).requires_grad_(true);
+      const auto self = blk->forward_self(x, masked ? mask : torch::Tensor());
+      const auto cross = blk->forward_cross(le, self);
+      const auto loss = (self * self).sum() + cross.sin().sum();
+      std::vector<torch::Tensor> wrt{x, le};
+      for (const auto& p : blk->parameters()) wrt.push_back(p);
+      std::vector<torch::Tensor> flat;
+      for (const auto& g : torch::autograd::grad({loss}, wrt)) flat.push_back(g.reshape({-1}));
+      outs.push_back(torch::cat({self.reshape({-1}), cross.reshape({-1})}).detach());
+      grads.push_back(torch::cat(flat));
+    }
+    EXPECT_LT((outs[0] - outs[1]).abs().max().item<double>(), 1e-4) << "masked " << masked;
+    const double scale = std::max(1.0, grads[0].abs().max().item<double>());
+    EXPECT_LT((grads[0] - grads[1]).abs().max().item<double>(), 1e-4 * scale) << "masked " << masked;
+    EXPECT_GT(grads[0].abs().max().item<double>(), 1e-3);  // not a comparison of zeros
+  }
+}
+
 }  // namespace
 }  // namespace ablenerf

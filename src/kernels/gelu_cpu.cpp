@@ -1,0 +1,122 @@
+#include "kernels/gelu_cpu.h"
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#if defined(ABLENERF_HAVE_SLEEF) && defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define ABLENERF_GELU_SLEEF 1
+#include <immintrin.h>
+// Sleef's vector functions for AVX-512 and AVX2. sleef.h declares them only in a translation unit
+// compiled for those instructions as a whole; this one is compiled for the baseline and enables
+// them per function after a run-time check, so the two pairs it calls are declared here.
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx2,fma")
+extern "C" {
+__m512 Sleef_erff16_u10avx512f(__m512);
+__m512 Sleef_expf16_u10avx512f(__m512);
+__m256 Sleef_erff8_u10avx2(__m256);
+__m256 Sleef_expf8_u10avx2(__m256);
+}
+#pragma GCC pop_options
+#endif
+
+namespace ablenerf {
+
+// Named: the unity build compiles this file with the other kernels.
+namespace gelu_cpu_impl {
+
+constexpr float kInvSqrt2 = 0.70710678118654752f;    // 1 / sqrt 2
+constexpr float kInvSqrt2Pi = 0.39894228040143268f;  // 1 / sqrt(2 pi)
+
+void gelu_scalar(const float* a, float* g, float* d, int64_t n) {
+  for (int64_t i = 0; i < n; ++i) {
+    const float x = a[i];
+    const float phi_cdf = 0.5f * (1.0f + std::erf(x * kInvSqrt2));
+    g[i] = x * phi_cdf;
+    d[i] = phi_cdf + x * kInvSqrt2Pi * std::exp(-0.5f * x * x);
+  }
+}
+
+#ifdef ABLENERF_GELU_SLEEF
+__attribute__((target("avx512f"))) void gelu_avx512(const float* a, float* g, float* d, int64_t n) {
+  const __m512 half = _mm512_set1_ps(0.5f), one = _mm512_set1_ps(1.0f), r2 = _mm512_set1_ps(kInvSqrt2),
+               r2pi = _mm512_set1_ps(kInvSqrt2Pi), minus_half = _mm512_set1_ps(-0.5f);
+  int64_t i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512 x = _mm512_loadu_ps(a + i);
+    const __m512 cdf = _mm512_mul_ps(half, _mm512_add_ps(one, Sleef_erff16_u10avx512f(_mm512_mul_ps(x, r2))));
+    const __m512 pdf = _mm512_mul_ps(r2pi, Sleef_expf16_u10avx512f(_mm512_mul_ps(minus_half, _mm512_mul_ps(x, x))));
+    _mm512_storeu_ps(g + i, _mm512_mul_ps(x, cdf));
+    _mm512_storeu_ps(d + i, _mm512_fmadd_ps(x, pdf, cdf));
+  }
+  gelu_scalar(a + i, g + i, d + i, n - i);
+}
+
+__attribute__((target("avx2,fma"))) void gelu_avx2(const float* a, float* g, float* d, int64_t n) {
+  const __m256 half = _mm256_set1_ps(0.5f), one = _mm256_set1_ps(1.0f), r2 = _mm256_set1_ps(kInvSqrt2),
+               r2pi = _mm256_set1_ps(kInvSqrt2Pi), minus_half = _mm256_set1_ps(-0.5f);
+  int64_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const __m256 x = _mm256_loadu_ps(a + i);
+    const __m256 cdf = _mm256_mul_ps(half, _mm256_add_ps(one, Sleef_erff8_u10avx2(_mm256_mul_ps(x, r2))));
+    const __m256 pdf = _mm256_mul_ps(r2pi, Sleef_expf8_u10avx2(_mm256_mul_ps(minus_half, _mm256_mul_ps(x, x))));
+    _mm256_storeu_ps(g + i, _mm256_mul_ps(x, cdf));
+    _mm256_storeu_ps(d + i, _mm256_fmadd_ps(x, pdf, cdf));
+  }
+  gelu_scalar(a + i, g + i, d + i, n - i);
+}
+#endif
+
+}  // namespace gelu_cpu_impl
+
+using gelu_cpu_impl::gelu_scalar;
+#ifdef ABLENERF_GELU_SLEEF
+using gelu_cpu_impl::gelu_avx2;
+using gelu_cpu_impl::gelu_avx512;
+#endif
+
+bool gelu_cpu_path_available(GeluPath path) {
+  switch (path) {
+    case GeluPath::Auto:
+    case GeluPath::Scalar: return true;
+#ifdef ABLENERF_GELU_SLEEF
+    case GeluPath::Avx512: return __builtin_cpu_supports("avx512f");
+    case GeluPath::Avx2: return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#endif
+    default: return false;
+  }
+}
+
+GeluPath gelu_cpu_best_path() {
+  static const GeluPath best = gelu_cpu_path_available(GeluPath::Avx512) ? GeluPath::Avx512
+                               : gelu_cpu_path_available(GeluPath::Avx2) ? GeluPath::Avx2
+                                                                         : GeluPath::Scalar;
+  return best;
+}
+
+const char* gelu_cpu_path_name(GeluPath path) {
+  switch (path) {
+    case GeluPath::Auto: return gelu_cpu_path_name(gelu_cpu_best_path());
+    case GeluPath::Avx512: return "avx512 (Sleef)";
+    case GeluPath::Avx2: return "avx2 (Sleef)";
+    case GeluPath::Scalar: return "scalar";
+  }
+  return "scalar";
+}
+
+void gelu_and_derivative(const float* a, float* g, float* d, int64_t n, GeluPath path) {
+  if (path == GeluPath::Auto) path = gelu_cpu_best_path();
+  if (!gelu_cpu_path_available(path))
+    throw std::invalid_argument(std::string("gelu_and_derivative: the ") + gelu_cpu_path_name(path) +
+                                " path cannot run on this CPU or build");
+  switch (path) {
+#ifdef ABLENERF_GELU_SLEEF
+    case GeluPath::Avx512: return gelu_avx512(a, g, d, n);
+    case GeluPath::Avx2: return gelu_avx2(a, g, d, n);
+#endif
+    default: return gelu_scalar(a, g, d, n);
+  }
+}
+
+}  // namespace ablenerf
