@@ -43,10 +43,11 @@ struct ExportArgs {
 };
 
 void run_export_weights(const ExportArgs& a) {
-  if (a.run.empty() == a.cfg.config_path.empty())
-    throw InputError("export", "--run", "give exactly one of --run RUN or --config FILE");
+  const bool from_config = !a.cfg.config_path.empty() || !a.cfg.preset.empty();
+  if (a.run.empty() == !from_config)
+    throw InputError("export", "--run", "give exactly one of --run RUN, --config FILE or --preset NAME");
   if (!a.run.empty() && !a.cfg.sets.empty())
-    throw InputError("export", "--set", "--set applies to --config only (a run's config is fixed)");
+    throw InputError("export", "--set", "--set applies to --config or --preset only (a run's config is fixed)");
   Config c;
   if (!a.run.empty()) {
     c = Config::load(a.run + "/config.toml");

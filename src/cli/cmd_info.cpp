@@ -67,7 +67,7 @@ void setup(CLI::App& app) {
   cfg->add_to(app, false);
   app.callback([data, cfg] {
     nlohmann::json out;
-    if (!cfg->config_path.empty() || !cfg->sets.empty()) {
+    if (!cfg->config_path.empty() || !cfg->preset.empty() || !cfg->sets.empty()) {
       const Config c = resolve_config(*cfg);
       out["config"] = config_summary(c);
     }
@@ -77,7 +77,7 @@ void setup(CLI::App& app) {
       lo.progress = true;
       out["dataset"] = dataset_summary(Dataset::load(*data, lo));
     }
-    if (out.is_null()) throw InputError("info", "--data", "give --data DIR and/or --config FILE");
+    if (out.is_null()) throw InputError("info", "--data", "give --data DIR and/or --config FILE or --preset NAME");
     std::cout << out.dump(2) << std::endl;
   });
 }

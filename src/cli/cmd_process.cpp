@@ -29,15 +29,14 @@ void setup(CLI::App& app) {
   app.add_option("--colmap", o->colmap, "The COLMAP program")->capture_default_str();
   app.callback([o] {
     const ProcessResult r = process_capture(*o, std::cerr);
-    nlohmann::json j{
-        {"capture", o->out},
-        {"images", r.images},
-        {"registered", r.registered},
-        {"points", r.points},
-        {"camera", r.camera},
-        {"matcher", r.matcher},
-        {"seconds", r.seconds},
-        {"next", "ablenerf train --data " + o->out + " --config configs/demo.toml --time-budget 15m --out runs/NAME"}};
+    nlohmann::json j{{"capture", o->out},
+                     {"images", r.images},
+                     {"registered", r.registered},
+                     {"points", r.points},
+                     {"camera", r.camera},
+                     {"matcher", r.matcher},
+                     {"seconds", r.seconds},
+                     {"next", "ablenerf train --data " + o->out + " --config configs/capture.toml --out runs/NAME"}};
     std::cout << j.dump() << std::endl;
   });
 }

@@ -83,7 +83,8 @@ void setup(CLI::App& app) {
       "With --resume and no --config, the run's own config.toml is used.");
   app.callback([a] {
     Config config;
-    if (a->resume && a->cfg.config_path.empty() && std::filesystem::exists(a->out + "/config.toml")) {
+    if (a->resume && a->cfg.config_path.empty() && a->cfg.preset.empty() &&
+        std::filesystem::exists(a->out + "/config.toml")) {
       config = RunFolder::open(a->out).config;
       for (const auto& s : a->cfg.sets) config.set(s);
       config.validate();
@@ -124,7 +125,13 @@ void setup(CLI::App& app) {
       throw CommandExit(kExitDiverged, e.what());
     }
     if (r == TrainResult::Interrupted) throw CommandExit(kExitInterrupted);
-    if (env.rank == 0) std::cout << "train: run written to " << a->out << std::endl;
+    if (env.rank == 0) {
+      const std::string& run = a->out;
+      std::cout << "train: run written to " << run << "\nnext:\n  ablenerf eval --run " << run
+                << "\n  ablenerf render --run " << run << " --path orbit --out " << run << "/orbit.mp4"
+                << "\n  ablenerf export --run " << run << " --mesh " << run << "/mesh.ply"
+                << "\n  ablenerf view --run " << run << std::endl;
+    }
   });
 }
 

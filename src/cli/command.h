@@ -41,9 +41,11 @@ struct CommandRegistrar {
   explicit CommandRegistrar(CommandSpec spec) { command_registry().push_back(std::move(spec)); }
 };
 
-// Adds the repeated `--set section.key=value` and `--config FILE` handling shared by commands.
+// Adds the repeated `--set section.key=value`, `--config FILE` and `--preset NAME` (cli/presets.h)
+// handling shared by commands; --config and --preset exclude each other.
 struct ConfigOptions {
   std::string config_path;
+  std::string preset;
   std::vector<std::string> sets;
   void add_to(CLI::App& app, bool config_required);
 };

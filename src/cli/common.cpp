@@ -2,13 +2,30 @@
 
 #include <optional>
 
+#include "cli/presets.h"
 #include "model/able_nerf.h"
 #include "model/model_config.h"
 
 namespace ablenerf::cli {
 
+std::string preset_names() {
+  std::string names;
+  for (const Preset& p : presets()) names += std::string(names.empty() ? "" : ", ") + p.name;
+  return names;
+}
+
+namespace {
+Config preset_config(const std::string& name) {
+  for (const Preset& p : presets())
+    if (name == p.name) return Config::parse(p.toml, "preset " + name);
+  throw InputError("--preset", name, "no such preset; the presets are " + preset_names());
+}
+}  // namespace
+
 Config resolve_config(const ConfigOptions& opts) {
-  Config c = opts.config_path.empty() ? Config{} : Config::load(opts.config_path);
+  Config c = !opts.preset.empty()       ? preset_config(opts.preset)
+             : opts.config_path.empty() ? Config{}
+                                        : Config::load(opts.config_path);
   for (const auto& s : opts.sets) c.set(s);
   c.validate();
   return c;

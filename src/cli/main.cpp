@@ -1,5 +1,6 @@
 // ablenerf: the command-line entry point. Subcommands register themselves (command.h); this file
 // turns what escapes them into one line on stderr and an exit code.
+#include <torch/version.h>
 #include <c10/util/Exception.h>
 #include <malloc.h>
 #include <unistd.h>
@@ -58,7 +59,9 @@ int main(int argc, char** argv) {
   keep_freed_memory();
   flush_subnormals();  // before any thread starts (kernels/cpu_parallel.h)
   CLI::App app{"ablenerf: ABLE-NeRF (attention-based rendering with learnable embeddings) in C++"};
-  app.set_version_flag("--version", std::string(ABLENERF_VERSION));
+  app.set_version_flag(
+      "--version", std::string("ablenerf ") + ABLENERF_VERSION + " (LibTorch " + std::to_string(TORCH_VERSION_MAJOR) +
+                       "." + std::to_string(TORCH_VERSION_MINOR) + "." + std::to_string(TORCH_VERSION_PATCH) + ")");
   app.require_subcommand(1);
   auto& reg = cli::command_registry();
   std::sort(reg.begin(), reg.end(), [](const auto& a, const auto& b) { return a.order < b.order; });

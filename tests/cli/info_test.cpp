@@ -25,6 +25,34 @@ TEST(Cli, HelpForEverySubcommand) {
   }
 }
 
+// --version names the release and the LibTorch the binary was built with.
+TEST(Cli, VersionNamesTheReleaseAndLibTorch) {
+  const auto r = test::run_cli("--version");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.rfind(std::string("ablenerf ") + ABLENERF_VERSION + " (LibTorch ", 0), 0u) << r.output;
+}
+
+// The presets by name are the files of configs/ compiled in: each preset's keys equal its file's;
+// a name that is not a preset, or a preset beside --config, is refused with exit code 2, the line
+// naming --preset and the presets there are.
+TEST(Cli, PresetsByNameAreTheConfigFiles) {
+  for (const std::string name : {"capture", "demo", "blender"}) {
+    const auto by_name = test::run_cli("info --preset " + name);
+    const auto by_file = test::run_cli("info --config " + test::source_dir() + "/configs/" + name + ".toml");
+    ASSERT_EQ(by_name.exit_code, 0) << by_name.output;
+    ASSERT_EQ(by_file.exit_code, 0) << by_file.output;
+    const auto a = nlohmann::json::parse(by_name.output), b = nlohmann::json::parse(by_file.output);
+    EXPECT_EQ(a["config"]["keys"], b["config"]["keys"]) << name;
+    EXPECT_EQ(a["config"]["source"], "preset " + name);
+  }
+  const auto unknown = test::run_cli("info --preset nope");
+  EXPECT_EQ(unknown.exit_code, 2) << unknown.output;
+  EXPECT_NE(unknown.output.find("--preset"), std::string::npos) << unknown.output;
+  EXPECT_NE(unknown.output.find("capture"), std::string::npos) << unknown.output;
+  const auto both = test::run_cli("info --preset demo --config " + test::source_dir() + "/configs/demo.toml");
+  EXPECT_EQ(both.exit_code, 2) << both.output;
+}
+
 TEST(Cli, InfoOnLego) {
   const std::string lego = test::lego_dir();
   if (lego.empty()) GTEST_SKIP() << "lego not present";
@@ -104,9 +132,13 @@ TEST(Cli, QuietAndVerboseSetHowMuchOfTheLogShows) {
   ASSERT_EQ(quiet.exit_code, 0) << quiet.output;
   EXPECT_NE(loud.output.find("train 3/3"), std::string::npos) << loud.output;
   EXPECT_EQ(quiet.output.find("train 3/3"), std::string::npos) << quiet.output;
-  // Quiet: only the command's result, the run folder it wrote.
-  EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 1) << quiet.output;
+  // Quiet: only the command's result: the run folder it wrote and the four next commands.
+  EXPECT_EQ(std::count(quiet.output.begin(), quiet.output.end(), '\n'), 6) << quiet.output;
   EXPECT_NE(quiet.output.find("run written to"), std::string::npos) << quiet.output;
+  // The next commands, each on the run just written.
+  for (const char* next :
+       {"ablenerf eval --run ", "ablenerf render --run ", "ablenerf export --run ", "ablenerf view --run "})
+    EXPECT_NE(quiet.output.find(next), std::string::npos) << next << "\n" << quiet.output;
 }
 
 // On a CPU with AVX2 and FMA, `ablenerf` never runs OpenBLAS's Prescott (SSE3) kernels, which
