@@ -10,6 +10,8 @@
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define ABLENERF_HAVE_AVX2_FORM 1
 #define ABLENERF_TARGET_AVX2 __attribute__((target("avx2,fma")))
+// The same body compiled for 512-bit vectors (AVX-512 F with its 256-bit forms).
+#define ABLENERF_TARGET_AVX512 __attribute__((target("avx512f,avx512vl,avx2,fma")))
 #endif
 
 #define ABLENERF_ALWAYS_INLINE inline __attribute__((always_inline))
@@ -20,6 +22,16 @@ namespace ablenerf {
 inline bool cpu_has_avx2_fma() {
 #ifdef ABLENERF_HAVE_AVX2_FORM
   static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return yes;
+#else
+  return false;
+#endif
+}
+
+// True when this CPU runs AVX-512 F and VL instructions (checked once); such a CPU has AVX2 and FMA.
+inline bool cpu_has_avx512() {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  static const bool yes = cpu_has_avx2_fma() && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
   return yes;
 #else
   return false;

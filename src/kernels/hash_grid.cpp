@@ -5,6 +5,7 @@
 #include <string>
 
 #include "kernels/hash_grid_cpu.h"
+#include "kernels/table_gradient.h"
 #include "kernels/tensor_checks.h"
 
 #ifdef ABLENERF_CUDA_KERNELS
@@ -53,11 +54,15 @@ HashGridShape shape_of(const torch::Tensor& table, const std::vector<int64_t>& r
   return s;
 }
 
-// Saved for backward: the positions (the rows and weights are recomputed) and the resolutions.
+// Saved for backward: the positions (the rows and weights are recomputed) and the resolutions; with
+// a TableGradient slot (kernels/table_gradient.h) the sink and the slot: the table's gradient then
+// goes there and autograd gets none for it (the table stays an input so that the node exists when
+// nothing else needs a gradient).
 class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
  public:
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& positions,
-                               const torch::Tensor& table, const std::vector<int64_t>& res) {
+                               const torch::Tensor& table, const std::vector<int64_t>& res, TableGradient* sink,
+                               int64_t slot) {
     const HashGridShape s = shape_of(table, res);
     const int64_t n = positions.size(0);
     auto out = torch::empty({n, s.levels, s.features}, table.options());
@@ -74,6 +79,9 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     }
     ctx->save_for_backward({positions, table});
     ctx->saved_data["res"] = res;
+    // The sink outlives the graph: it belongs to the module that owns the table.
+    ctx->saved_data["sink"] = static_cast<int64_t>(reinterpret_cast<intptr_t>(sink));
+    ctx->saved_data["slot"] = slot;
     return out;
   }
 
@@ -88,8 +96,12 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     // The positions' gradient only where something upstream asks for it (camera refinement); the
     // table's whenever the table trains.
     if (ctx->needs_input_grad(0)) grad_positions = torch::empty_like(positions);
-    if (ctx->needs_input_grad(1)) grad_table = torch::zeros_like(table);
+    auto* sink = reinterpret_cast<TableGradient*>(static_cast<intptr_t>(ctx->saved_data["sink"].toInt()));
+    if (ctx->needs_input_grad(1) && sink == nullptr) grad_table = torch::zeros_like(table);
     if (positions.is_cpu()) {
+      if (sink != nullptr && ctx->needs_input_grad(1))
+        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s,
+                               sink->slot(table, static_cast<int>(ctx->saved_data["slot"].toInt())));
       if (grad_table.defined())
         hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, grad_table.data_ptr<float>());
       if (grad_positions.defined())
@@ -108,7 +120,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
                                                            stream));
 #endif
     }
-    return {grad_positions, grad_table, torch::Tensor()};
+    return {grad_positions, grad_table, torch::Tensor(), torch::Tensor(), torch::Tensor()};
   }
 };
 
@@ -133,9 +145,13 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
   return s;
 }
 
-torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape) {
+torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
+                               TableGradient* gradient) {
   check_inputs(positions, table, shape);
-  return HashGridFunction::apply(positions, table, resolutions(shape));
+  const int slot = TableGradient::current_slot();
+  if (gradient != nullptr && slot >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled())
+    return HashGridFunction::apply(positions, table, resolutions(shape), gradient, int64_t{slot});
+  return HashGridFunction::apply(positions, table, resolutions(shape), nullptr, int64_t{-1});
 }
 
 torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,

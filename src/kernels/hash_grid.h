@@ -10,6 +10,8 @@
 
 namespace ablenerf {
 
+class TableGradient;
+
 // `levels` levels of 2^log2_table rows of `features` floats, from base_resolution to max_resolution
 // cells per side in a geometric progression (instant-ngp eq. 2-3: b = exp((ln max - ln base) /
 // (levels - 1)), resolution_l = floor(base * b^l)). Throws std::invalid_argument on a shape the
@@ -24,7 +26,10 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 // gradient is added level by level, points in order: no lock, the same sums every run); CUDA tensors the
 // kernels (atomic adds), or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
 // argument on bad input.
-torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape);
+// With `gradient` (kernels/table_gradient.h), on the CPU, while the calling thread has a slot open
+// and the table requires a gradient: the table's gradient goes to that slot instead of autograd.
+torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
+                               TableGradient* gradient = nullptr);
 
 // The same in plain LibTorch ops (index_select and products; autograd gives the table's and the
 // positions' gradients),

@@ -1,7 +1,10 @@
 #include "kernels/small_gemm.h"
 
+#include <c10/util/Exception.h>
+
 #include <algorithm>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 #include "kernels/cpu_features.h"
@@ -12,17 +15,35 @@ namespace {
 
 // 32-byte vectors (GCC/Clang vector extensions): one AVX register, two SSE registers without AVX.
 // `unaligned`: the same vector at any element address (loads and stores of rows of C and B).
+// `wide_block`: vectors per block of four rows (twelve accumulators in AVX's sixteen registers).
 struct F8 {
   using scalar = float;
   typedef float vec __attribute__((vector_size(32)));
   typedef float unaligned __attribute__((vector_size(32), aligned(4), may_alias));
   static constexpr int lanes = 8;
+  static constexpr int wide_block = 3;
 };
 struct D4 {
   using scalar = double;
   typedef double vec __attribute__((vector_size(32)));
   typedef double unaligned __attribute__((vector_size(32), aligned(8), may_alias));
   static constexpr int lanes = 4;
+  static constexpr int wide_block = 3;
+};
+// 64-byte vectors: one AVX-512 register; sixteen accumulators of its thirty-two per block.
+struct F16 {
+  using scalar = float;
+  typedef float vec __attribute__((vector_size(64)));
+  typedef float unaligned __attribute__((vector_size(64), aligned(4), may_alias));
+  static constexpr int lanes = 16;
+  static constexpr int wide_block = 4;
+};
+struct D8 {
+  using scalar = double;
+  typedef double vec __attribute__((vector_size(64)));
+  typedef double unaligned __attribute__((vector_size(64), aligned(8), may_alias));
+  static constexpr int lanes = 8;
+  static constexpr int wide_block = 4;
 };
 
 // NR rows x NV vectors of C, accumulated over the whole reduction in registers. Row r of op(A)
@@ -62,15 +83,15 @@ ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const type
     }
 }
 
-// NR rows of C, all n columns, in blocks of up to four vectors (three for four rows: twelve
-// accumulators, three B vectors and a broadcast fill the sixteen AVX registers); the columns after
-// the last whole vector join the last block (see tile's TAIL).
+// NR rows of C, all n columns, in blocks of up to four vectors (for four rows S::wide_block: with
+// AVX, twelve accumulators, three B vectors and a broadcast fill its sixteen registers); the columns
+// after the last whole vector join the last block (see tile's TAIL).
 template <class S, int NR>
 ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
                                  int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
                                  const typename S::scalar* bt, typename S::scalar* c, int64_t ldc) {
   constexpr int64_t W = S::lanes;
-  constexpr int64_t kBlock = NR >= 4 ? 3 : 4;
+  constexpr int64_t kBlock = NR >= 4 ? S::wide_block : 4;
   const int64_t tail = n % W, vectors = n / W + (tail > 0 ? 1 : 0);
   for (int64_t v0 = 0; v0 < vectors; v0 += kBlock) {
     const int64_t nv = std::min(kBlock, vectors - v0);
@@ -122,19 +143,17 @@ ABLENERF_ALWAYS_INLINE void gemm_body(bool trans_a, int64_t m, int64_t n, int64_
 
 }  // namespace
 
-// The baseline-instruction form (small_gemm's fallback, and tested on its own).
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
-                         const float* b, int64_t ldb, float* c, int64_t ldc) {
-  gemm_body<F8>(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
-}
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
-                         const double* b, int64_t ldb, double* c, int64_t ldc) {
-  gemm_body<D4>(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
-}
-
 namespace {
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
+ABLENERF_TARGET_AVX512 void gemm_avx512(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
+                                        int64_t lda, const float* b, int64_t ldb, float* c, int64_t ldc) {
+  gemm_body<F16>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+ABLENERF_TARGET_AVX512 void gemm_avx512(bool ta, int64_t m, int64_t n, int64_t k, double alpha, const double* a,
+                                        int64_t lda, const double* b, int64_t ldb, double* c, int64_t ldc) {
+  gemm_body<D8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
 ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
                                     const float* b, int64_t ldb, float* c, int64_t ldc) {
   gemm_body<F8>(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
@@ -145,24 +164,57 @@ ABLENERF_TARGET_AVX2 void gemm_avx2(bool ta, int64_t m, int64_t n, int64_t k, do
 }
 #endif
 
+// Unchecked: the form must be one this CPU runs.
 template <class T>
-void dispatch(bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda, const T* b, int64_t ldb, T* c,
-              int64_t ldc) {
+void run_form(SmallGemmForm form, bool ta, int64_t m, int64_t n, int64_t k, T alpha, const T* a, int64_t lda,
+              const T* b, int64_t ldb, T* c, int64_t ldc) {
+  switch (form) {
 #ifdef ABLENERF_HAVE_AVX2_FORM
-  if (cpu_has_avx2_fma()) return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+    case SmallGemmForm::Avx512: return gemm_avx512(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+    case SmallGemmForm::Avx2: return gemm_avx2(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 #endif
-  small_gemm_baseline(ta, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+    default:
+      return gemm_body<std::conditional_t<std::is_same<T, float>::value, F8, D4>>(ta, m, n, k, alpha, a, lda, b, ldb, c,
+                                                                                  ldc);
+  }
 }
 
 }  // namespace
 
+bool small_gemm_form_available(SmallGemmForm form) {
+  switch (form) {
+    case SmallGemmForm::Avx512: return cpu_has_avx512();
+    case SmallGemmForm::Avx2: return cpu_has_avx2_fma();
+    case SmallGemmForm::Baseline: return true;
+  }
+  return false;
+}
+
+SmallGemmForm small_gemm_best_form() {
+  static const SmallGemmForm best = cpu_has_avx512()     ? SmallGemmForm::Avx512
+                                    : cpu_has_avx2_fma() ? SmallGemmForm::Avx2
+                                                         : SmallGemmForm::Baseline;
+  return best;
+}
+
+void small_gemm_in(SmallGemmForm form, bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
+                   int64_t lda, const float* b, int64_t ldb, float* c, int64_t ldc) {
+  TORCH_CHECK(small_gemm_form_available(form), "small_gemm: this CPU does not run the requested form");
+  run_form(form, trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+void small_gemm_in(SmallGemmForm form, bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a,
+                   int64_t lda, const double* b, int64_t ldb, double* c, int64_t ldc) {
+  TORCH_CHECK(small_gemm_form_available(form), "small_gemm: this CPU does not run the requested form");
+  run_form(form, trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+}
+
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda, const float* b,
                 int64_t ldb, float* c, int64_t ldc) {
-  dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+  run_form(small_gemm_best_form(), trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
                 const double* b, int64_t ldb, double* c, int64_t ldc) {
-  dispatch(trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
+  run_form(small_gemm_best_form(), trans_a, m, n, k, alpha, a, lda, b, ldb, c, ldc);
 }
 
 }  // namespace ablenerf

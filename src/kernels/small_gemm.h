@@ -6,9 +6,9 @@
 //   B (k x n): B[p * ldb + j]
 //
 // C is overwritten (no beta). Rows of C are taken four at a time, their columns in blocks of up to
-// three or four SIMD vectors held in registers over the whole reduction; on x86-64 CPUs with AVX2
-// and FMA the 256-bit form is chosen at run time, elsewhere the same code runs with the baseline
-// instructions. Each element is sum_p op(A)(i, p) B(p, j) in increasing p, then times alpha: only
+// three or four SIMD vectors held in registers over the whole reduction; on x86-64 CPUs the widest
+// vector form the CPU runs is chosen at run time (SmallGemmForm below), elsewhere the same code runs
+// with the baseline instructions. Each element is sum_p op(A)(i, p) B(p, j) in increasing p, then times alpha: only
 // rounding (FMA contraction) can differ from a plain loop.
 //
 // Any sizes >= 1 are computed; it pays off where n and k are small:
@@ -40,11 +40,17 @@ void transpose_into(const T* src, int64_t rows, int64_t cols, int64_t lds, T* ds
     for (int64_t c = 0; c < cols; ++c) dst[c * rows + r] = src[r * lds + c];
 }
 
-// The same products with the baseline instructions whatever the CPU (the tests check both forms;
-// small_gemm picks the AVX2 + FMA one where kernels/cpu_features.h finds it).
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a, int64_t lda,
-                         const float* b, int64_t ldb, float* c, int64_t ldc);
-void small_gemm_baseline(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
-                         const double* b, int64_t ldb, double* c, int64_t ldc);
+// The instruction forms small_gemm chooses from at run time, the widest this CPU runs: AVX-512
+// (16 floats per vector), AVX2 + FMA (8), or the baseline instructions (the same code, any x86-64
+// or other CPU). Each computes the same sums; only rounding (FMA contraction) can differ.
+enum class SmallGemmForm { Avx512, Avx2, Baseline };
+bool small_gemm_form_available(SmallGemmForm form);
+SmallGemmForm small_gemm_best_form();
+// small_gemm in a given form (the tests run every one this CPU has); throws c10::Error for a form
+// the CPU does not run.
+void small_gemm_in(SmallGemmForm form, bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, const float* a,
+                   int64_t lda, const float* b, int64_t ldb, float* c, int64_t ldc);
+void small_gemm_in(SmallGemmForm form, bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a,
+                   int64_t lda, const double* b, int64_t ldb, double* c, int64_t ldc);
 
 }  // namespace ablenerf

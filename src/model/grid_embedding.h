@@ -16,7 +16,10 @@
 // and schedule of the project applies unchanged.
 #include <torch/torch.h>
 
+#include <memory>
+
 #include "kernels/hash_grid_shape.h"
+#include "kernels/table_gradient.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
 
@@ -49,6 +52,9 @@ class GridEmbeddingImpl : public torch::nn::Module {
   // The parameter itself (table() / lr_scale()) and the scale.
   const torch::Tensor& table_parameter() const { return table_; }
   double lr_scale() const { return lr_scale_; }
+  // Where a CPU training step's threads gather the table's gradient (kernels/table_gradient.h):
+  // lookups on a thread with a slot open write there, and the step's finish puts the sum in .grad.
+  TableGradient& table_gradient() const { return *table_gradient_; }
 
  private:
   HashGridShape shape_;
@@ -60,6 +66,7 @@ class GridEmbeddingImpl : public torch::nn::Module {
 
   torch::Tensor table_;       // the parameter: the table / lr_scale
   torch::Tensor resolution_;  // (levels) cells per side, a buffer for the weights
+  std::shared_ptr<TableGradient> table_gradient_ = std::make_shared<TableGradient>();
 };
 TORCH_MODULE(GridEmbedding);
 

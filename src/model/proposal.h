@@ -44,6 +44,8 @@ class ProposalImpl : public torch::nn::Module {
   // Densities (B,N) of the interval Gaussians (mean, cov: (B,N,3)).
   torch::Tensor density(const Gaussians& g);
   int64_t samples() const { return samples_; }
+  // The field's grid (its table trains with the rest).
+  GridEmbeddingImpl& grid() const { return *grid_.ptr(); }
 
  private:
   int64_t samples_;

@@ -3,6 +3,7 @@
 #include <vector>
 
 #include "kernels/cpu_parallel.h"
+#include "kernels/table_gradient.h"
 #include "train/regularisers.h"
 #include "train/train_config.h"
 
@@ -71,6 +72,15 @@ ForwardOptions with_appearance(AbleNerf& model, ForwardOptions opts, const torch
   return opts;
 }
 
+// The grid tables the step's threads write their gradients to (kernels/table_gradient.h): the
+// front end's and the proposal field's.
+std::vector<GridEmbeddingImpl*> slotted_tables(AbleNerf& model) {
+  std::vector<GridEmbeddingImpl*> out;
+  if (model->grid()) out.push_back(const_cast<GridEmbeddingImpl*>(model->grid()));
+  if (model->proposal()) out.push_back(&model->proposal()->grid());
+  return out;
+}
+
 // The loss terms of some rays of the step: through the corrected cameras, the model with the photos'
 // appearance codes and the photo colour maps.
 LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions& opts, const TrainConfig& tc,
@@ -102,61 +112,80 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     sums.loss.add_(v);
     sums.terms[term].add_(v);
   };
-  for (int64_t b = 0; b < batch.size(); b += micro) {
-    const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
-    // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
-    // before the split, so that a step does not depend on how many threads share it.
-    ForwardOptions opts = model->with_jitter(mb.size(), {});
-    opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
-    const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
-    if (workers == 1) {
-      const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far, distortion_scale);
-      t.loss.backward();
-      add(t);
-      continue;
-    }
-    std::vector<std::vector<torch::Tensor>> grads(static_cast<size_t>(workers));
-    std::vector<LossTerms> parts(static_cast<size_t>(workers));
-    parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
-      const RayBatch s = mb.slice(lo, hi);
-      LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far, distortion_scale);
-      // Gradients returned, not accumulated, so the threads never write the same .grad.
-      grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
-                                                            /*retain_graph=*/false, /*create_graph=*/false,
-                                                            /*allow_unused=*/true);
-      parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se, t.terms};
-    });
-    torch::NoGradGuard no_grad;
-    for (size_t w = 0; w < grads.size(); ++w) add(parts[w]);
-    // In slice order. A parameter's first sum is a new tensor (g0 + g1 + ...): the gradients
-    // autograd returns may share memory between parameters (an addition hands both operands the
-    // same tensor), so none of them becomes a .grad that a later add_ would write through.
-    for (size_t i = 0; i < params.size(); ++i) {
-      auto& acc = params[i].mutable_grad();
-      for (size_t w = 0; w < grads.size(); ++w) {
-        const auto& g = grads[w][i];
-        if (!g.defined()) continue;
-        if (acc.defined()) {
-          acc.add_(g);
-          continue;
-        }
-        // The first two defined slices in one op when there are two; a lone one is copied.
-        size_t next = w + 1;
-        while (next < grads.size() && !grads[next][i].defined()) ++next;
-        if (next < grads.size()) {
-          acc = g + grads[next][i];
-          w = next;
-        } else {
-          acc = g.clone(torch::MemoryFormat::Contiguous);
+  // The tables' slots hold nothing from a step that did not finish.
+  const auto tables = slotted_tables(model);
+  try {
+    for (int64_t b = 0; b < batch.size(); b += micro) {
+      const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));
+      // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
+      // before the split, so that a step does not depend on how many threads share it.
+      ForwardOptions opts = model->with_jitter(mb.size(), {});
+      opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
+      const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
+      if (workers == 1) {
+        const TableGradientScope slot(0);
+        const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far, distortion_scale);
+        t.loss.backward();
+        add(t);
+        continue;
+      }
+      std::vector<std::vector<torch::Tensor>> grads(static_cast<size_t>(workers));
+      std::vector<LossTerms> parts(static_cast<size_t>(workers));
+      parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
+        const TableGradientScope slot(static_cast<int>(w));
+        const RayBatch s = mb.slice(lo, hi);
+        LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far, distortion_scale);
+        // Gradients returned, not accumulated, so the threads never write the same .grad.
+        grads[static_cast<size_t>(w)] = torch::autograd::grad({t.loss}, params, /*grad_outputs=*/{},
+                                                              /*retain_graph=*/false, /*create_graph=*/false,
+                                                              /*allow_unused=*/true);
+        parts[static_cast<size_t>(w)] = {t.loss.detach(), t.mse_fine, t.ray_se, t.terms};
+      });
+      torch::NoGradGuard no_grad;
+      for (size_t w = 0; w < grads.size(); ++w) add(parts[w]);
+      // In slice order. A parameter's first sum is a new tensor (g0 + g1 + ...): the gradients
+      // autograd returns may share memory between parameters (an addition hands both operands the
+      // same tensor), so none of them becomes a .grad that a later add_ would write through.
+      for (size_t i = 0; i < params.size(); ++i) {
+        auto& acc = params[i].mutable_grad();
+        for (size_t w = 0; w < grads.size(); ++w) {
+          const auto& g = grads[w][i];
+          if (!g.defined()) continue;
+          if (acc.defined()) {
+            acc.add_(g);
+            continue;
+          }
+          // The first two defined slices in one op when there are two; a lone one is copied.
+          size_t next = w + 1;
+          while (next < grads.size() && !grads[next][i].defined()) ++next;
+          if (next < grads.size()) {
+            acc = g + grads[next][i];
+            w = next;
+          } else {
+            acc = g.clone(torch::MemoryFormat::Contiguous);
+          }
         }
       }
     }
+  } catch (...) {
+    for (auto* t : tables) t->table_gradient().discard();
+    throw;
   }
-  // The decays once per step, this process's share of them (ranks add their gradients): the table's,
+  // The decays once per step, this process's share of them (ranks add their gradients): the grid
+  // table's, in the pass that gathers the tables' gradients from their slots (on a GPU, where no
+  // slot is written, on its own),
   const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
-  if (tc.grid_decay > 0 && model->grid()) {
-    const auto& grid = model->grid();
-    add_decay(kTermGridDecay, add_grid_weight_decay(grid->table_parameter(), grid->lr_scale(), tc.grid_decay * share));
+  for (auto* t : tables) {
+    auto param = t->table_parameter();
+    const bool front = t == model->grid();
+    const double decay =
+        front && tc.grid_decay > 0 ? grid_decay_coefficient(param, t->lr_scale(), tc.grid_decay * share) : 0.0;
+    if (!param.is_cpu()) {
+      if (decay > 0) add_decay(kTermGridDecay, add_grid_weight_decay(param, t->lr_scale(), tc.grid_decay * share));
+      continue;
+    }
+    const double value = t->table_gradient().finish(param, decay);
+    if (decay > 0) add_decay(kTermGridDecay, torch::scalar_tensor(value, zero.options()));
   }
   // and the photo colour maps', appearance codes' and camera corrections': each weight times the mean
   // over photos of the squared deviation from the identity.

@@ -73,10 +73,14 @@ torch::Tensor add_squared_norm(const torch::Tensor& param, double coeff) {
 
 }  // namespace
 
-torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight) {
-  TORCH_CHECK(param.dim() == 3, "add_grid_weight_decay: table (levels, rows, features) expected");
+double grid_decay_coefficient(const torch::Tensor& param, double scale, double weight) {
+  TORCH_CHECK(param.dim() == 3, "grid decay: table (levels, rows, features) expected");
   // Every level has rows * features entries, so the sum of level means is one sum over the table.
-  return add_squared_norm(param, weight * scale * scale / static_cast<double>(param.size(1) * param.size(2)));
+  return weight * scale * scale / static_cast<double>(param.size(1) * param.size(2));
+}
+
+torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight) {
+  return add_squared_norm(param, grid_decay_coefficient(param, scale, weight));
 }
 
 torch::Tensor add_row_decay(const torch::Tensor& param, double weight) {

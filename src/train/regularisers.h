@@ -46,6 +46,10 @@ torch::Tensor grid_weight_decay(const torch::Tensor& table);
 // step. Returns the term's value (0-d, param's dtype); no graph is recorded.
 torch::Tensor add_grid_weight_decay(const torch::Tensor& param, double scale, double weight);
 
+// That coefficient, weight * scale^2 / (rows * features): the term is it times sum(param^2). A CPU
+// training step applies it in the pass that gathers the table's gradient (kernels/table_gradient.h).
+double grid_decay_coefficient(const torch::Tensor& param, double scale, double weight);
+
 // weight x the mean over param's first dimension of its rows' squared norms (the per-photo colour
 // maps and camera corrections, each row one photo's), its gradient added straight into param's .grad
 // as add_grid_weight_decay does. Returns the value (0-d, param's dtype).

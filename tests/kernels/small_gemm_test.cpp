@@ -2,8 +2,8 @@
 // operands: every width from 1 to 40 columns (whole blocks of four, three, two and one vectors and
 // the leftover columns, for 8 floats and 4 doubles per vector), odd and even row counts, A as stored
 // and transposed, operands inside wider rows (strides larger than the widths), in float64 to 1e-12
-// and in float32 to float tolerance; C's elements outside the m x n block are left untouched. Both
-// the form chosen for this CPU and the baseline-instruction form.
+// and in float32 to float tolerance; C's elements outside the m x n block are left untouched. Every
+// instruction form this CPU runs (AVX-512, AVX2, the baseline one), and the one small_gemm picks.
 #include <gtest/gtest.h>
 
 #include "kernels/kernel_test_util.h"
@@ -18,9 +18,9 @@ struct Shape {
 };
 
 // Runs one product with padded strides and checks it against the reference; returns the max error.
-// baseline: the baseline-instruction form instead of the one small_gemm picks for this CPU.
+// The form to run (nothing: the one small_gemm picks).
 template <class T>
-double check(const Shape& s, uint64_t seed, double tol, bool baseline) {
+double check(const Shape& s, uint64_t seed, double tol, c10::optional<SmallGemmForm> form) {
   const auto dtype = std::is_same<T, float>::value ? torch::kFloat : torch::kDouble;
   constexpr int64_t kPad = 3;  // extra elements at the end of every row of A, B and C
   const int64_t a_rows = s.trans_a ? s.k : s.m, a_cols = s.trans_a ? s.m : s.k;
@@ -32,10 +32,10 @@ double check(const Shape& s, uint64_t seed, double tol, bool baseline) {
 
   const T sentinel = T(12345);
   auto c_full = torch::full({s.m, s.n + kPad}, sentinel, dtype);
-  auto* product = baseline ? static_cast<void (*)(bool, int64_t, int64_t, int64_t, T, const T*, int64_t, const T*,
-                                                  int64_t, T*, int64_t)>(&small_gemm_baseline)
-                           : static_cast<void (*)(bool, int64_t, int64_t, int64_t, T, const T*, int64_t, const T*,
-                                                  int64_t, T*, int64_t)>(&small_gemm);
+  const auto product = [&](auto... args) {
+    if (form) return small_gemm_in(*form, args...);
+    small_gemm(args...);
+  };
   product(s.trans_a, s.m, s.n, s.k, T(alpha), a_full.template data_ptr<T>(), a_cols + kPad,
           b_full.template data_ptr<T>(), s.n + kPad, c_full.template data_ptr<T>(), s.n + kPad);
   const auto got = c_full.narrow(1, 0, s.n).to(torch::kDouble);
@@ -48,7 +48,8 @@ double check(const Shape& s, uint64_t seed, double tol, bool baseline) {
 
 std::vector<Shape> shapes() {
   std::vector<Shape> out;
-  for (int64_t n = 1; n <= 40; ++n)
+  // Up to 72 columns: whole blocks of one to four vectors of 16 floats, 8 or 4 doubles, and leftovers.
+  for (int64_t n = 1; n <= 72; ++n)
     for (const int64_t m : {1, 2, 5, 17})
       for (const bool t : {false, true}) out.push_back({m, n, n % 7 + 1, t});
   // The attention core at the demo preset: S = Q K^T (17 x 17 x 24), O = P V (17 x 24 x 17), the
@@ -65,22 +66,38 @@ std::vector<Shape> shapes() {
   return out;
 }
 
+// The picked form, then every form this CPU runs.
+std::vector<c10::optional<SmallGemmForm>> forms() {
+  std::vector<c10::optional<SmallGemmForm>> out{c10::nullopt};
+  for (const auto f : {SmallGemmForm::Avx512, SmallGemmForm::Avx2, SmallGemmForm::Baseline})
+    if (small_gemm_form_available(f)) out.emplace_back(f);
+  return out;
+}
+
 TEST(SmallGemm, Float64MatchesMatmul) {
-  for (const bool baseline : {false, true}) {
+  for (const auto& form : forms()) {
     uint64_t seed = 10;
-    for (const auto& s : shapes()) check<double>(s, seed += 2, 1e-12, baseline);
+    for (const auto& s : shapes()) check<double>(s, seed += 2, 1e-12, form);
   }
 }
 
 TEST(SmallGemm, Float32MatchesMatmul) {
-  for (const bool baseline : {false, true}) {
+  for (const auto& form : forms()) {
     uint64_t seed = 500;
     double worst = 0;
     // float32 operands; the reference multiplies them in float64: the error is the float32
     // accumulation's, a few ulps of sqrt(k)-sized sums.
-    for (const auto& s : shapes()) worst = std::max(worst, check<float>(s, seed += 2, 2e-5 * double(s.k), baseline));
+    for (const auto& s : shapes()) worst = std::max(worst, check<float>(s, seed += 2, 2e-5 * double(s.k), form));
     EXPECT_GT(worst, 0.0) << "float32 sums agreeing exactly with float64 ones: the float path did not run";
   }
+}
+
+TEST(SmallGemm, PicksTheWidestFormTheCpuRuns) {
+  const auto best = small_gemm_best_form();
+  EXPECT_TRUE(small_gemm_form_available(best));
+  EXPECT_TRUE(small_gemm_form_available(SmallGemmForm::Baseline));
+  if (small_gemm_form_available(SmallGemmForm::Avx512)) EXPECT_EQ(best, SmallGemmForm::Avx512);
+  if (!small_gemm_form_available(SmallGemmForm::Avx2)) EXPECT_EQ(best, SmallGemmForm::Baseline);
 }
 
 TEST(SmallGemm, FitsOnlySmallPositiveSizes) {

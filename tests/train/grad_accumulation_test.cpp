@@ -11,6 +11,7 @@
 #include "test_util.h"
 #include "train_fixture.h"
 #include "train/grad_accumulation.h"
+#include "train/regularisers.h"
 #include "train/train_config.h"
 #include "model/compute_config.h"
 
@@ -252,6 +253,53 @@ TEST(GradAccumulation, CameraRefineGradientsEqualOneBackwardOverTheCorrectedRays
     const auto& p = model->camera_refine()->parameter();
     const double k = model->camera_refine()->lr_scale();
     EXPECT_TRUE(torch::allclose(p.grad() - ref, 2 * 0.5 / 4 * k * k * p, 0, grid ? 1e-6 : 1e-12)) << what;
+  }
+}
+
+// The grid tables' gradients (the front end's and the proposal field's) gathered in slots by the
+// step's threads (kernels/table_gradient.h), with the front end's decay added in the same pass, equal
+// autograd's through one backward of the same loss plus the decay's own gradient
+// (add_grid_weight_decay), on the ray split and in micro-batches; the slots are empty afterwards.
+TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(12);
+  ModelConfig mc = test::two_head_grid_model(3, 8, 4, 16, 6.0);
+  mc.proposal_samples = 8;
+  mc.proposal_levels = 2;
+  mc.proposal_log2_table = 7;
+  mc.proposal_max_resolution = 8;
+  AbleNerf model(mc);
+  model->train();
+  TrainConfig tc;
+  tc.coarse_weight = 0.3;
+  tc.grid_decay = 0.5;
+  tc.proposal_weight = 1.0;
+  const int64_t n = 48;
+  RayBatch batch = some_batch(n);
+  GridEmbeddingImpl& front = const_cast<GridEmbeddingImpl&>(*model->grid());
+  GridEmbeddingImpl& proposal = model->proposal()->grid();
+  const auto front_table = front.table_parameter(), proposal_table = proposal.table_parameter();
+
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const LossTerms t = ray_loss(model->forward(batch.rays, 2.0, 6.0), batch.target, tc, n);
+  t.loss.backward();
+  const auto decay = add_grid_weight_decay(front_table, front.lr_scale(), tc.grid_decay);
+  const auto ref_front = front_table.grad().clone(), ref_proposal = proposal_table.grad().clone();
+  EXPECT_GT(ref_proposal.abs().sum().item<double>(), 1e-6) << "the proposal's table got no gradient";
+
+  for (const int64_t micro : {n, int64_t{16}}) {
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    const StepSums s = accumulate_gradients(model, batch, micro, tc, n, 2.0, 6.0);
+    EXPECT_NEAR(s.terms[kTermGridDecay].item<double>(), decay.item<double>(), 1e-6 * decay.item<double>());
+    EXPECT_NEAR(s.loss.item<double>(), (t.loss + decay).item<double>(), 1e-5 * s.loss.item<double>());
+    for (const auto& [got, want, name] : {std::make_tuple(front_table.grad(), ref_front, "front end"),
+                                          std::make_tuple(proposal_table.grad(), ref_proposal, "proposal")}) {
+      ASSERT_TRUE(got.defined()) << name;
+      EXPECT_LT((got - want).abs().max().item<double>(), 1e-5 * (1e-3 + want.abs().max().item<double>()))
+          << name << ", micro-batch " << micro;
+    }
+    EXPECT_FALSE(front.table_gradient().pending());
+    EXPECT_FALSE(proposal.table_gradient().pending());
   }
 }
 

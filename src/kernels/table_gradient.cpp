@@ -1,0 +1,109 @@
+#include "kernels/table_gradient.h"
+
+#include <algorithm>
+
+#include "kernels/cpu_parallel.h"
+
+namespace ablenerf {
+
+namespace table_gradient_impl {
+
+thread_local int t_slot = -1;
+
+// Entries per thread of the finishing pass, below which a second thread does not pay.
+constexpr int64_t kEntriesPerWorker = 1 << 16;
+
+}  // namespace table_gradient_impl
+
+int TableGradient::current_slot() { return table_gradient_impl::t_slot; }
+
+float* TableGradient::slot(const torch::Tensor& table, int k) {
+  TORCH_CHECK(k >= 0, "TableGradient: slot ", k, " is negative");
+  TORCH_CHECK(table.is_cpu() && table.scalar_type() == torch::kFloat && table.is_contiguous(),
+              "TableGradient: the table must be a contiguous float32 CPU tensor, got ", table.scalar_type(), " on ",
+              table.device());
+  const std::lock_guard<std::mutex> lock(mutex_);
+  const auto kk = static_cast<size_t>(k);
+  if (slots_.size() <= kk) {
+    slots_.resize(kk + 1);
+    written_.resize(kk + 1, false);
+  }
+  auto& s = slots_[kk];
+  if (!s.defined() || !s.sizes().equals(table.sizes())) s = torch::zeros_like(table);
+  written_[kk] = true;
+  return s.data_ptr<float>();
+}
+
+bool TableGradient::pending() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  return std::find(written_.begin(), written_.end(), true) != written_.end();
+}
+
+void TableGradient::discard() {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  for (size_t k = 0; k < slots_.size(); ++k)
+    if (written_[k]) slots_[k].zero_();
+  std::fill(written_.begin(), written_.end(), false);
+}
+
+double TableGradient::finish(torch::Tensor& parameter, double decay) {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<float*> src;
+  for (size_t k = 0; k < slots_.size(); ++k) {
+    if (!written_[k]) continue;
+    TORCH_CHECK(slots_[k].sizes().equals(parameter.sizes()), "TableGradient: a slot of ", slots_[k].sizes(),
+                " for a parameter of ", parameter.sizes());
+    src.push_back(slots_[k].data_ptr<float>());
+  }
+  if (src.empty() && decay == 0) return 0.0;
+  TORCH_CHECK(parameter.is_cpu() && parameter.scalar_type() == torch::kFloat && parameter.is_contiguous(),
+              "TableGradient: the parameter must be a contiguous float32 CPU tensor");
+  torch::Tensor before = parameter.grad();
+  if (before.defined()) before = before.to(torch::kFloat).contiguous();
+  // The buffer handed out last step is reused unless someone else still holds it (then a new one:
+  // never write through a tensor another owner reads).
+  if (!grad_.defined() || !grad_.sizes().equals(parameter.sizes()) || grad_.use_count() > 1 ||
+      (before.defined() && before.is_same(grad_)))
+    grad_ = torch::empty_like(parameter);
+  const float* w = parameter.data_ptr<float>();
+  const float* g0 = before.defined() ? before.data_ptr<float>() : nullptr;
+  float* out = grad_.data_ptr<float>();
+  const int64_t n = parameter.numel();
+  const float two_decay = static_cast<float>(2 * decay);
+  const int64_t workers = cpu_workers(n, table_gradient_impl::kEntriesPerWorker);
+  std::vector<double> squares(static_cast<size_t>(workers), 0.0);
+  parallel_slices(n, workers, [&](int64_t t, int64_t lo, int64_t hi) {
+    double sq = 0.0;
+    for (int64_t j = lo; j < hi; ++j) {
+      float g = g0 != nullptr ? g0[j] : 0.0f;
+      for (float* s : src) {
+        g += s[j];
+        s[j] = 0.0f;
+      }
+      out[j] = g + two_decay * w[j];
+      sq += static_cast<double>(w[j]) * w[j];
+    }
+    squares[static_cast<size_t>(t)] = sq;
+  });
+  std::fill(written_.begin(), written_.end(), false);
+  parameter.mutable_grad() = grad_;
+  double total = 0.0;
+  for (const double s : squares) total += s;
+  return decay * total;
+}
+
+TableGradientScope::TableGradientScope(int k) : previous_(table_gradient_impl::t_slot) {
+  table_gradient_impl::t_slot = k;
+}
+
+TableGradientScope::~TableGradientScope() { table_gradient_impl::t_slot = previous_; }
+
+torch::Tensor table_gradient_reference(const torch::Tensor& grad, const std::vector<torch::Tensor>& slots,
+                                       const torch::Tensor& parameter, double decay) {
+  // In finish()'s order: the gradient before, the slots in order, then the decay's term.
+  auto out = grad.defined() ? grad.clone() : torch::zeros_like(parameter);
+  for (const auto& s : slots) out = out + s;
+  return out + parameter * (2 * decay);
+}
+
+}  // namespace ablenerf
