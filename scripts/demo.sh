@@ -13,7 +13,7 @@ ablenerf_plan   # build-cuda with a PyTorch whose CUDA works, else build (script
 scripts/setup.sh
 # Every core: training and rendering split each batch of rays across the CPU threads
 # (compute.cpu_split = "rays"); on the 2-core reference machine that trained the demo model
-# 1.75-2.1x faster than one thread (docs/BENCHMARKS.md, "Demo-scene training"). With a CUDA
+# 1.75-2.1x faster than one thread (docs/benchmarks/history.md, "Demo-scene training"). With a CUDA
 # build, --device auto (the default) trains and renders on the GPU.
 bin=$ABLENERF_BUILD_DIR/ablenerf
 data=data/demo

@@ -9,6 +9,7 @@
 #include "train/trainer.h"
 #include "util/duration.h"
 #include "util/errors.h"
+#include "util/log.h"
 #ifdef ABLENERF_HAVE_VIEW
 
 #include "view/view_server.h"
@@ -90,6 +91,11 @@ void setup(CLI::App& app) {
       config.validate();
     } else {
       config = resolve_config(a->cfg);
+      // Without a preset the program's defaults are the paper's model and schedule: say so, once.
+      if (a->cfg.config_path.empty() && a->cfg.preset.empty())
+        log_warn(
+            "train: no --preset or --config: the paper's model and schedule (the blender preset); for your own "
+            "photos use --preset capture (or capture_gpu on a GPU)");
     }
     if (!a->time_budget.empty()) {
       const auto seconds = parse_duration(a->time_budget);

@@ -50,7 +50,7 @@ struct DataConfig {
   // contracts it as an unbounded scene, centred on what its cameras look at.
   bool ndc = true;
   // Off by default: on the gold cape (object masks) training on the masked pixels only cost 0.8 dB
-  // on the object at 15 minutes (docs/BENCHMARKS.md, "The capture preset and the peer").
+  // on the object at 15 minutes (docs/benchmarks/history.md, "The capture preset and the peer").
   MaskSource masks = MaskSource::None;
 
   template <class F>

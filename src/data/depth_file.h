@@ -9,7 +9,7 @@
 //   distance along the pixel-centre ray = 8 (1 - v / 255),   v = 0: background,
 // with a median disagreement of 0.017 between neighbouring views (half of one 8-bit step, 0.031);
 // z-depth with the same constants disagrees by 0.038, constants 1% off by 0.020-0.170
-// (docs/BENCHMARKS.md, "Blender's depth maps"; the test that checks it on lego:
+// (docs/benchmarks/history.md, "Blender's depth maps"; the test that checks it on lego:
 // tests/data/depth_file_test.cpp).
 #include <torch/torch.h>
 

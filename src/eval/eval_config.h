@@ -36,7 +36,7 @@ struct EvalConfig {
   // on the right half. Off = the plain protocol, the one published figures use. A run with
   // appearance codes has its code fitted first: look_code_steps Adam steps of 512 rays, step
   // look_code_lr on the code (trained codes' entries stay within a few tenths, which 100 such steps
-  // reach; larger steps fit the left half's noise: docs/BENCHMARKS.md, "NeRF-W's code fit").
+  // reach; larger steps fit the left half's noise: docs/benchmarks/history.md, "NeRF-W's code fit").
   bool fit_look = false;
   int64_t look_code_steps = 100;
   double look_code_lr = 3e-3;

@@ -62,13 +62,17 @@ torch::Tensor take(const c10::Dict<c10::IValue, c10::IValue>& dict, const std::s
 std::vector<std::string> lpips_weights_candidates() {
   namespace fs = std::filesystem;
   std::vector<std::string> out;
-  // The copy shipped in the source tree this binary was built from.
-  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / "assets" / kLpipsFile).string());
-  // An installed or copied tree: BIN_DIR/../assets (the binary's real location, links resolved).
+  // An installed tree first (cmake --install, the .deb): BIN_DIR/../share/ablenerf/assets, the
+  // binary's real location with links resolved; then a copied tree's BIN_DIR/../assets.
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  if (!ec && !exe.empty())
+  if (!ec && !exe.empty()) {
+    out.push_back(
+        (exe.parent_path() / ".." / "share" / "ablenerf" / "assets" / kLpipsFile).lexically_normal().string());
     out.push_back((exe.parent_path() / ".." / "assets" / kLpipsFile).lexically_normal().string());
+  }
+  // The copy shipped in the source tree this binary was built from.
+  out.push_back((fs::path(ABLENERF_SOURCE_DIR) / "assets" / kLpipsFile).string());
   // The project's shared folder beside the repository (the fp32 original).
   out.push_back((fs::path(ABLENERF_SOURCE_DIR) / ".." / "shared" / "weights" / kLpipsFile).lexically_normal().string());
   return out;

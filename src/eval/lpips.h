@@ -15,9 +15,10 @@ namespace ablenerf {
 // lpips_weights_candidates(); else "" (the caller should say LPIPS is skipped).
 std::string default_lpips_weights_path();
 
-// Where default_lpips_weights_path() looks, in order: <source tree>/assets/lpips_alex_v0.1.pt (the
-// shipped fp16 copy, assets/LPIPS_WEIGHTS.md), <binary's folder>/../assets/ (an installed or
-// copied tree), <source tree>/../shared/weights/ (the project's fp32 original; optional, used when present).
+// Where default_lpips_weights_path() looks, in order: <binary's folder>/../share/ablenerf/assets/
+// (an installed tree: cmake --install, the .deb), <binary's folder>/../assets/ (a copied tree),
+// <source tree>/assets/lpips_alex_v0.1.pt (the shipped fp16 copy, assets/LPIPS_WEIGHTS.md),
+// <source tree>/../shared/weights/ (the project's fp32 original; optional, used when present).
 std::vector<std::string> lpips_weights_candidates();
 
 class Lpips {

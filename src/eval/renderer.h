@@ -40,7 +40,7 @@ struct AttentionDepth {
   torch::Tensor median;
 };
 // The share of the attention in front of the surface: measured on the demo scene's exact depth,
-// 0.15 gave the least error across an IPE and a grid model (docs/BENCHMARKS.md, "Depth from the
+// 0.15 gave the least error across an IPE and a grid model (docs/benchmarks/history.md, "Depth from the
 // attention's front").
 constexpr double kAttentionFrontShare = 0.15;
 AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::Tensor& t);

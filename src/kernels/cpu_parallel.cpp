@@ -56,7 +56,7 @@ thread_local int t_held_threads = 0;
 // each slice's thread would open an OpenMP team of its own in those loops, W teams on W cores whose
 // idle members spin while the other slices work: on 2 cores a quarter of the capture preset's CPU
 // time went to that spinning, and the 256-ray training step took 84 ms against 58 ms with LibTorch
-// held to one thread (docs/BENCHMARKS.md, "One OpenMP team per slice").
+// held to one thread (docs/benchmarks/history.md, "One OpenMP team per slice").
 class WorkerScope {
  public:
   WorkerScope() : previous_(t_in_worker) { t_in_worker = true; }

@@ -67,7 +67,7 @@ class SerialIntraOp {
 // first thing in a program. Why: a capture-preset run drifts values into that range (the table's
 // weight decay shrinks rows no ray reads, Adam's second moments of rarely touched rows decay with
 // them), every operation on one costs tens of times a normal one, and the training step slowed to a
-// third of its speed after its first ~2,000 steps (docs/BENCHMARKS.md, "Subnormal floats").
+// third of its speed after its first ~2,000 steps (docs/benchmarks/history.md, "Subnormal floats").
 // Nothing the model renders or learns from lies in that range. False where the CPU has no such
 // mode.
 bool flush_subnormals();
@@ -81,7 +81,7 @@ std::string blas_core_name();
 // Rapids among them) and falls back to its Prescott kernels (SSE3, no FMA) on them, 12% of a
 // capture-preset training step's time in a profile on such a 2-vCPU VM. Where it chose Prescott
 // on a CPU with AVX2 and FMA, and the variable is unset: "SkylakeX" with AVX-512 (F, DQ, BW, VL),
-// else "Haswell" (docs/BENCHMARKS.md, "OpenBLAS's kernels"). OpenBLAS reads the variable once, when
+// else "Haswell" (docs/benchmarks/history.md, "OpenBLAS's kernels"). OpenBLAS reads the variable once, when
 // it is loaded, so the program restarts itself with it (cli/main.cpp).
 std::string blas_core_override();
 

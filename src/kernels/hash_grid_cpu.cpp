@@ -14,7 +14,7 @@ constexpr int64_t kPointsPerTask = 1024;
 // presets' 2 and the common 4: the row's loads and sums unroll), or F = 0 for any count (`features`).
 // Level by level rather than point by point: a hashed level's rows (2^16 x 2 floats = 512 KiB at
 // the capture preset) stay in the core's L2 cache while every point reads them, where a point
-// reading all levels in turn sweeps the whole table (4 MiB) through it (docs/BENCHMARKS.md,
+// reading all levels in turn sweeps the whole table (4 MiB) through it (docs/benchmarks/history.md,
 // "Hash-grid loops level by level").
 template <int F>
 void forward_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows, const HashGridShape& s,

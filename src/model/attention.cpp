@@ -25,7 +25,7 @@ constexpr int64_t kWarp = 32, kMaxFusedWidth = 1024;
 // The widest block whose tail runs as kernels/block_tail.h on the CPU: its products are the
 // project's register-blocked loops, which pay off for narrow matrices (the capture and demo
 // presets' 32 and 48); at the blender preset's 192 (feed-forward 576) the tail's chunked weight
-// gradients made the step 20% slower than the plain path's BLAS (docs/BENCHMARKS.md, "The block
+// gradients made the step 20% slower than the plain path's BLAS (docs/benchmarks/history.md, "The block
 // tail fused").
 constexpr int64_t kMaxFusedTailWidth = 64;
 }  // namespace

@@ -37,7 +37,7 @@ struct ModelConfig {
   int grid_max_resolution = 2048;
   // IPE frequencies 2^0 .. 2^(grid_ipe_degrees-1) put beside the grid's features in the token (0 =
   // the grid alone): the grid carries no position of its own, and without it the transformer
-  // memorised the training rays of a real capture (docs/BENCHMARKS.md, "Grid front end").
+  // memorised the training rays of a real capture (docs/benchmarks/history.md, "Grid front end").
   int grid_ipe_degrees = 4;
   double grid_lr_scale = 20;  // the table's learning rate over the run's (instant-ngp's 1e-2 at lr 5e-4)
   double grid_bound = 1.5;    // bounded scenes: the grid spans [-grid_bound, grid_bound]^3 of the world

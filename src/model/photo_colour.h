@@ -23,7 +23,7 @@ namespace ablenerf {
 // The gains learn at this multiple of the run's learning rate (the parameter Adam sees is the log
 // gains over it, as for the grid's table): a stop of exposure is a log gain of 0.69, far beyond what
 // steps of the run's rate (about 1e-3) cover in a short run. At this scale a 1,500-step run recovers
-// a jittered capture's gains to a quarter of their spread (docs/BENCHMARKS.md, "Per-photo gains in
+// a jittered capture's gains to a quarter of their spread (docs/benchmarks/history.md, "Per-photo gains in
 // linear light"; the run's own rate was not measured on that capture).
 constexpr double kPhotoGainLrScale = 10.0;
 

@@ -42,14 +42,14 @@ struct TrainConfig {
   // the schedule (train/regularisers.h, distortion_ramp). 0 = on from the first step. From the start,
   // 0.01 gathered the attention of a phone video's rays before they had found its surfaces and left
   // them there (-6 dB); begun at 0.5 the same weight reads the depth of lego and the demo scene
-  // and costs no image (docs/BENCHMARKS.md, "The demo scene at its own size, and the distortion
+  // and costs no image (docs/benchmarks/history.md, "The demo scene at its own size, and the distortion
   // term begun halfway").
   double distortion_start = 0.0;
   // Whether the distortion term trains captures whose cameras all face one way too (the scene
   // frame's faces_one_way: LLFF's layout, contracted or in NDC). false: the trainer sets
   // distortion_weight to 0 for such a capture and says so; the run's config.toml records the 0.
   // Begun halfway, 0.01 cost LLFF's fern 0.5 dB and horns 0.8 dB, while captures with cameras all
-  // round their subject scored as without it (docs/BENCHMARKS.md, "The distortion term on
+  // round their subject scored as without it (docs/benchmarks/history.md, "The distortion term on
   // forward-facing captures").
   bool distortion_forward_facing = true;
   // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over

@@ -124,7 +124,7 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   s.adam->clear_grads();
   // With the CPU ray split, the step's own LibTorch loops (over the grid's table: gradients summed,
   // decayed) run on this thread alone: their OpenMP team's idle member would spin into the split's
-  // slices (docs/BENCHMARKS.md, "The step's own loops on one thread": +14% steps in 15 minutes).
+  // slices (docs/benchmarks/history.md, "The step's own loops on one thread": +14% steps in 15 minutes).
   std::optional<SerialIntraOp> serial;
   if (s.model->cpu_ray_workers(s.micro, /*draws_randomness=*/false) > 1) serial.emplace();
   const RayBatch batch = s.sampler->gather(indices);

@@ -88,7 +88,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   // `metrics --poses` after aligning each rig to the truth (BARF's protocol: the motion common to all
   // cameras is one no photo reveals): measured 0.19 of the given poses' error, under the fifth the
   // refinement is asked for; the same at 48 and 64 pixels (0.185, 0.189) and after twice the steps
-  // (0.191), so a floor of this scene and perturbation, not of training time (docs/BENCHMARKS.md,
+  // (0.191), so a floor of this scene and perturbation, not of training time (docs/benchmarks/history.md,
   // "Camera refinement's floor"). The bound leaves room for another CPU's rounding.
   const auto aligned_error = [&](const std::string& file) {
     const auto m = test::run_cli("metrics --poses " + file + " --truth " + (t / "data"));

@@ -53,7 +53,7 @@ TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
     EXPECT_NE(capture->grid(), nullptr) << name;
     ASSERT_NE(capture->proposal(), nullptr) << name;
     EXPECT_EQ(capture->proposal()->samples(), 32) << name;
-    // and forward-facing captures contracted, not in NDC (docs/BENCHMARKS.md, "A forward-facing capture").
+    // and forward-facing captures contracted, not in NDC (docs/benchmarks/history.md, "A forward-facing capture").
     EXPECT_FALSE(preset(name).get<DataConfig>().ndc) << name;
   }
   for (const char* paper : {"blender", "demo"}) {
