@@ -2,7 +2,7 @@
 // dictionary (save_weights format, names in docs/weights.md), either from a run folder
 // (RUN/config.toml + RUN/weights.pt) or freshly initialised from a config; and, from a run, the
 // scene as geometry: coloured points (--points) and a mesh (--mesh), geometry/export_geometry.h;
-// and the training cameras as the run refined them (--poses, train.camera_refine).
+// and the training cameras as the run refined them (--cameras, train.camera_refine).
 #include <torch/torch.h>
 
 #include <cmath>
@@ -110,7 +110,7 @@ void run_geometry(const ExportArgs& a) {
 // each frame's full-size image and camera, its corrected camera-to-world, and the correction's
 // angle (degrees) and shift (capture units).
 void run_export_poses(const ExportArgs& a) {
-  if (a.run.empty()) throw InputError("export", "--run", "--poses exports a trained run's cameras: give --run RUN");
+  if (a.run.empty()) throw InputError("export", "--run", "--cameras exports a trained run's cameras: give --run RUN");
   const RunFolder run = RunFolder::open(a.run);
   AbleNerf model(run.config.get<ModelConfig>());
   load_weights(model, run.path("weights.pt"));
@@ -180,7 +180,7 @@ void run_export(const ExportArgs& a) {
   }
   if (a.out.empty())
     throw InputError("export", "--out",
-                     "give --out FILE.pt (weights), --points FILE.ply, --mesh FILE or --poses FILE.json");
+                     "give --out FILE.pt (weights), --points FILE.ply, --mesh FILE or --cameras FILE.json");
   run_export_weights(a);
 }
 
@@ -192,8 +192,9 @@ void setup(CLI::App& app) {
   app.add_option("--out", a->out, "Output .pt file of the weights");
   app.add_option("--points", a->points, "Coloured points with normals from the run's depth, as FILE.ply");
   app.add_option("--mesh", a->mesh, "A mesh of the run's surfaces, as FILE.ply, .obj or .glb");
-  app.add_option("--poses", a->poses,
+  app.add_option("--cameras", a->poses,
                  "The training cameras as refined by the run (train.camera_refine), as a transforms.json");
+  add_old_spelling(app, "--poses", "--cameras", a->poses);
   app.add_option("--num-points", a->num_points, "Points kept at most, evenly thinned")->capture_default_str();
   app.add_option("--resolution", a->resolution,
                  "TSDF voxels along the crop box's longest side (0: from the rendered pixels' size)")

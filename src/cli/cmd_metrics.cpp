@@ -16,7 +16,7 @@
 #include "eval/lpips.h"
 #include "eval/metrics.h"
 #include "eval/pose_error.h"
-#include "data/transforms_json.h"  // metrics --poses reads camera-to-world matrices as the formats do
+#include "data/transforms_json.h"  // metrics --cameras reads camera-to-world matrices as the formats do
 #ifdef ABLENERF_HAVE_GEOMETRY
 #include "data/capture.h"
 #include "data/dataset.h"
@@ -130,21 +130,21 @@ nlohmann::json errors_json(const PoseErrors& e) {
   return {{"rotation_deg", e.rotation_deg}, {"centre", e.centre}, {"reprojection_deg", e.reprojection_deg}};
 }
 
-// --poses FILE --truth DATA: FILE's frames (a transforms.json: `export --poses`, or the capture's
+// --cameras FILE --truth DATA: FILE's frames (a transforms.json: `export --cameras`, or the capture's
 // own transforms_train.json for the given poses), in order, against the true training cameras that
 // `synth --pose-noise-deg` records in DATA/scene.json; the reprojection over a 3x3x3 lattice spanning
 // the scene's objects (eval/pose_error.h). As given, and after the rigid alignment of the centres.
 void run_poses(const MetricsArgs& a) {
   const std::string scene_file = (std::filesystem::path(a.truth) / "scene.json").string();
   if (!std::filesystem::exists(scene_file))
-    throw InputError(scene_file, "", "missing: --poses scores against a scene made by `ablenerf synth`");
+    throw InputError(scene_file, "", "missing: --cameras scores against a scene made by `ablenerf synth`");
   const auto scene = read_json_file(scene_file);
   if (!scene.contains("train_view_truth") || !scene["train_view_truth"].is_array())
     throw InputError(scene_file, "train_view_truth",
                      "missing: the scene has no true training cameras (made without --pose-noise-deg?)");
   const auto est_json = read_json_file(a.poses);
   if (!est_json.contains("frames") || !est_json["frames"].is_array())
-    throw InputError(a.poses, "frames", "missing (a transforms.json, e.g. written by `export --poses`)");
+    throw InputError(a.poses, "frames", "missing (a transforms.json, e.g. written by `export --cameras`)");
   const auto& truth_views = scene["train_view_truth"];
   const auto& frames = est_json["frames"];
   if (frames.size() != truth_views.size() || frames.empty())
@@ -186,7 +186,7 @@ std::string size_str(const torch::Tensor& im) { return std::to_string(im.size(1)
 
 void run(const MetricsArgs& a) {
   if (!a.poses.empty()) {
-    if (a.truth.empty()) throw InputError("metrics", "--truth", "--poses needs --truth DATA (a synth scene)");
+    if (a.truth.empty()) throw InputError("metrics", "--truth", "--cameras needs --truth DATA (a synth scene)");
     run_poses(a);
     return;
   }
@@ -241,9 +241,10 @@ void setup(CLI::App& app) {
   auto a = std::make_shared<MetricsArgs>();
   app.add_option("--ref", a->ref, "Reference (ground-truth) PNG");
   app.add_option("--img", a->img, "Image to score (PNG, same size as --ref)");
-  app.add_option("--poses", a->poses,
-                 "Cameras (a transforms.json: `export --poses`) to score against --truth's true training cameras "
+  app.add_option("--cameras", a->poses,
+                 "Cameras (a transforms.json: `export --cameras`) to score against --truth's true training cameras "
                  "(a synth scene made with --pose-noise-deg)");
+  add_old_spelling(app, "--poses", "--cameras", a->poses);
   app.add_option("--geometry", a->geometry, "Points or a mesh (.ply, .obj, .glb) to score against --truth");
   app.add_option("--truth", a->truth,
                  "A scene made by `ablenerf synth` (its scene.json and cameras), a Blender scene with depth maps "

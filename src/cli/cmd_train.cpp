@@ -28,6 +28,9 @@ struct TrainArgs {
   double dist_timeout = 120;
   bool view = false;
   int view_port = 7007;
+  std::string view_host = "127.0.0.1";
+  int downscale = 0;  // 0: the config's data.downscale
+  int64_t steps = 0;  // 0: the config's train.steps
   ConfigOptions cfg;
 };
 
@@ -47,7 +50,7 @@ TrainResult train_with_view(const Config& config, TrainOptions o, const TrainArg
   Trainer trainer(config, o);
   trainer.setup();
   live->session = std::make_unique<ViewSession>(a.out, o.device, /*live=*/true);
-  ViewServer server(*live->session, "127.0.0.1", a.view_port, &live->control);
+  ViewServer server(*live->session, a.view_host, a.view_port, &live->control);
   const int port = server.bind();
   std::cout << "train: live view at http://127.0.0.1:" << port << "/" << std::endl;
   const ServingThread serving(server);
@@ -72,16 +75,23 @@ void setup(CLI::App& app) {
   app.add_option("--time-budget", a->time_budget,
                  "Train for this wall-clock budget with the schedule laid out over it (train.time_budget_s): "
                  "5m, 90s, 2h, 1h30m or seconds");
-  app.add_flag("--view", a->view, "Serve the live viewer while training (loopback, --view-port): see `ablenerf view`");
-  app.add_option("--view-port", a->view_port, "Port of --view's viewer (0 = any free port)")
+  app.add_flag("--view", a->view, "Serve the live viewer while training (--host, --port): see `ablenerf view`");
+  app.add_option("--port", a->view_port, "Port of --view's viewer (0 = any free port)")
       ->capture_default_str()
       ->check(CLI::Range(0, 65535));
+  app.add_option("--host", a->view_host, "Address --view's viewer listens on (loopback unless you say otherwise)")
+      ->capture_default_str();
+  add_old_spelling(app, "--view-port", "--port", a->view_port);
+  app.add_option("--downscale", a->downscale, "Train on the images reduced N times (data.downscale)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--steps", a->steps, "Train this many steps in all (train.steps; with --time-budget, a cap)")
+      ->check(CLI::PositiveNumber);
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
   app.footer(
       "Multi-process: set torchrun's RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR, MASTER_PORT (see README).\n"
-      "With --resume and no --config, the run's own config.toml is used.");
+      "With --resume and no --config or --preset, the run's own config.toml is used.");
   app.callback([a] {
     Config config;
     if (a->resume && a->cfg.config_path.empty() && a->cfg.preset.empty() &&
@@ -91,12 +101,13 @@ void setup(CLI::App& app) {
       config.validate();
     } else {
       config = resolve_config(a->cfg);
-      // Without a preset the program's defaults are the paper's model and schedule: say so, once.
-      if (a->cfg.config_path.empty() && a->cfg.preset.empty())
-        log_warn(
-            "train: no --preset or --config: the paper's model and schedule (the blender preset); for your own "
-            "photos use --preset capture (or capture_gpu on a GPU)");
     }
+    const bool defaults = !(a->resume && std::filesystem::exists(a->out + "/config.toml")) &&
+                          a->cfg.config_path.empty() && a->cfg.preset.empty();
+    // The flags that stand for config keys, after the config (and --set) they override.
+    if (a->downscale > 0) config.set("data.downscale=" + std::to_string(a->downscale));
+    if (a->steps > 0) config.set("train.steps=" + std::to_string(a->steps));
+    if (a->downscale > 0 || a->steps > 0) config.validate();
     if (!a->time_budget.empty()) {
       const auto seconds = parse_duration(a->time_budget);
       if (!seconds || *seconds <= 0)
@@ -121,6 +132,12 @@ void setup(CLI::App& app) {
       dist = Distributed::join(env, a->backend, a->dist_timeout);
       o.dist = dist.get();
     }
+    // Without a preset the program's defaults are the paper's model and schedule: said once, after
+    // every argument was accepted (a refused one stays the only line).
+    if (defaults && env.rank == 0)
+      log_warn(
+          "train: no --preset or --config: the paper's model and schedule (the blender preset); for your own "
+          "photos use --preset capture (or capture_gpu on a GPU)");
     install_interrupt_handlers();
     // Exit codes other than 0 and 2 travel as CommandExit so that `dist` (the process group) is
     // destroyed on the way out.

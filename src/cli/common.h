@@ -6,8 +6,18 @@
 #include "data/dataset.h"
 #include "util/config.h"
 #include "util/errors.h"
+#include "util/log.h"
 
 namespace ablenerf::cli {
+
+// An option's old spelling, kept for a release: hidden from --help, it sets the same value as
+// `new_name` and prints one line naming the new spelling when used.
+template <class T>
+void add_old_spelling(CLI::App& app, const std::string& old_name, const std::string& new_name, T& value) {
+  app.add_option(old_name, value)->group("")->each([old_name, new_name](const std::string&) {
+    log_warn(old_name + " is now " + new_name + " (the old spelling still works in this release)");
+  });
+}
 
 // Defaults <- --config file <- --set overrides, validated.
 Config resolve_config(const ConfigOptions& opts);

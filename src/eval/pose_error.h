@@ -1,5 +1,5 @@
 #pragma once
-// How far estimated cameras are from the true ones (`ablenerf metrics --poses`; docs/MODEL.md,
+// How far estimated cameras are from the true ones (`ablenerf metrics --cameras`; docs/MODEL.md,
 // "Camera refinement"): the mean rotation error, the mean centre error, and the reprojection error,
 // the mean angle between the directions in which an estimated camera and its true one see a set of
 // scene points (what misplaces the scene in the photos; rotation and shift trade against each other

@@ -62,7 +62,7 @@ class CameraRefineImpl : public torch::nn::Module {
   explicit CameraRefineImpl(int64_t cameras, double lr_scale = kCameraRefineLrScale, bool centred = true,
                             bool focal = false);
   // The given cameras' centres (cameras, 3) in the scene frame, which the gauge's turn and scaling
-  // move (the trainer and `export --poses` set them from the poses). Until set, all at the origin:
+  // move (the trainer and `export --cameras` set them from the poses). Until set, all at the origin:
   // the gauge is then the common shift and turn alone, and correction() the parameter minus its mean.
   void set_centres(const torch::Tensor& centres);
   // The given camera-to-world matrices (cameras, 3 or 4, 4): their centres (set_centres) and their

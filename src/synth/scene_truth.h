@@ -1,7 +1,7 @@
 #pragma once
 // The objects a synth scene.json records (scene.cpp writes it), read back by what scores against
 // them: the exported geometry (geometry/surface_score.h) and the refined cameras' reprojection over
-// the objects' box (`ablenerf metrics --poses`).
+// the objects' box (`ablenerf metrics --cameras`).
 #include <array>
 #include <string>
 #include <vector>

@@ -76,7 +76,7 @@ struct TrainConfig {
   bool camera_refine = false;
   double camera_refine_decay = 1e-4;
   // With camera_refine: also one focal-length scale for the whole capture (model/camera_refine.h),
-  // used by eval, render and `export --poses` too. Off = the focal length as given.
+  // used by eval, render and `export --cameras` too. Off = the focal length as given.
   bool camera_refine_focal = false;
   // Per-photo appearance codes (model/appearance_code.h; docs/MODEL.md, "Per-photo appearance
   // code"): a code of the model's width per training photo on its rays' view token, held near the

@@ -2,12 +2,14 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <filesystem>
 #include <optional>
 #include <sstream>
 #include <nlohmann/json.hpp>
 
+#include "data/data_config.h"
 #include "data/load_options.h"
 #include "eval/metrics.h"
 #include "eval/renderer.h"
@@ -401,7 +403,48 @@ TrainResult Trainer::run() {
   }
   save();
   if (s.leader && !opts_.quiet) s.progress->finish("done");
+  if (s.leader) report_coverage();
   return TrainResult::Finished;
+}
+
+void Trainer::report_coverage() {
+  auto& s = *s_;
+  const TrainConfig& tc = config_.get<TrainConfig>();
+  const double passes = passes_per_pixel(s.state.step, tc.rays_per_step, s.sampler->pixels());
+  append_run_log(
+      s.run.log_path(),
+      {{"type", "coverage"}, {"step", s.state.step}, {"pixels", s.sampler->pixels()}, {"passes_per_pixel", passes}});
+  if (opts_.quiet) return;
+  std::ostringstream line;
+  line.precision(2);
+  line << std::fixed << "train: " << s.state.step << " steps of " << tc.rays_per_step << " rays drew each of the "
+       << s.sampler->pixels() << " training pixels " << passes << " times on average";
+  log_info(line.str());
+  const std::string advice = coverage_advice(passes, config_.get<DataConfig>().downscale, tc.time_budget_s);
+  if (!advice.empty()) log_warn(advice);
+}
+
+double passes_per_pixel(int64_t steps, int64_t rays_per_step, int64_t pixels) {
+  if (pixels <= 0) return 0.0;
+  return static_cast<double>(steps) * static_cast<double>(rays_per_step) / static_cast<double>(pixels);
+}
+
+std::string coverage_advice(double passes, int downscale, double budget_s) {
+  if (passes >= kFewPasses || passes <= 0) return std::string();
+  const double factor = kFewPasses / passes;
+  std::ostringstream out;
+  out.precision(1);
+  out << std::fixed << "train: under " << kFewPasses << " passes per pixel, so fine detail was still forming: ";
+  if (budget_s > 0) {
+    out.precision(0);
+    out << "train about " << factor << "x longer (--time-budget " << std::ceil(budget_s * factor / 60.0) << "m) or ";
+  } else {
+    out.precision(0);
+    out << "train about " << factor << "x more steps or ";
+  }
+  const int smaller = static_cast<int>(std::ceil(downscale * std::sqrt(factor)));
+  out << "on smaller images (--set data.downscale=" << smaller << ")";
+  return out.str();
 }
 
 void Trainer::checkpoint_now() { save(); }

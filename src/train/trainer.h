@@ -125,6 +125,9 @@ class Trainer {
   void log_step(const StepReport& r);
   void held_out_check();
   void check_divergence(const StepReport& r);
+  // The passes per training pixel the run made, in the log and (unless quiet) one line, with
+  // coverage_advice's line when they were few.
+  void report_coverage();
 
   Config config_;
   TrainOptions opts_;
@@ -133,6 +136,15 @@ class Trainer {
 
 // Trainer(config, opts), setup(), run().
 TrainResult train(const Config& config, const TrainOptions& opts);
+
+// How often a run drew each training pixel on average: steps x rays per step / training pixels.
+double passes_per_pixel(int64_t steps, int64_t rays_per_step, int64_t pixels);
+// Below this many passes fine detail is still being learnt when a run ends.
+inline constexpr double kFewPasses = 2.0;
+// For a run that made `passes` passes at data.downscale `downscale` within `budget_s` seconds
+// (0 = a run of steps): "" from kFewPasses on, else one line saying what reaches kFewPasses: a
+// budget that many times longer, or images reduced by the factor that divides the pixels by it.
+std::string coverage_advice(double passes, int downscale, double budget_s);
 
 // Installs SIGINT/SIGTERM handlers that ask the training loop to checkpoint and stop.
 void install_interrupt_handlers();

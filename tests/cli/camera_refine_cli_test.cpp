@@ -1,10 +1,10 @@
 // Camera refinement end to end (model/camera_refine.h): `synth` perturbs the training cameras by a
 // known amount (2 degrees about a random axis, a shift of 2% of the distance) and records the truth;
-// the demo preset with train.camera_refine learns the scene and the corrections; `export --poses`
+// the demo preset with train.camera_refine learns the scene and the corrections; `export --cameras`
 // writes the refined cameras; their reprojection error on the objects against the truth must be
 // under half of the perturbed cameras'. Measured with these settings (2026-11-26, 2-vCPU VM): 1.57
 // degrees perturbed, 0.38 refined (0.24 of it; the corrections at the run's learning rate: 0.63);
-// after aligning each set of cameras to the truth (`metrics --poses`) and with the rig's gauge
+// after aligning each set of cameras to the truth (`metrics --cameras`) and with the rig's gauge
 // projected out of the corrections, 0.19 of it (2026-11-27; 0.21 with the corrections' mean out).
 // Held-out cameras turned by 2 degrees are found again by `eval --align-cameras`. Without refinement
 // the export is refused with one line.
@@ -68,7 +68,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
                              " --set train.eval_every=0 --set train.ckpt_every=0 --quiet";
   r = test::run_cli("train" + common + " --set train.camera_refine=true --out " + (t / "run"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  r = test::run_cli("export --run " + (t / "run") + " --poses " + (t / "poses.json"));
+  r = test::run_cli("export --run " + (t / "run") + " --cameras " + (t / "poses.json"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
 
   const json truth = json::parse(read_file(t / "data/scene.json")).at("train_view_truth");
@@ -85,13 +85,13 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   }
   EXPECT_GT(before, 1.0);  // the perturbation is there
   EXPECT_LT(after, 0.5 * before) << "perturbed " << before << " deg, refined " << after << " deg";
-  // `metrics --poses` after aligning each rig to the truth (BARF's protocol: the motion common to all
+  // `metrics --cameras` after aligning each rig to the truth (BARF's protocol: the motion common to all
   // cameras is one no photo reveals): measured 0.19 of the given poses' error, under the fifth the
   // refinement is asked for; the same at 48 and 64 pixels (0.185, 0.189) and after twice the steps
   // (0.191), so a floor of this scene and perturbation, not of training time (docs/benchmarks/history.md,
   // "Camera refinement's floor"). The bound leaves room for another CPU's rounding.
   const auto aligned_error = [&](const std::string& file) {
-    const auto m = test::run_cli("metrics --poses " + file + " --truth " + (t / "data"));
+    const auto m = test::run_cli("metrics --cameras " + file + " --truth " + (t / "data"));
     EXPECT_EQ(m.exit_code, 0) << m.output;
     return json::parse(m.output).at("aligned").at("reprojection_deg").get<double>();
   };
@@ -132,7 +132,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   // A run that did not refine its cameras: one line naming the weights' field, exit code 2.
   r = test::run_cli("train" + common + " --set train.steps=5 --out " + (t / "plain"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  r = test::run_cli("export --run " + (t / "plain") + " --poses " + (t / "none.json"));
+  r = test::run_cli("export --run " + (t / "plain") + " --cameras " + (t / "none.json"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("camera_refine.correction"), std::string::npos) << r.output;
   EXPECT_FALSE(std::filesystem::exists(t / "none.json"));
@@ -142,7 +142,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
 // are given a focal length 5% too long (camera_angle_x narrowed), as when structure from motion
 // misjudges the one camera of a capture; training with the focal scale moves k toward 1 / 1.05, and
 // eval, which renders the held-out photos with k times their given focal length, and `export
-// --poses` report it. This capture hardly fixes the focal length (cameras 4 units from objects within
+// --cameras` report it. This capture hardly fixes the focal length (cameras 4 units from objects within
 // 0.8 of the origin, 32 pixels: a scene scaled by k images the same to a third of a pixel), so the
 // test asks only that the error shrink, to under 0.8 of the given: measured 0.62 (k 0.982 against the
 // true 0.952, 2026-11-28); at the run's full learning rate k overshot to 0.894 (error 1.22 of the
@@ -170,8 +170,8 @@ TEST(CameraRefineCli, RefinedFocalLengthFindsTheCapturesCamera) {
   const double k = m.at("refined_focal_scale").get<double>();
   EXPECT_LT(std::abs(k * given_over_true - 1.0), 0.8 * (given_over_true - 1.0)) << "focal scale " << k;
   EXPECT_LT(k, 1.0);  // toward the truth
-  // `export --poses` writes the refined focal length.
-  r = test::run_cli("export --run " + (t / "run") + " --poses " + (t / "poses.json"));
+  // `export --cameras` writes the refined focal length.
+  r = test::run_cli("export --run " + (t / "run") + " --cameras " + (t / "poses.json"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const json poses = json::parse(read_file(t / "poses.json"));
   const json given = json::parse(read_file(t / "data/transforms_train.json"));

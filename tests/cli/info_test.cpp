@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <sstream>
 #include <string>
 
@@ -51,6 +53,34 @@ TEST(Cli, PresetsByNameAreTheConfigFiles) {
   EXPECT_NE(unknown.output.find("capture"), std::string::npos) << unknown.output;
   const auto both = test::run_cli("info --preset demo --config " + test::source_dir() + "/configs/demo.toml");
   EXPECT_EQ(both.exit_code, 2) << both.output;
+}
+
+// One spelling per idea: train's --downscale and --steps are data.downscale and train.steps (the
+// run's config.toml holds them); an old spelling (train --view-port, export and metrics --poses)
+// still works, with one line naming the new one; without --preset or --config train says in one
+// line that it trains the paper's model.
+TEST(Cli, TrainFlagsForConfigKeysAndOldSpellings) {
+  test::TempDir t;
+  ASSERT_EQ(test::run_cli("synth --out " + (t / "data") + " --res 16 --train-views 4 --test-views 1").exit_code, 0);
+  const auto r = test::run_cli("train --data " + (t / "data") + " --preset demo --out " + (t / "run") +
+                               " --downscale 2 --steps 3 --view-port 7007 --set train.time_budget_s=0");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("--view-port is now --port"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("no --preset or --config"), std::string::npos) << r.output;
+  std::ifstream cfg_file(t / "run/config.toml");
+  const std::string cfg((std::istreambuf_iterator<char>(cfg_file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(cfg.find("downscale = 2"), std::string::npos) << cfg;
+  EXPECT_NE(cfg.find("steps = 3"), std::string::npos) << cfg;
+  const auto old = test::run_cli("export --run " + (t / "run") + " --poses " + (t / "cameras.json"));
+  // A run without camera refinement has no refined cameras: refused as with the new spelling.
+  const auto now = test::run_cli("export --run " + (t / "run") + " --cameras " + (t / "cameras.json"));
+  EXPECT_EQ(old.exit_code, now.exit_code) << old.output << now.output;
+  EXPECT_NE(old.output.find("--poses is now --cameras"), std::string::npos) << old.output;
+  EXPECT_EQ(now.output.find("is now"), std::string::npos) << now.output;
+  const auto bare = test::run_cli("train --data " + (t / "data") + " --out " + (t / "bare") +
+                                  " --steps 1 --set train.rays_per_step=8 --set train.micro_batch=8");
+  ASSERT_EQ(bare.exit_code, 0) << bare.output;
+  EXPECT_NE(bare.output.find("no --preset or --config: the paper's model"), std::string::npos) << bare.output;
 }
 
 TEST(Cli, InfoOnLego) {

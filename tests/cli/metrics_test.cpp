@@ -188,7 +188,7 @@ TEST(MetricsCli, GeometryAgainstABlenderScenesDepthMaps) {
   }
 }
 
-// --poses against a synth scene's true training cameras (eval/pose_error.h): three cameras, one of
+// --cameras against a synth scene's true training cameras (eval/pose_error.h): three cameras, one of
 // them turned by 3 degrees about its own centre in the estimate, so the mean rotation error is 1
 // degree and the centres agree; then the one-line refusals naming file and field.
 TEST(MetricsCli, PosesAgainstTheTrueCameras) {
@@ -208,7 +208,7 @@ TEST(MetricsCli, PosesAgainstTheTrueCameras) {
   }
   test::write_file(t / "scene/scene.json", scene.dump());
   test::write_file(t / "est.json", json{{"frames", frames}}.dump());
-  auto r = test::run_cli("metrics --poses " + (t / "est.json") + " --truth " + (t / "scene"));
+  auto r = test::run_cli("metrics --cameras " + (t / "est.json") + " --truth " + (t / "scene"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto j = json::parse(r.output);
   EXPECT_EQ(j["cameras"], 3);
@@ -219,19 +219,19 @@ TEST(MetricsCli, PosesAgainstTheTrueCameras) {
 
   frames.erase(frames.begin());
   test::write_file(t / "two.json", json{{"frames", frames}}.dump());
-  r = test::run_cli("metrics --poses " + (t / "two.json") + " --truth " + (t / "scene"));
+  r = test::run_cli("metrics --cameras " + (t / "two.json") + " --truth " + (t / "scene"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("two.json"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("frames"), std::string::npos) << r.output;
   frames[0]["transform_matrix"] = {{1, 0, 0}};
   frames.push_back(frames[1]);
   test::write_file(t / "bad.json", json{{"frames", frames}}.dump());
-  r = test::run_cli("metrics --poses " + (t / "bad.json") + " --truth " + (t / "scene"));
+  r = test::run_cli("metrics --cameras " + (t / "bad.json") + " --truth " + (t / "scene"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("frames[0].transform_matrix"), std::string::npos) << r.output;
   scene.erase("train_view_truth");
   test::write_file(t / "plain/scene.json", scene.dump());
-  r = test::run_cli("metrics --poses " + (t / "est.json") + " --truth " + (t / "plain"));
+  r = test::run_cli("metrics --cameras " + (t / "est.json") + " --truth " + (t / "plain"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("train_view_truth"), std::string::npos) << r.output;
 }

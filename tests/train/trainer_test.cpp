@@ -84,6 +84,12 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   }
   ASSERT_EQ(losses.size(), 60u);
   EXPECT_EQ(evals, 2);
+  // The run ends with its passes over the training pixels: 60 steps of the preset's rays over 4
+  // views of 16 x 16 pixels.
+  ASSERT_EQ(log.back()["type"], "coverage");
+  EXPECT_EQ(log.back()["pixels"], 4 * 16 * 16);
+  EXPECT_DOUBLE_EQ(log.back()["passes_per_pixel"].get<double>(),
+                   60.0 * static_cast<double>(c.get<TrainConfig>().rays_per_step) / (4 * 16 * 16));
   // Learning the mean colour alone takes the loss clearly below its start (the first step's output
   // is about 0.25 grey against a mostly white image).
   double last = 0;
@@ -98,6 +104,22 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
   EXPECT_EQ(r.scene().kind, SceneKind::Bounded);
   EXPECT_TRUE(r.scene().identity());
   EXPECT_EQ(r.data_dir, fs::absolute(test::tiny_dataset()).lexically_normal().string());
+}
+
+TEST(Trainer, FewPassesPerPixelGetAdviceThatReachesEnough) {
+  EXPECT_DOUBLE_EQ(passes_per_pixel(1000, 256, 128000), 2.0);
+  EXPECT_EQ(passes_per_pixel(10, 256, 0), 0.0);
+  EXPECT_EQ(coverage_advice(kFewPasses, 8, 900), "");
+  EXPECT_EQ(coverage_advice(5.0, 8, 900), "");
+  // A third of a pass (the Ethiopian head in 15 minutes): 6x the budget, or images reduced
+  // sqrt(6) = 2.45 times more (8 -> 20).
+  const std::string a = coverage_advice(1.0 / 3.0, 8, 900);
+  EXPECT_NE(a.find("6x longer (--time-budget 90m)"), std::string::npos) << a;
+  EXPECT_NE(a.find("--set data.downscale=20"), std::string::npos) << a;
+  // A run of steps: more steps, not a budget.
+  const std::string b = coverage_advice(1.0, 1, 0);
+  EXPECT_NE(b.find("2x more steps"), std::string::npos) << b;
+  EXPECT_NE(b.find("--set data.downscale=2"), std::string::npos) << b;
 }
 
 TEST(Trainer, HeldOutViewsSpreadOverTheSplit) {
@@ -120,7 +142,10 @@ TEST(Trainer, TimeBudgetEndsTheRunWithTheScheduleComplete) {
   const auto log = test::read_log(t / "run");
   ASSERT_GE(log.size(), 3u);
   const auto& first = log.front();
-  const auto& last = log.back();
+  // The last step's line (the run's coverage line follows it).
+  auto last = log.back();
+  for (const auto& j : log)
+    if (j["type"] == "train") last = j;
   EXPECT_LT(last["step"].get<int64_t>(), 1000000);
   // The first step runs near lr_init, the last near lr_final (log-linear: a quarter of the budget
   // left would still be 1e-4 * 10^0.25 = 1.78e-4; the margin is for a test run beside the heavy CLI
