@@ -13,38 +13,23 @@ namespace ablenerf {
 
 namespace {
 
-// 32-byte vectors (GCC/Clang vector extensions): one AVX register, two SSE registers without AVX.
-// `unaligned`: the same vector at any element address (loads and stores of rows of C and B).
-// `wide_block`: vectors per block of four rows (twelve accumulators in AVX's sixteen registers).
-struct F8 {
-  using scalar = float;
-  typedef float vec __attribute__((vector_size(32)));
-  typedef float unaligned __attribute__((vector_size(32), aligned(4), may_alias));
-  static constexpr int lanes = 8;
-  static constexpr int wide_block = 3;
+// SIMD vectors of `Bytes` bytes (GCC/Clang vector extensions): 32 is one AVX register (two SSE
+// registers without AVX), 64 one AVX-512 register. `unaligned`: the same vector at any element
+// address (loads and stores of rows of C and B). `wide_block`: vectors per block of four rows (with
+// AVX, twelve accumulators, three B vectors and a broadcast fill its sixteen registers; AVX-512's
+// thirty-two take sixteen accumulators).
+template <class T, int Bytes, int WideBlock>
+struct Vectors {
+  using scalar = T;
+  typedef T vec __attribute__((vector_size(Bytes)));
+  typedef T unaligned __attribute__((vector_size(Bytes), aligned(sizeof(T)), may_alias));
+  static constexpr int lanes = Bytes / static_cast<int>(sizeof(T));
+  static constexpr int wide_block = WideBlock;
 };
-struct D4 {
-  using scalar = double;
-  typedef double vec __attribute__((vector_size(32)));
-  typedef double unaligned __attribute__((vector_size(32), aligned(8), may_alias));
-  static constexpr int lanes = 4;
-  static constexpr int wide_block = 3;
-};
-// 64-byte vectors: one AVX-512 register; sixteen accumulators of its thirty-two per block.
-struct F16 {
-  using scalar = float;
-  typedef float vec __attribute__((vector_size(64)));
-  typedef float unaligned __attribute__((vector_size(64), aligned(4), may_alias));
-  static constexpr int lanes = 16;
-  static constexpr int wide_block = 4;
-};
-struct D8 {
-  using scalar = double;
-  typedef double vec __attribute__((vector_size(64)));
-  typedef double unaligned __attribute__((vector_size(64), aligned(8), may_alias));
-  static constexpr int lanes = 8;
-  static constexpr int wide_block = 4;
-};
+using F8 = Vectors<float, 32, 3>;
+using D4 = Vectors<double, 32, 3>;
+using F16 = Vectors<float, 64, 4>;
+using D8 = Vectors<double, 64, 4>;
 
 // NR rows x NV vectors of C, accumulated over the whole reduction in registers. Row r of op(A)
 // starts at a + r * si; consecutive p are sp apart. b and c point at the block's first column.
@@ -83,9 +68,8 @@ ABLENERF_ALWAYS_INLINE void tile(int64_t k, typename S::scalar alpha, const type
     }
 }
 
-// NR rows of C, all n columns, in blocks of up to four vectors (for four rows S::wide_block: with
-// AVX, twelve accumulators, three B vectors and a broadcast fill its sixteen registers); the columns
-// after the last whole vector join the last block (see tile's TAIL).
+// NR rows of C, all n columns, in blocks of up to four vectors (S::wide_block for four rows); the
+// columns after the last whole vector join the last block (see tile's TAIL).
 template <class S, int NR>
 ABLENERF_ALWAYS_INLINE void rows(int64_t n, int64_t k, typename S::scalar alpha, const typename S::scalar* a,
                                  int64_t sp, int64_t si, const typename S::scalar* b, int64_t ldb,
