@@ -40,13 +40,11 @@ generate() {
 }
 
 if [ "$check" = 1 ]; then
-  if ! diff -u docs/CLI.md <(generate) >/tmp/cli_doc.$$.diff 2>&1; then
+  if ! differences=$(diff -u docs/CLI.md <(generate) 2>&1); then
     echo "cli_doc: docs/CLI.md is stale: run scripts/cli_doc.sh (first differences below)" >&2
-    head -20 /tmp/cli_doc.$$.diff >&2
-    rm -f /tmp/cli_doc.$$.diff
+    head -20 <<<"$differences" >&2
     exit 1
   fi
-  rm -f /tmp/cli_doc.$$.diff
   echo "cli_doc: docs/CLI.md matches the program"
 else
   generate >docs/CLI.md

@@ -94,16 +94,16 @@ void setup(CLI::App& app) {
       "With --resume and no --config or --preset, the run's own config.toml is used.");
   app.callback([a] {
     Config config;
-    if (a->resume && a->cfg.config_path.empty() && a->cfg.preset.empty() &&
-        std::filesystem::exists(a->out + "/config.toml")) {
+    const bool no_preset = a->cfg.config_path.empty() && a->cfg.preset.empty();
+    const bool from_run = a->resume && no_preset && std::filesystem::exists(a->out + "/config.toml");
+    if (from_run) {
       config = RunFolder::open(a->out).config;
       for (const auto& s : a->cfg.sets) config.set(s);
       config.validate();
     } else {
       config = resolve_config(a->cfg);
     }
-    const bool defaults = !(a->resume && std::filesystem::exists(a->out + "/config.toml")) &&
-                          a->cfg.config_path.empty() && a->cfg.preset.empty();
+    const bool defaults = no_preset && !from_run;
     // The flags that stand for config keys, after the config (and --set) they override.
     if (a->downscale > 0) config.set("data.downscale=" + std::to_string(a->downscale));
     if (a->steps > 0) config.set("train.steps=" + std::to_string(a->steps));

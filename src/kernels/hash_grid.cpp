@@ -149,9 +149,10 @@ torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tens
                                TableGradient* gradient) {
   check_inputs(positions, table, shape);
   const int slot = TableGradient::current_slot();
-  if (gradient != nullptr && slot >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled())
-    return HashGridFunction::apply(positions, table, resolutions(shape), gradient, int64_t{slot});
-  return HashGridFunction::apply(positions, table, resolutions(shape), nullptr, int64_t{-1});
+  const bool to_slot =
+      gradient != nullptr && slot >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled();
+  return HashGridFunction::apply(positions, table, resolutions(shape), to_slot ? gradient : nullptr,
+                                 int64_t{to_slot ? slot : -1});
 }
 
 torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,

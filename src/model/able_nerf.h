@@ -93,6 +93,7 @@ class AbleNerfImpl : public torch::nn::Module {
   bool has_le() const { return cfg_.le_count > 0; }
   // The grid front end, or nullptr with the paper's IPE.
   const GridEmbeddingImpl* grid() const { return grid_ ? grid_.get() : nullptr; }
+  GridEmbeddingImpl* grid() { return grid_ ? grid_.get() : nullptr; }
   // The proposal field, or nullptr without one (model.proposal_samples = 0, the paper).
   const ProposalImpl* proposal() const { return proposal_ ? proposal_.get() : nullptr; }
   // Per-photo colour (model/photo_colour.h): registered by the trainer (train.photo_colour) before

@@ -76,7 +76,7 @@ ForwardOptions with_appearance(AbleNerf& model, ForwardOptions opts, const torch
 // front end's and the proposal field's.
 std::vector<GridEmbeddingImpl*> slotted_tables(AbleNerf& model) {
   std::vector<GridEmbeddingImpl*> out;
-  if (model->grid()) out.push_back(const_cast<GridEmbeddingImpl*>(model->grid()));
+  if (model->grid()) out.push_back(model->grid());
   if (model->proposal()) out.push_back(&model->proposal()->grid());
   return out;
 }

@@ -276,7 +276,7 @@ TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
   tc.proposal_weight = 1.0;
   const int64_t n = 48;
   RayBatch batch = some_batch(n);
-  GridEmbeddingImpl& front = const_cast<GridEmbeddingImpl&>(*model->grid());
+  GridEmbeddingImpl& front = *model->grid();
   GridEmbeddingImpl& proposal = model->proposal()->grid();
   const auto front_table = front.table_parameter(), proposal_table = proposal.table_parameter();
 
