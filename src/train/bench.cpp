@@ -137,7 +137,7 @@ namespace {
 
 // `steps` more training steps under LibTorch's profiler, as Chrome trace JSON. On CUDA with
 // LibTorch >= 2: Kineto, the host's ops and the GPU's kernels, memcpys and memsets (CUPTI); so the
-// trace says where device time goes inside a CUDA graph's replay as well. Otherwise the legacy
+// trace says where GPU time goes inside a CUDA graph's replay as well. Otherwise the legacy
 // profiler: the calling thread's ops.
 std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& device) {
 #ifdef ABLENERF_KINETO_TRACE
