@@ -2,7 +2,19 @@
 
 #include <ATen/Parallel.h>
 
+#include <stdexcept>
 #include <type_traits>
+
+#include "kernels/cpu_features.h"
+
+#ifdef ABLENERF_HAVE_AVX2_FORM
+#include <immintrin.h>
+// GCC 12's AVX-512 intrinsics start their results from _mm512_undefined_*(), which it then reports
+// as "may be used uninitialized" where they are inlined (GCC bug 105593, fixed in GCC 13).
+#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ < 13
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
+#endif
 
 namespace ablenerf {
 
@@ -56,10 +68,167 @@ void with_features(int64_t features, Body&& body) {
   }
 }
 
+#ifdef ABLENERF_HAVE_AVX2_FORM
+// The AVX-512 form for 2 floats per row: 16 points at a time, one vertex of their cells after the
+// other, each row (8 bytes) read as one 64-bit lane of a gather.
+namespace hash_grid_avx512 {
+
+constexpr int kLanes = 16;
+
+// 16 points' cells and positions inside them along the three axes, as hash_grid_cell.
+struct Cells {
+  __m512i cell[3];
+  __m512 frac[3];
+};
+
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE Cells cells_of(const float* p, int res) {
+  const __m512i stride = _mm512_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30, 33, 36, 39, 42, 45);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.f), scale = _mm512_set1_ps(static_cast<float>(res));
+  const __m512i top = _mm512_set1_epi32(res - 1);
+  Cells c;
+  for (int d = 0; d < 3; ++d) {
+    const __m512 x = _mm512_i32gather_ps(stride, p + d, 4);
+    // max(x, 0) is 0 where x is NaN (x86's max returns its second operand then), as hash_grid_cell.
+    const __m512 q = _mm512_mul_ps(_mm512_min_ps(_mm512_max_ps(x, zero), one), scale);
+    const __m512i cell =
+        _mm512_min_epi32(_mm512_cvttps_epi32(_mm512_roundscale_ps(q, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC)), top);
+    c.cell[d] = cell;
+    c.frac[d] = _mm512_sub_ps(q, _mm512_cvtepi32_ps(cell));
+  }
+  return c;
+}
+
+// The level's addressing (hash_grid_row): dense, or the spatial hash masked to the table.
+struct Addressing {
+  bool dense;
+  uint32_t side, mask;
+  Addressing(const HashGridShape& s, int level)
+      : dense(static_cast<uint64_t>(s.resolution[level] + 1) * (s.resolution[level] + 1) * (s.resolution[level] + 1) <=
+              static_cast<uint64_t>(s.table_size)),
+        side(static_cast<uint32_t>(s.resolution[level]) + 1),
+        mask(static_cast<uint32_t>(s.table_size - 1)) {}
+};
+
+// Vertex k's rows and trilinear weights for the 16 points (hash_grid_corners' order and products).
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void vertex(const Cells& c, int k, const Addressing& a, __m512i& row,
+                                                          __m512& weight) {
+  const __m512i one_i = _mm512_set1_epi32(1);
+  const __m512 one = _mm512_set1_ps(1.f);
+  __m512i v[3];
+  __m512 w[3];
+  for (int d = 0; d < 3; ++d) {
+    const bool bit = ((k >> d) & 1) != 0;
+    v[d] = bit ? _mm512_add_epi32(c.cell[d], one_i) : c.cell[d];
+    w[d] = bit ? c.frac[d] : _mm512_sub_ps(one, c.frac[d]);
+  }
+  weight = _mm512_mul_ps(_mm512_mul_ps(w[0], w[1]), w[2]);
+  if (a.dense) {
+    const __m512i side = _mm512_set1_epi32(static_cast<int>(a.side));
+    row = _mm512_add_epi32(v[0], _mm512_mullo_epi32(side, _mm512_add_epi32(v[1], _mm512_mullo_epi32(side, v[2]))));
+  } else {
+    const __m512i py = _mm512_set1_epi32(static_cast<int>(kHashPrimeY)),
+                  pz = _mm512_set1_epi32(static_cast<int>(kHashPrimeZ));
+    row = _mm512_and_si512(
+        _mm512_xor_si512(_mm512_xor_si512(v[0], _mm512_mullo_epi32(v[1], py)), _mm512_mullo_epi32(v[2], pz)),
+        _mm512_set1_epi32(static_cast<int>(a.mask)));
+  }
+}
+
+// Lanes 0-7 and 8-15 of a weight, each twice: beside the two floats of a row.
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 pairs_low(__m512 w) {
+  return _mm512_permutexvar_ps(_mm512_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6, 7, 7), w);
+}
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 pairs_high(__m512 w) {
+  return _mm512_permutexvar_ps(_mm512_setr_epi32(8, 8, 9, 9, 10, 10, 11, 11, 12, 12, 13, 13, 14, 14, 15, 15), w);
+}
+
+// Points i, ..., i + 7 of an (n, levels, 2) array at one level: 8-byte lanes `levels` apart.
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m256i point_stride(int levels) {
+  return _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(levels));
+}
+
+ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows,
+                                         const HashGridShape& s, int level, float* out) {
+  const Addressing a(s, level);
+  const auto* rows = reinterpret_cast<const long long*>(level_rows);
+  const __m256i stride = point_stride(s.levels);
+  int64_t i = lo;
+  for (; i + kLanes <= hi; i += kLanes) {
+    const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
+    __m512 low = _mm512_setzero_ps(), high = _mm512_setzero_ps();
+    for (int k = 0; k < 8; ++k) {
+      __m512i row;
+      __m512 w;
+      vertex(c, k, a, row, w);
+      const __m512 r_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(_mm512_castsi512_si256(row), rows, 8));
+      const __m512 r_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(_mm512_extracti64x4_epi64(row, 1), rows, 8));
+      low = _mm512_fmadd_ps(pairs_low(w), r_low, low);
+      high = _mm512_fmadd_ps(pairs_high(w), r_high, high);
+    }
+    auto* o = reinterpret_cast<long long*>(out + (i * s.levels + level) * 2);
+    _mm512_i32scatter_epi64(o, stride, _mm512_castps_si512(low), 8);
+    _mm512_i32scatter_epi64(o + 8 * int64_t{s.levels}, stride, _mm512_castps_si512(high), 8);
+  }
+  forward_level<2>(positions, i, hi, level_rows, s, level, 2, out);  // the last < 16 points
+}
+
+// The rows and products of 16 points' vertices as vectors, then added to the rows point by point,
+// each point's vertices in order: the scalar loop's products and order of sums.
+ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, const float* grad_out,
+                                          const HashGridShape& s, int level, float* level_rows) {
+  const Addressing a(s, level);
+  const __m256i stride = point_stride(s.levels);
+  alignas(64) uint32_t rows[8][kLanes];
+  alignas(64) float products[8][2 * kLanes];
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
+    const auto* g = reinterpret_cast<const long long*>(grad_out + (i * s.levels + level) * 2);
+    const __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
+    const __m512 g_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g + 8 * int64_t{s.levels}, 8));
+    for (int k = 0; k < 8; ++k) {
+      __m512i row;
+      __m512 w;
+      vertex(c, k, a, row, w);
+      _mm512_store_si512(rows[k], row);
+      _mm512_store_ps(products[k], _mm512_mul_ps(pairs_low(w), g_low));
+      _mm512_store_ps(products[k] + kLanes, _mm512_mul_ps(pairs_high(w), g_high));
+    }
+    for (int p = 0; p < kLanes; ++p) {
+      for (int k = 0; k < 8; ++k) {
+        float* r = level_rows + int64_t{rows[k][p]} * 2;
+        r[0] += products[k][2 * p];
+        r[1] += products[k][2 * p + 1];
+      }
+    }
+  }
+  backward_level<2>(positions + 3 * i, n - i, grad_out + i * s.levels * 2, s, level, 2, level_rows);
+}
+
+}  // namespace hash_grid_avx512
+#endif
+
 }  // namespace
 
-void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out) {
+bool hash_grid_cpu_form_available(HashGridCpuForm form) { return form == HashGridCpuForm::Scalar || cpu_has_avx512(); }
+
+HashGridCpuForm hash_grid_cpu_best_form() {
+  return cpu_has_avx512() ? HashGridCpuForm::Avx512 : HashGridCpuForm::Scalar;
+}
+
+void hash_grid_forward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* table,
+                              const HashGridShape& s, float* out) {
+  if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == HashGridCpuForm::Avx512 && features == 2) {
+    at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
+      for (int l = 0; l < s.levels; ++l)
+        hash_grid_avx512::gather_level(positions, lo, hi, table + l * rows * features, s, l, out);
+    });
+    return;
+  }
+#endif
   with_features(features, [&](auto f) {
     constexpr int F = decltype(f)::value;
     at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
@@ -69,9 +238,20 @@ void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table
   });
 }
 
-void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
-                            float* grad_table) {
+void hash_grid_backward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* grad_out,
+                               const HashGridShape& s, float* grad_table) {
+  if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == HashGridCpuForm::Avx512 && features == 2) {
+    at::parallel_for(0, s.levels, 1, [&](int64_t lo, int64_t hi) {
+      for (int64_t l = lo; l < hi; ++l)
+        hash_grid_avx512::scatter_level(positions, n, grad_out, s, static_cast<int>(l),
+                                        grad_table + l * rows * features);
+    });
+    return;
+  }
+#endif
   with_features(features, [&](auto f) {
     constexpr int F = decltype(f)::value;
     at::parallel_for(0, s.levels, 1, [&](int64_t lo, int64_t hi) {
@@ -79,6 +259,15 @@ void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad
         backward_level<F>(positions, n, grad_out, s, static_cast<int>(l), features, grad_table + l * rows * features);
     });
   });
+}
+
+void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out) {
+  hash_grid_forward_cpu_in(hash_grid_cpu_best_form(), positions, n, table, s, out);
+}
+
+void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
+                            float* grad_table) {
+  hash_grid_backward_cpu_in(hash_grid_cpu_best_form(), positions, n, grad_out, s, grad_table);
 }
 
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,

@@ -2,7 +2,8 @@
 // against their closed forms, exactness on a field that is linear inside a cell, the CPU loops
 // against the plain LibTorch reference (values, the table's and the positions' gradients), the
 // reference's gradient against finite differences, the loops' gradient the same with one thread and with several, and
-// the input checks; every row width the loops are compiled for.
+// the input checks; every row width the loops are compiled for, and every instruction form this CPU
+// runs (the AVX-512 gather and scatter against the reference and against the scalar loops).
 #include <gtest/gtest.h>
 
 #include <ATen/Parallel.h>
@@ -11,6 +12,7 @@
 #include <cstdint>
 
 #include "kernels/hash_grid.h"
+#include "kernels/hash_grid_cpu.h"
 #include "kernels/kernel_test_util.h"
 
 namespace ablenerf {
@@ -119,6 +121,68 @@ TEST(HashGrid, EveryRowWidthMatchesTheReference) {
     want.backward(g);
     EXPECT_LT(test::max_abs(t1.grad() - t2.grad()), 1e-4) << features;
     EXPECT_GT(test::max_abs(t1.grad()), 0.1) << features;
+  }
+}
+
+// Each instruction form of the loops (kernels/hash_grid_cpu.h) on raw pointers: point counts that
+// fill no, one and several 16-point vectors with a tail, every row width (the vector form takes 2
+// floats per row and hands the others to the scalar loops): values and the table's gradient against
+// the reference; the scatter the same bits as the scalar loops', the values within an FMA's rounding.
+TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
+  std::vector<HashGridCpuForm> forms;
+  for (const auto f : {HashGridCpuForm::Avx512, HashGridCpuForm::Scalar})
+    if (hash_grid_cpu_form_available(f)) forms.push_back(f);
+  ASSERT_EQ(forms.back(), HashGridCpuForm::Scalar);
+  EXPECT_TRUE(hash_grid_cpu_form_available(hash_grid_cpu_best_form()));
+  int checked = 0;
+  for (const int features : {2, 1, 4}) {
+    const HashGridShape s = hash_grid_shape(4, features, 7, 4, 32);
+    for (const int64_t n : {1, 15, 16, 17, 504}) {
+      const auto p = points(n - 4 > 0 ? n - 4 : 0, 60 + n).slice(0, 0, n).contiguous();
+      ASSERT_EQ(p.size(0), n);
+      const auto table = table_for(s, 70 + features);
+      const auto g = test::seeded_randn({n, s.levels, s.features}, 80 + n).to(torch::kFloat);
+      auto t = table.clone().requires_grad_();
+      const auto want = hash_grid_encode_reference(p, t, s);
+      want.backward(g);
+      std::vector<torch::Tensor> outs, grads;
+      for (const auto form : forms) {
+        auto out = torch::full({n, s.levels, s.features}, std::nanf(""));
+        auto grad = torch::zeros_like(table);
+        hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, out.data_ptr<float>());
+        hash_grid_backward_cpu_in(form, p.data_ptr<float>(), n, g.data_ptr<float>(), s, grad.data_ptr<float>());
+        EXPECT_LT(test::max_abs(out - want), 1e-5) << features << " " << n;
+        EXPECT_LT(test::max_abs(grad - t.grad()), 1e-4) << features << " " << n;
+        outs.push_back(out);
+        grads.push_back(grad);
+        ++checked;
+      }
+      for (size_t i = 1; i < forms.size(); ++i) {
+        EXPECT_LT(test::max_abs(outs[i] - outs[0]), 1e-6) << features << " " << n;
+        EXPECT_TRUE(torch::equal(grads[i], grads[0])) << features << " " << n;
+      }
+    }
+  }
+  EXPECT_GE(checked, 15);
+}
+
+// A NaN coordinate counts as 0 in every form (hash_grid_cell), not as a stray row.
+TEST(HashGrid, EveryInstructionFormReadsANaNCoordinateAsZero) {
+  const HashGridShape s = mixed_shape();
+  auto p = points(28, 90);  // 32 points: two full vectors
+  auto q = p.clone();
+  const float nan = std::nanf("");
+  for (const int64_t i : {0, 7, 19, 31}) {
+    p[i][i % 3] = nan;
+    q[i][i % 3] = 0.f;
+  }
+  const auto table = table_for(s, 91);
+  for (const auto form : {HashGridCpuForm::Avx512, HashGridCpuForm::Scalar}) {
+    if (!hash_grid_cpu_form_available(form)) continue;
+    auto a = torch::empty({32, s.levels, s.features}), b = torch::empty({32, s.levels, s.features});
+    hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, a.data_ptr<float>());
+    hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, b.data_ptr<float>());
+    EXPECT_TRUE(torch::equal(a, b));
   }
 }
 
