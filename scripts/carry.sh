@@ -2,7 +2,7 @@
 # Prepares .carry/ here (Debian bookworm, with the package registry) for a GPU machine that has none
 # (docs/GPU.md): the small build dependencies as Debian packages unpacked into .carry/root, and lego's
 # train split plus its first LEGO_TEST_VIEWS (default 6) test views in .carry/lego when the optional ../shared/data has
-# lego, and the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when ../captures/fox50 is there.
+# lego, and the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when captures/fox50 (under the checkout, or beside it) is there.
 # The device tool carries them with `carry: [".carry"]` (64 MiB in all).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -52,7 +52,7 @@ PY
 fi
 # A real capture (unbounded, OpenCV lens) small enough to travel: fox50's 50 photos at 270x480, the
 # intrinsics scaled with them (Pillow, on this machine only: `pip install pillow`).
-fox=../captures/fox50
+fox=captures/fox50; [ -d "$fox" ] || fox=../captures/fox50
 if [ -d "$fox" ] && python3 -c "import PIL" 2>/dev/null; then
   rm -rf .carry/fox4 && mkdir -p .carry/fox4/images
   python3 - "$fox" <<'PY'

@@ -1,6 +1,7 @@
-// `ablenerf synth`: renders the embedded demo scene (diffuse, mirror and glass spheres under a
-// procedural sky) as a Blender-format dataset with exact test-view depth, or as a nerfstudio-layout
-// capture through a distorted lens and/or with the environment as background.
+// `ablenerf synth`: renders an embedded scene with exact test-view depth: the demo scene (diffuse,
+// mirror and glass spheres under a procedural sky) as a Blender-format dataset, or as a
+// nerfstudio-layout capture through a distorted lens and/or with the environment as background;
+// or a furnished room photographed from inside (`--scene room`), a nerfstudio-layout capture.
 #include <chrono>
 #include <cstdio>
 #include <iostream>
@@ -8,6 +9,7 @@
 
 #include "cli/command.h"
 #include "synth/scene.h"
+#include "util/log.h"
 #include "util/errors.h"
 
 namespace ablenerf::cli {
@@ -30,19 +32,24 @@ void print_progress(int done, int total, std::chrono::steady_clock::time_point s
 void setup(CLI::App& app) {
   auto a = std::make_shared<SynthArgs>();
   app.add_option("--out", a->out, "Output dataset folder (created if missing)")->required();
+  app.add_option("--scene", a->opts.scene,
+                 "demo: three spheres under a sky (default); room: a furnished room photographed from inside, "
+                 "cameras looking outward")
+      ->capture_default_str();
   app.add_option("--res", a->opts.res, "Image width and height in pixels (>= 8)")->capture_default_str();
   app.add_option("--train-views", a->opts.train_views, "Number of training views (>= 1)")->capture_default_str();
   app.add_option("--test-views", a->opts.test_views, "Number of test views (>= 1)")->capture_default_str();
-  app.add_option("--seed", a->opts.seed, "Seed of the training camera positions")->capture_default_str();
+  app.add_option("--seed", a->opts.seed, "Seed of the camera positions (demo: the training views'; room: every view's)")
+      ->capture_default_str();
   app.add_option("--threads", a->opts.threads, "Worker threads (0 = all cores)")->capture_default_str();
   app.add_option("--lens", a->opts.lens,
                  "pinhole, or opencv: render through a wide-angle lens with barrel distortion (OpenCV model)")
       ->capture_default_str();
   app.add_option("--background", a->opts.background,
-                 "transparent, or environment: the sky and ground at infinity behind the objects")
+                 "transparent, or environment: the sky and ground at infinity behind the objects (demo only)")
       ->capture_default_str();
   app.add_option("--layout", a->opts.layout,
-                 "auto (blender; nerfstudio for the lens or background variants), blender or nerfstudio")
+                 "auto (blender; nerfstudio for the room and the lens or background variants), blender or nerfstudio")
       ->capture_default_str();
   app.add_option("--exposure-jitter", a->opts.exposure_jitter,
                  "Train views only: each photo's exposure off by up to this many stops (centred; truth in scene.json)")
@@ -54,16 +61,19 @@ void setup(CLI::App& app) {
                  "Train views only: the written pose turned by exactly this many degrees about a random axis")
       ->capture_default_str();
   app.add_option("--pose-noise-shift", a->opts.pose_noise_shift,
-                 "Train views only: the written camera centre moved by this fraction of its distance")
+                 "Train views only: the written camera centre moved by this fraction of its distance (demo: to the "
+                 "origin; room: to what it looks at)")
       ->capture_default_str();
   app.add_flag(
       "--distractor", a->opts.distractor,
-      "Train views only: a magenta ball at a new place in every photo, with masks (mask_path) that leave it out");
+      "Train views only: a magenta ball at a new place in every photo, with masks (mask_path) that leave it out "
+      "(demo only)");
   app.callback([a] {
     synth::validate(a->opts);  // fail before creating any folder
     const auto start = std::chrono::steady_clock::now();
     synth::SynthOptions opts = a->opts;
-    opts.progress = [start](int done, int total) { print_progress(done, total, start); };
+    if (log_enabled(LogLevel::Info))  // --quiet: no progress line
+      opts.progress = [start](int done, int total) { print_progress(done, total, start); };
     write_synthetic_dataset(a->out, opts);
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::fprintf(stdout, "synth: wrote %d train + %d test views (%dx%d, test depth maps) to %s in %.1f s\n",
@@ -74,6 +84,6 @@ void setup(CLI::App& app) {
 }  // namespace cmd_synth
 ABLENERF_COMMAND("synth", 10,
                  "Render the embedded demo scene (diffuse, mirror and glass objects) as a Blender dataset (or a "
-                 "nerfstudio capture: --lens, --background)",
+                 "nerfstudio capture: --lens, --background), or a furnished room from inside (--scene room)",
                  cmd_synth::setup);
 }  // namespace ablenerf::cli

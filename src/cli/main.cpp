@@ -32,7 +32,7 @@ constexpr const char* kOutOfGpuMemory =
 // heap's top back to the system, so every training step's and render chunk's tensors arrive as
 // fresh pages that the kernel faults in and zeroes (13% of a CPU training step's time in a perf
 // profile of the demo preset). Keeping freed memory in the heap instead: training +10-20%,
-// rendering +19% (`ablenerf bench --config configs/demo.toml --rays 512`, 2-core VM, 2026-11-23).
+// rendering +19% (`ablenerf bench --config configs/demo.toml --rays 512`, 2-core machine, 2026-11-23).
 // Blocks of 32 MiB and more still come from mmap, and the heap is trimmed above 1 GiB free.
 void keep_freed_memory() {
   mallopt(M_MMAP_THRESHOLD, 32 << 20);

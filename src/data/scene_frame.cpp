@@ -183,6 +183,7 @@ std::string SceneFrame::to_json() const {
   j["far"] = far;
   j["bounds_source"] = bounds_source;
   j["faces_one_way"] = faces_one_way;
+  j["looks_outward"] = looks_outward;
   if (kind == SceneKind::ForwardFacing) {
     j["ndc_a"] = ndc_a;
     j["ndc_b"] = ndc_b;
@@ -208,6 +209,7 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
     f.far = j.at("far").get<double>();
     f.bounds_source = j.value("bounds_source", "");
     f.faces_one_way = j.value("faces_one_way", f.kind == SceneKind::ForwardFacing);  // absent before it was kept
+    f.looks_outward = j.value("looks_outward", false);
   } catch (const nlohmann::json::exception& e) {
     throw InputError(origin, "", std::string("not a scene frame: ") + e.what());
   }
@@ -224,6 +226,7 @@ std::string SceneFrame::describe() const {
   o << name_of(kind) << " scene, near " << near << " far " << far << " (" << bounds_source << ")";
   if (kind == SceneKind::ForwardFacing) o << ", NDC rays (ndc_a " << ndc_a << ", ndc_b " << ndc_b << ")";
   if (kind != SceneKind::ForwardFacing && faces_one_way) o << ", cameras facing one way";
+  if (looks_outward) o << ", cameras looking outward (a room from inside)";
   if (!identity())
     o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << "), scale " << scale
       << ", up (" << rotation[6] << ", " << rotation[7] << ", " << rotation[8] << ") -> +z";
@@ -302,6 +305,18 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
                               : std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
   double radius = 0;
   for (const auto& p : poses) radius = std::max(radius, length(column(p, 3) - to_vec3(f.centre)));
+  // Cameras that look at no common region in front of them and not all one way look out at what
+  // surrounds them (a room from inside): the scene lies beyond the cameras, and a unit sphere
+  // through the farthest camera would leave it all to the contraction's thin outer shell. With
+  // sparse points the sphere holds half of them instead (their median distance from the centre).
+  f.looks_outward = !use_focus && !facing_one_way;
+  if (f.looks_outward && !cap.points.empty()) {
+    std::vector<double> distances;
+    const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
+    for (size_t i = 0; i < cap.points.size(); i += stride)
+      distances.push_back(length(to_vec3(cap.points[i]) - to_vec3(f.centre)));
+    radius = std::max(radius, percentile(distances, 0.5));
+  }
   f.scale = 1.0 / radius;
   f.kind = requested == SceneKind::Bounded ? SceneKind::Bounded : SceneKind::Unbounded;
   f.faces_one_way = facing_one_way;

@@ -4,7 +4,8 @@
 //   x_scene = scale * R (x_capture - centre),
 // with R turning the cameras' mean up vector to +z, the centre the point the cameras look at
 // (least-squares nearest point to their optical axes, when it lies in front of most of them; else
-// the mean camera position) and the scale putting the farthest camera at distance 1. Near/far
+// the mean camera position) and the scale putting the farthest camera at distance 1 (for cameras
+// looking outward from inside a room, the farther of it and the median sparse point). Near/far
 // come from what the capture knows: its sparse points (COLMAP), its per-image bounds (LLFF), else
 // the camera layout. Blender scenes keep the identity and their 2/6.
 #include <array>
@@ -30,6 +31,10 @@ struct SceneFrame {
   // contracted as an unbounded scene (data.ndc = false) keeps it, for the settings that depend on
   // the layout rather than on the ray parametrisation (train.distortion_forward_facing).
   bool faces_one_way = false;
+  // Cameras that look at no common region and not all one way: they look out at what surrounds
+  // them (a room photographed from inside). The scale then puts the median sparse point, not the
+  // farthest camera, at distance 1 (when the capture has sparse points).
+  bool looks_outward = false;
 
   bool identity() const;
   // A camera-to-world pose in capture coordinates -> scene coordinates (and back).

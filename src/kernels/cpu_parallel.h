@@ -79,7 +79,7 @@ std::string blas_core_name();
 // The OPENBLAS_CORETYPE this process should have been started with, or "" when OpenBLAS's own choice
 // stands: OpenBLAS 0.3.21 (Debian bookworm's) does not know CPUs newer than its release (Sapphire
 // Rapids among them) and falls back to its Prescott kernels (SSE3, no FMA) on them, 12% of a
-// capture-preset training step's time in a profile on such a 2-vCPU VM. Where it chose Prescott
+// capture-preset training step's time in a profile on such a 2-core machine. Where it chose Prescott
 // on a CPU with AVX2 and FMA, and the variable is unset: "SkylakeX" with AVX-512 (F, DQ, BW, VL),
 // else "Haswell" (docs/benchmarks/history.md, "OpenBLAS's kernels"). OpenBLAS reads the variable once, when
 // it is loaded, so the program restarts itself with it (cli/main.cpp).

@@ -30,7 +30,7 @@ torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weigh
 // vectorises. Why not dy.sum(0): over the model's narrow token matrices (a 128-ray slice is 2,176
 // rows of 48-144 features) ATen's reduction over the outer dimension took ~80 us per call, 44 calls
 // and 3.65 ms of a ~46 ms training step at the capture preset (`ablenerf bench --config
-// configs/capture.toml --set data.scene=unbounded --rays 256 --trace T`, 2-vCPU AMD EPYC VM,
+// configs/capture.toml --set data.scene=unbounded --rays 256 --trace T`, 2-core AMD EPYC machine,
 // 2026-11-26); this loop's own time was not measured apart.
 torch::Tensor column_sums(const torch::Tensor& dy) {
   constexpr int64_t kRowsPerBlock = 256;

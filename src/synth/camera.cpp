@@ -13,10 +13,6 @@ const double kGoldenTurn = 0.5 * (3.0 - std::sqrt(5.0));
 // Test orbit starts facing the -y side of the scene (azimuth -90 degrees).
 constexpr double kTestStartAzimuthDeg = -90.0;
 
-// A uniform double in [0,1) from the top 53 bits: identical on every standard library, unlike
-// std::uniform_real_distribution.
-double unit_uniform(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
-
 Vec3 spherical(double elevation, double azimuth) {
   return Vec3{std::cos(elevation) * std::cos(azimuth), std::cos(elevation) * std::sin(azimuth), std::sin(elevation)} *
          kCameraDistance;

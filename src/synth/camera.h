@@ -2,6 +2,7 @@
 // Cameras of the demo dataset: Blender/OpenGL camera-to-world poses on the upper hemisphere,
 // looking at the origin, and primary rays generated exactly like src/data/rays.h does.
 #include <cstdint>
+#include <random>
 #include <vector>
 
 #include "util/vec3.h"
@@ -40,6 +41,10 @@ struct Camera {
   Vec3 centre() const { return {c2w[0][3], c2w[1][3], c2w[2][3]}; }
   Vec3 axis(int col) const { return {c2w[0][col], c2w[1][col], c2w[2][col]}; }
 };
+
+// A uniform double in [0,1) from the top 53 bits: identical on every standard library, unlike
+// std::uniform_real_distribution (the camera layouts' draws).
+inline double unit_uniform(std::mt19937_64& rng) { return static_cast<double>(rng() >> 11) * 0x1.0p-53; }
 
 // f = 0.5 W / tan(0.5 angle_x).
 double focal_from_angle(int width, double angle_x);

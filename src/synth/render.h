@@ -1,6 +1,7 @@
 #pragma once
-// Supersampled rendering of one view of the demo scene: straight-alpha sRGB RGBA plus the
-// exact optical-axis depth of each pixel's centre ray.
+// Supersampled rendering of one view of a synth scene (the demo's spheres or the room, through
+// their SceneTracer): straight-alpha sRGB RGBA plus the exact optical-axis depth of each pixel's
+// centre ray.
 #include <cstdint>
 #include <vector>
 
@@ -39,8 +40,11 @@ inline Vec3 distractor_colour() { return {0.9, 0.02, 0.7}; }
 // `gain` multiplies the linear radiance of every sub-sample before the film clamps it (a photo's
 // exposure and white balance).
 // `distractor`, when given, hides whatever lies behind it (ViewImage::distractor marks its pixels).
+// `scene` is what is rendered: the demo's spheres (world.h) unless told otherwise, or the room
+// (room.h), whose walls every ray meets, so that its views are opaque without a background.
 ViewImage render_view(const Camera& cam, int threads = 1, bool environment_background = false,
-                      const Vec3& gain = {1, 1, 1}, const Distractor* distractor = nullptr);
+                      const Vec3& gain = {1, 1, 1}, const Distractor* distractor = nullptr,
+                      const SceneTracer& scene = demo_tracer());
 
 // IEC 61966-2-1 sRGB transfer function for a linear value in [0,1].
 double linear_to_srgb(double linear);

@@ -5,12 +5,16 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <sstream>
+#include <string>
 #include <atomic>
 #include <exception>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "synth/room.h"
+#include "synth/room_camera.h"
 #include "util/errors.h"
 #include "util/fs.h"
 #include "util/image_io.h"
@@ -21,9 +25,11 @@ namespace {
 
 using nlohmann::json;
 
-// The depth visualisation maps the scene's depth range (camera distance +- scene bound) to
+// The depth visualisation maps the scene's depth range (demo: camera distance +- scene bound;
+// room: kRoomDepthNear to kRoomDepthFar, about the farthest corner's depth from the cameras) to
 // grey levels in [kDepthGreyFar, 1] (near = bright); misses stay black.
 constexpr double kDepthGreyFar = 0.15;
+constexpr double kRoomDepthNear = 0.5, kRoomDepthFar = 4.5;
 
 json vec_json(const Vec3& v) { return json::array({v.x, v.y, v.z}); }
 
@@ -33,6 +39,8 @@ json pose_json(const Camera& cam) {
   m.push_back(json::array({0.0, 0.0, 0.0, 1.0}));
   return m;
 }
+
+json box_json(const Vec3& lo, const Vec3& hi) { return json{{"min", vec_json(lo)}, {"max", vec_json(hi)}}; }
 
 json transforms_json(const std::vector<Camera>& cams, const std::string& split, bool with_depth, bool with_masks) {
   json frames = json::array();
@@ -84,7 +92,8 @@ json nerfstudio_json(const std::vector<Camera>& train, const std::vector<Camera>
   return j;
 }
 
-json scene_json(const SynthOptions& o) {
+// The demo's objects, lighting, background and cameras.
+json demo_scene_json(const SynthOptions& o) {
   json objects = json::array();
   for (const Sphere& s : scene_spheres()) {
     json j{{"name", s.name},
@@ -102,20 +111,8 @@ json scene_json(const SynthOptions& o) {
     objects.push_back(j);
   }
   return json{
-      {"generator", "ablenerf synth"},
-      {"seed", o.seed},
-      {"lens", o.lens == "opencv" ? json{{"model", "OPENCV"},
-                                         {"k1", kWideLens.k1},
-                                         {"k2", kWideLens.k2},
-                                         {"p1", kWideLens.p1},
-                                         {"p2", kWideLens.p2}}
-                                  : json{{"model", "PINHOLE"}}},
       {"background",
        o.background == "environment" ? "the environment (sky and ground at infinity), alpha 1" : "transparent"},
-      {"layout", o.resolved_layout()},
-      {"resolution", {o.res, o.res}},
-      {"train_views", o.train_views},
-      {"test_views", o.test_views},
       {"objects", objects},
       {"lighting",
        {{"environment", "sky gradient + azimuthal colour band + sun disc + checkered ground"},
@@ -124,27 +121,105 @@ json scene_json(const SynthOptions& o) {
         {"sun_radiance", vec_json(sun_radiance())},
         {"sun_angular_radius_deg", kSunAngularRadiusDeg},
         {"glass_shadow_transmittance", kGlassShadowTransmittance}}},
-      {"render",
-       {{"max_bounces", kMaxBounces},
-        {"subsamples_per_pixel", kSubsamplesPerAxis * kSubsamplesPerAxis},
-        {"alpha", "fraction of sub-samples that hit; RGB = mean over hit sub-samples (straight)"},
-        {"colour", "linear, clamped per sub-sample, sRGB-encoded 8-bit"}}},
       {"cameras",
        {{"camera_angle_x", kCameraAngleX},
         {"distance", kCameraDistance},
         {"train",
          {{"layout", "golden-angle spiral, uniform by area"}, {"elevation_deg", {kMinElevationDeg, kMaxElevationDeg}}}},
         {"test", {{"layout", "orbit"}, {"elevation_deg", kTestElevationDeg}}}}},
-      {"depth", "t of the pixel-centre ray (depth along the optical axis), 0 on a miss"},
   };
 }
 
-void write_depth(const std::string& base, const ViewImage& img) {
+// The room's box, furniture, lighting and cameras.
+json room_scene_json() {
+  json faces = json::array();
+  const char* textures[kRoomFaces] = {
+      "wood planks 0.25 wide along x, boards 1.2 long with their own tones, grain, dark gaps",
+      "light grey, faint grid of 0.5",
+      "blue-grey checker of 0.2, pictures",
+      "ochre vertical stripes of 0.3, pictures",
+      "green checker of 0.4, pictures",
+      "pink diagonal stripes of 0.35, pictures"};
+  for (int f = 0; f < kRoomFaces; ++f) faces.push_back({{"name", kRoomFaceNames[f]}, {"texture", textures[f]}});
+  json objects = json::array();
+  for (const Box& b : room_furniture()) {
+    json j = box_json(b.lo, b.hi);
+    j["name"] = b.name;
+    j["shape"] = "box";
+    j["material"] = "diffuse";
+    j["texture"] = "checker on each face";
+    objects.push_back(j);
+  }
+  const Sphere& ball = room_ball();
+  objects.push_back({{"name", ball.name},
+                     {"shape", "sphere"},
+                     {"material", "diffuse"},
+                     {"centre", vec_json(ball.centre)},
+                     {"radius", ball.radius},
+                     {"texture", "longitude/latitude checker"}});
+  json lights = json::array();
+  for (const PointLight& l : room_lights())
+    lights.push_back({{"name", l.name}, {"position", vec_json(l.position)}, {"intensity", vec_json(l.intensity)}});
+  json room = box_json(kRoomMin, kRoomMax);
+  room["seen_from"] = "inside";
+  room["faces"] = faces;
+  return json{
+      {"background", "none: the room is closed, every pixel sees a surface (alpha 1)"},
+      {"room", room},
+      {"objects", objects},
+      {"lighting",
+       {{"model", "albedo * (ambient + sum of intensity * max(0, cos) / max(d^2, min_distance^2) * visible)"},
+        {"ambient", vec_json(room_ambient())},
+        {"point_lights", lights},
+        {"min_distance", kRoomLightMinDistance},
+        {"shadows", "hard, from every light, cast by the furniture and the ball"},
+        {"albedo_range", {kRoomAlbedoMin, kRoomAlbedoMax}}}},
+      {"cameras",
+       {{"camera_angle_x", kRoomCameraAngleX},
+        {"position",
+         {{"layout", "uniform over a disc around the room's vertical axis, on the half the camera faces"},
+          {"disc_centre", {0.0, 0.0}},
+          {"radius", kRoomCameraRadius},
+          {"height", {kRoomCameraMinHeight, kRoomCameraMaxHeight}}}},
+        {"yaw_deg", {0.0, 360.0}},
+        {"pitch_deg", {kRoomMinPitchDeg, kRoomMaxPitchDeg}},
+        {"roll_deg", 0.0},
+        {"train", "drawn from the seed"},
+        {"test", "drawn alike from a stream of their own (seeded by the seed)"}}},
+  };
+}
+
+json scene_json(const SynthOptions& o) {
+  json j{
+      {"generator", "ablenerf synth"},
+      {"scene", o.scene},
+      {"seed", o.seed},
+      {"lens", o.lens == "opencv" ? json{{"model", "OPENCV"},
+                                         {"k1", kWideLens.k1},
+                                         {"k2", kWideLens.k2},
+                                         {"p1", kWideLens.p1},
+                                         {"p2", kWideLens.p2}}
+                                  : json{{"model", "PINHOLE"}}},
+      {"layout", o.resolved_layout()},
+      {"resolution", {o.res, o.res}},
+      {"train_views", o.train_views},
+      {"test_views", o.test_views},
+      {"render",
+       {{"subsamples_per_pixel", kSubsamplesPerAxis * kSubsamplesPerAxis},
+        {"alpha", "fraction of sub-samples that hit; RGB = mean over hit sub-samples (straight)"},
+        {"colour", "linear, clamped per sub-sample, sRGB-encoded 8-bit"}}},
+      {"depth", "t of the pixel-centre ray (depth along the optical axis), 0 on a miss"},
+  };
+  j.update(o.scene == "room" ? room_scene_json() : demo_scene_json(o));
+  if (o.scene != "room") j["render"]["max_bounces"] = kMaxBounces;  // the room has no reflections
+  return j;
+}
+
+void write_depth(const std::string& base, const ViewImage& img, double near, double far) {
   const auto depth =
       torch::from_blob(const_cast<float*>(img.depth.data()), {img.height, img.width}, torch::kFloat).clone();
   const std::vector<char> bytes = torch::pickle_save(depth);
   write_file_atomic(base + "_depth.pt", {bytes.data(), bytes.size()});
-  const double near = kCameraDistance - kSceneBound, far = kCameraDistance + kSceneBound;
   auto grey = torch::zeros({img.height, img.width, 1}, torch::kFloat);
   auto acc = grey.accessor<float, 3>();
   for (int j = 0; j < img.height; ++j)
@@ -201,6 +276,13 @@ Vec3 rotate(const Vec3& v, const Vec3& axis, double angle) {
   return v * std::cos(angle) + cross(axis, v) * std::sin(angle) + axis * (dot(axis, v) * (1 - std::cos(angle)));
 }
 
+// The distance a camera's pose noise shift is a fraction of (SynthOptions::pose_noise_shift): the
+// demo camera's from the origin it looks at, the room camera's from the first surface along its
+// optical axis (its centre ray has a unit direction there, so t is that distance).
+double view_distance(const Camera& c, bool room) {
+  return room ? intersect_room(camera_ray(c, 0.5 * c.width, 0.5 * c.height)).t : length(c.centre());
+}
+
 // The train views' gains and perturbed poses (cams are changed in place; the truth is returned).
 std::vector<ViewTruth> jitter_train_views(std::vector<Camera>& cams, const SynthOptions& o) {
   std::mt19937_64 rng(o.seed ^ kJitterSeedSalt);
@@ -224,7 +306,7 @@ std::vector<ViewTruth> jitter_train_views(std::vector<Camera>& cams, const Synth
       const Vec3 turned = rotate(c.axis(col), axis, angle);
       for (int r = 0; r < 3; ++r) c.c2w[r][col] = turned[static_cast<size_t>(r)];
     }
-    const Vec3 centre = c.centre() + shift_dir * (o.pose_noise_shift * length(c.centre()));
+    const Vec3 centre = c.centre() + shift_dir * (o.pose_noise_shift * view_distance(t.true_camera, o.scene == "room"));
     for (int r = 0; r < 3; ++r) c.c2w[r][3] = centre[static_cast<size_t>(r)];
   }
   return truth;
@@ -258,14 +340,47 @@ json truth_json(const std::vector<ViewTruth>& truth) {
   return views;
 }
 
+// The room's stand-in for a structure-from-motion point cloud (nerfstudio's sparse_pc.ply beside
+// transforms.json): the first surface hit by every kSparsePointStride-th pixel's ray, in each
+// kSparsePointStride-th training view, as ASCII PLY. Points on surfaces the photos see, as SfM's
+// are, without its noise or gaps.
+constexpr const char* kSparsePointsFile = "sparse_pc.ply";
+constexpr int kSparsePointStride = 8;
+
+std::vector<Camera> true_cameras(const std::vector<ViewTruth>& truth) {
+  std::vector<Camera> out;
+  for (const ViewTruth& t : truth) out.push_back(t.true_camera);
+  return out;
+}
+
+std::string sparse_points_ply(const std::vector<Camera>& cams, const SceneTracer& tracer) {
+  std::vector<Vec3> points;
+  for (size_t v = 0; v < cams.size(); v += kSparsePointStride) {
+    const Camera& c = cams[v];
+    for (int y = kSparsePointStride / 2; y < c.height; y += kSparsePointStride)
+      for (int x = kSparsePointStride / 2; x < c.width; x += kSparsePointStride) {
+        const Ray r = camera_ray(c, x + 0.5, y + 0.5);
+        const Hit h = tracer.intersect(r, 0.0);
+        if (h.hit()) points.push_back(r.at(h.t));
+      }
+  }
+  std::ostringstream o;
+  o.precision(9);
+  o << "ply\nformat ascii 1.0\nelement vertex " << points.size()
+    << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  for (const Vec3& p : points) o << p.x << " " << p.y << " " << p.z << "\n";
+  return o.str();
+}
+
 }  // namespace
 
 std::string SynthOptions::resolved_layout() const {
   if (layout != "auto") return layout;
-  return lens != "pinhole" || background != "transparent" ? "nerfstudio" : "blender";
+  return scene == "room" || lens != "pinhole" || background != "transparent" ? "nerfstudio" : "blender";
 }
 
 void validate(const SynthOptions& o) {
+  if (o.scene != "demo" && o.scene != "room") throw InputError("synth", "--scene", "must be demo or room");
   if (o.lens != "pinhole" && o.lens != "opencv") throw InputError("synth", "--lens", "must be pinhole or opencv");
   if (o.background != "transparent" && o.background != "environment")
     throw InputError("synth", "--background", "must be transparent or environment");
@@ -273,6 +388,13 @@ void validate(const SynthOptions& o) {
     throw InputError("synth", "--layout", "must be auto, blender or nerfstudio");
   if (o.layout == "blender" && o.lens != "pinhole")
     throw InputError("synth", "--layout", "the Blender layout has no lens model (use nerfstudio)");
+  if (o.scene == "room") {
+    if (o.background != "transparent")
+      throw InputError("synth", "--background", "the room is closed: nothing lies behind its walls");
+    if (o.distractor) throw InputError("synth", "--distractor", "only for the demo scene, not the room");
+    if (o.layout == "blender")
+      throw InputError("synth", "--layout", "the room is a real capture, not a Blender object scene (use nerfstudio)");
+  }
   if (o.res < kMinResolution || o.res > kMaxResolution)
     throw InputError("synth", "--res",
                      "must be between " + std::to_string(kMinResolution) + " and " + std::to_string(kMaxResolution) +
@@ -296,8 +418,13 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   validate(o);
   ensure_dir(dir + "/train");
   ensure_dir(dir + "/test");
-  std::vector<Camera> train = train_cameras(o.train_views, o.res, o.seed);
-  std::vector<Camera> test = test_cameras(o.test_views, o.res);
+  const bool room = o.scene == "room";
+  const SceneTracer tracer = room ? room_tracer() : demo_tracer();
+  std::vector<Camera> train =
+      room ? room_train_cameras(o.train_views, o.res, o.seed) : train_cameras(o.train_views, o.res, o.seed);
+  std::vector<Camera> test = room ? room_test_cameras(o.test_views, o.res, o.seed) : test_cameras(o.test_views, o.res);
+  const double depth_near = room ? kRoomDepthNear : kCameraDistance - kSceneBound;
+  const double depth_far = room ? kRoomDepthFar : kCameraDistance + kSceneBound;
   if (o.lens == "opencv")
     for (auto* cams : {&train, &test})
       for (auto& c : *cams) c.lens = kWideLens;
@@ -326,7 +453,7 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
   auto worker = [&] {
     for (size_t k = next++; k < jobs.size(); k = next++) {
       try {
-        const ViewImage img = render_view(*jobs[k].cam, 1, environment, jobs[k].gain, jobs[k].distractor);
+        const ViewImage img = render_view(*jobs[k].cam, 1, environment, jobs[k].gain, jobs[k].distractor, tracer);
         const auto rgba =
             torch::from_blob(const_cast<float*>(img.rgba.data()), {img.height, img.width, 4}, torch::kFloat);
         write_png(jobs[k].base + ".png", rgba);
@@ -335,7 +462,7 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
               torch::from_blob(const_cast<uint8_t*>(img.distractor.data()), {img.height, img.width, 1}, torch::kUInt8);
           write_png(jobs[k].base + "_mask.png", (1 - ball.to(torch::kFloat)).expand({-1, -1, 3}).contiguous());
         }
-        if (jobs[k].depth) write_depth(jobs[k].base, img);
+        if (jobs[k].depth) write_depth(jobs[k].base, img, depth_near, depth_far);
       } catch (...) {
         std::lock_guard<std::mutex> lock(mu);
         if (!failure) failure = std::current_exception();
@@ -354,7 +481,13 @@ void write_synthetic_dataset(const std::string& dir, const SynthOptions& o) {
 
   // The json files go last, so a readable transforms file implies its images exist.
   if (o.resolved_layout() == "nerfstudio") {
-    write_file_atomic(dir + "/transforms.json", nerfstudio_json(train, test, o.distractor).dump(2) + "\n");
+    json transforms = nerfstudio_json(train, test, o.distractor);
+    if (room) {
+      write_file_atomic(dir + "/" + kSparsePointsFile,
+                        sparse_points_ply(jittered ? true_cameras(truth) : train, tracer));
+      transforms["ply_file_path"] = kSparsePointsFile;
+    }
+    write_file_atomic(dir + "/transforms.json", transforms.dump(2) + "\n");
   } else {
     write_file_atomic(dir + "/transforms_train.json",
                       transforms_json(train, "train", false, o.distractor).dump(2) + "\n");

@@ -1,25 +1,31 @@
 #pragma once
-// The embedded demo scene as a Blender-format dataset (`ablenerf synth`): a diffuse checkered
-// sphere, a mirror sphere and a glass sphere under a procedural environment, rendered by a small
-// CPU ray tracer (world.h, camera.h, render.h) on a transparent background.
+// The embedded synth scenes as datasets (`ablenerf synth`), rendered by a small CPU ray tracer
+// (render.h) with exact test-view depth:
+//  - "demo" (the default): a diffuse checkered sphere, a mirror sphere and a glass sphere under a
+//    procedural environment (world.h), seen from outside by cameras looking at them (camera.h), on
+//    a transparent background: a Blender object scene;
+//  - "room": a furnished box room photographed from inside by cameras looking outward (room.h,
+//    room_camera.h): opaque everywhere, written as a real capture (the nerfstudio layout).
 //
 // Variants for real-capture code paths: `lens` "opencv" renders through kWideLens (camera.h),
 // `background` "environment" puts the sky and ground (at infinity) behind the objects instead of a
-// transparent card. Either writes the nerfstudio layout (below) unless `layout` says otherwise.
+// transparent card (demo only). Either writes the nerfstudio layout (below) unless `layout` says
+// otherwise.
 //
-// Layout written to DIR ("blender", the default):
+// Layout written to DIR ("blender", the demo's default):
 //   transforms_train.json, transforms_test.json  (camera_angle_x + frames, Blender style)
 //   train/r_K.png, test/r_K.png                  (RGBA 8-bit, straight alpha, sRGB)
 //   test/r_K_depth.pt                            (torch::pickle_save of float32 (H,W) depth)
 //   test/r_K_depth.png                           (greyscale visualisation of that depth)
-//   scene.json                                   (objects, materials, lighting, cameras, seed; with
-//                                                 jitter or pose noise, each train view's gains and
-//                                                 true pose under "train_view_truth"; with a
-//                                                 distractor, each train view's ball)
+//   scene.json                                   (the scene's name, objects, materials, lighting,
+//                                                 cameras, seed; with jitter or pose noise, each
+//                                                 train view's gains and true pose under
+//                                                 "train_view_truth"; with a distractor, each
+//                                                 train view's ball)
 //   train/r_K_mask.png                           (with a distractor: white keeps, black is the ball)
-// ("nerfstudio"): one transforms.json with w, h, fl_x, fl_y, cx, cy, camera_model (PINHOLE or
-// OPENCV with k1 k2 p1 p2), every frame, and the split as train_filenames / test_filenames; the
-// same image, depth and scene.json files.
+// ("nerfstudio", the room's and the variants' default): one transforms.json with w, h, fl_x, fl_y,
+// cx, cy, camera_model (PINHOLE or OPENCV with k1 k2 p1 p2), every frame, and the split as
+// train_filenames / test_filenames; the same image, depth and scene.json files.
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -35,6 +41,7 @@ constexpr int kMaxResolution = 4096;
 constexpr int kMaxViews = 100000;
 
 struct SynthOptions {
+  std::string scene = "demo";  // "demo" | "room"
   int res = 100;
   int train_views = 100;
   int test_views = 20;
@@ -52,25 +59,29 @@ struct SynthOptions {
   //  - pose_noise_deg / pose_noise_shift: the pose written for each train view is its true pose
   //    turned by exactly pose_noise_deg about a random axis through the camera centre and moved by
   //    pose_noise_shift x the camera's distance in a random direction (the image is rendered from the
-  //    true pose).
+  //    true pose). The distance is the demo camera's from the origin it looks at, and the room
+  //    camera's from what it looks at (the first surface along its optical axis).
   double exposure_jitter = 0;
   double white_balance_jitter = 0;
   double pose_noise_deg = 0;
   double pose_noise_shift = 0;
   //  - distractor: each train view also sees a flat magenta ball (radius kDistractorRadius) at a
   //    place of its own between the camera and the objects, and gets a mask beside its photo
-  //    (train/r_K_mask.png, white = keep, black = the ball) named by its frame's mask_path.
+  //    (train/r_K_mask.png, white = keep, black = the ball) named by its frame's mask_path. Demo only.
   bool distractor = false;
-  // The layout "auto" resolves to: nerfstudio for the lens or background variants, else blender.
+  // The layout "auto" resolves to: nerfstudio for the room and for the lens or background
+  // variants, else blender.
   std::string resolved_layout() const;
   // Called after each finished view with (views done, views total); from worker threads,
   // serialised by a mutex. May be empty.
   std::function<void(int, int)> progress;
 };
 
-// Throws InputError("synth", "--res" / "--train-views" / "--test-views" / "--lens" /
+// Throws InputError("synth", "--scene" / "--res" / "--train-views" / "--test-views" / "--lens" /
 // "--background" / "--layout" / "--exposure-jitter" / "--white-balance-jitter" / "--pose-noise-deg" /
-// "--pose-noise-shift", ...) on bad options.
+// "--pose-noise-shift" / "--distractor", ...) on bad options; the room refuses --background
+// environment (it is closed: nothing lies behind its walls), --distractor and --layout blender (it
+// is a real capture, not a Blender object scene).
 constexpr double kMaxJitterStops = 4.0;
 constexpr double kMaxPoseNoiseDeg = 45.0;
 constexpr double kMaxPoseNoiseShift = 0.5;

@@ -219,4 +219,6 @@ Vec3 diffuse_albedo(const Vec3& n) {
 
 Vec3 trace(const Ray& r, int depth) { return trace_weighted(r, depth, 1.0); }
 
+SceneTracer demo_tracer() { return {&intersect_scene, &trace}; }
+
 }  // namespace ablenerf::synth

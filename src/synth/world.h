@@ -2,9 +2,9 @@
 // The demo scene's content: three spheres (diffuse checker, mirror, glass) lit by a procedural
 // environment and one directional "sun", and the recursive ray tracer that shades them. All
 // radiance values are linear; clamping and sRGB encoding happen in render.cpp.
-#include <limits>
 #include <vector>
 
+#include "synth/tracer.h"
 #include "util/vec3.h"
 
 namespace ablenerf::synth {
@@ -34,18 +34,6 @@ Vec3 sun_radiance();                               // radiance of the visible su
 Vec3 mirror_f0();         // mirror reflectance at normal incidence (Schlick towards 1 at grazing)
 Vec3 glass_absorption();  // Beer-Lambert coefficients per unit length inside the glass
 
-// A ray o + t d; d need not be unit length (t is then in units of |d|).
-struct Ray {
-  Vec3 origin, dir;
-  Vec3 at(double t) const { return origin + dir * t; }
-};
-
-struct Hit {
-  double t = std::numeric_limits<double>::infinity();
-  int object = -1;  // index into scene_spheres(), -1 = miss
-  bool hit() const { return object >= 0; }
-};
-
 // Smallest t > t_min at which the ray meets the sphere, or +infinity.
 double intersect_sphere(const Sphere& s, const Ray& r, double t_min);
 // The first object along the ray (t > t_min).
@@ -60,5 +48,8 @@ Vec3 diffuse_albedo(const Vec3& unit_normal);
 
 // Radiance arriving along the ray (from the first hit, or the environment on a miss).
 Vec3 trace(const Ray& r, int depth = 0);
+
+// intersect_scene and trace, for render_view.
+SceneTracer demo_tracer();
 
 }  // namespace ablenerf::synth

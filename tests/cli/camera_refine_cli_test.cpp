@@ -2,7 +2,7 @@
 // known amount (2 degrees about a random axis, a shift of 2% of the distance) and records the truth;
 // the demo preset with train.camera_refine learns the scene and the corrections; `export --cameras`
 // writes the refined cameras; their reprojection error on the objects against the truth must be
-// under half of the perturbed cameras'. Measured with these settings (2026-11-26, 2-vCPU VM): 1.57
+// under half of the perturbed cameras'. Measured with these settings (2026-11-26, 2-core machine): 1.57
 // degrees perturbed, 0.38 refined (0.24 of it; the corrections at the run's learning rate: 0.63);
 // after aligning each set of cameras to the truth (`metrics --cameras`) and with the rig's gauge
 // projected out of the corrections, 0.19 of it (2026-11-27; 0.21 with the corrections' mean out).

@@ -2,7 +2,7 @@
 // a new place in every training photo and writes masks that leave it out (mask_path); the demo
 // preset trained with data.masks = "auto" (the masks) and with "none" (every pixel), same seed and
 // steps, scored on the clean test views. With the masks the renders carry no magenta haze and score
-// higher. Measured with these settings (2026-11-26, 2-vCPU VM): with the masks 25.00 dB and a
+// higher. Measured with these settings (2026-11-26, 2-core machine): with the masks 25.00 dB and a
 // magenta excess of 0.0001, every pixel 15.54 dB and 0.148.
 #include <gtest/gtest.h>
 #include <torch/torch.h>

@@ -4,7 +4,8 @@
 // down/right/back; nerfstudio: OpenGL camera-to-world through an OpenCV or fisheye lens). A world
 // point projected by hand to a pixel must lie on the ray the loader casts through that pixel, in
 // the scene frame. Also: the every-8th split by image name, nerfstudio's own split, pre-downscaled
-// images_N folders, per-image LLFF bounds, and the real captures in ../captures when present.
+// images_N folders, per-image LLFF bounds, and the real captures in captures/ (under the checkout, or beside it) when
+// present.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -630,10 +631,12 @@ TEST(Captures, MaskPathAndInstantNgpDynamicMasks) {
                            "image not found", true);
 }
 
-// The real captures of docs/CAPTURES.md, when they sit beside the checkout: each loads, in its
-// format, with the frame counts and bounds source the document records.
+// The real captures of docs/CAPTURES.md, when they sit in captures/ under the checkout (where its
+// recipes put them) or beside it: each loads, in its format, with the frame counts and bounds source
+// the document records.
 TEST(Captures, RealCapturesWhenPresent) {
-  const fs::path base = fs::path(test::source_dir()).parent_path() / "captures";
+  const fs::path inside = fs::path(test::source_dir()) / "captures";
+  const fs::path base = fs::is_directory(inside) ? inside : fs::path(test::source_dir()).parent_path() / "captures";
   struct Want {
     const char* dir;
     const char* format;

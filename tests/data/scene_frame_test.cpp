@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "test_geometry.h"
@@ -139,6 +140,63 @@ TEST(SceneFrame, ParallelCamerasCentreOnTheirMean) {
   EXPECT_NEAR(f.centre[1], 3, 1e-6);
   EXPECT_NEAR(f.centre[2], 2, 1e-6);
   EXPECT_NEAR(f.scale, 0.5, 1e-6);
+}
+
+// A room photographed from inside: cameras on a small ring at its middle, each looking straight out
+// (their optical axes all meet at the ring's centre, behind every camera), sparse points on the
+// room's walls, floor and ceiling. The centre is the cameras' mean, and the unit sphere holds half
+// the points (the median point distance, computed here), not just the cameras; without points the
+// cameras' sphere stays.
+TEST(SceneFrame, CamerasLookingOutOfARoomFitTheRoomNotTheCameras) {
+  const V3 middle{1, 2, 1.5};
+  std::vector<Pose34> poses;
+  for (int i = 0; i < 10; ++i) {
+    const double th = 2 * M_PI * i / 10 + 0.1;
+    const V3 eye{middle[0] + 0.3 * std::cos(th), middle[1] + 0.3 * std::sin(th), middle[2]};
+    const V3 out{middle[0] + 10 * std::cos(th), middle[1] + 10 * std::sin(th), middle[2]};
+    poses.push_back(look_at_pose(eye, out, {0, 0, 1}));
+  }
+  Capture cap = capture_of(poses);
+  // The room: x in [-2, 4], y in [0, 4], z in [0, 3]; points on a 0.5 grid over its six faces.
+  std::vector<double> distances;
+  const double lo[3] = {-2, 0, 0}, hi[3] = {4, 4, 3};
+  for (int axis = 0; axis < 3; ++axis)
+    for (const double side : {lo[axis], hi[axis]}) {
+      const int a = (axis + 1) % 3, b = (axis + 2) % 3;
+      for (double u = lo[a]; u <= hi[a] + 1e-9; u += 0.5)
+        for (double v = lo[b]; v <= hi[b] + 1e-9; v += 0.5) {
+          std::array<double, 3> p{};
+          p[static_cast<size_t>(axis)] = side;
+          p[static_cast<size_t>(a)] = u;
+          p[static_cast<size_t>(b)] = v;
+          cap.points.push_back(p);
+          distances.push_back(std::sqrt(dot3(sub3({p[0], p[1], p[2]}, middle), sub3({p[0], p[1], p[2]}, middle))));
+        }
+    }
+  std::sort(distances.begin(), distances.end());
+  const double median = distances[(distances.size() - 1) / 2];
+  ASSERT_GT(median, 1.5);  // well beyond the cameras' 0.3
+  const SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_TRUE(f.looks_outward);
+  EXPECT_FALSE(f.faces_one_way);
+  EXPECT_EQ(f.kind, SceneKind::Unbounded);
+  for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(f.centre[c], middle[c], 1e-5);
+  EXPECT_NEAR(f.scale, 1 / median, 1e-9);
+  EXPECT_NE(f.describe().find("looking outward"), std::string::npos);
+  EXPECT_TRUE(SceneFrame::from_json(f.to_json(), "scene.json").looks_outward);
+  // The nearest wall is 2 units from the middle (y = 0 and y = 4): the near bound is under it.
+  EXPECT_LT(f.near, 2 * f.scale);
+  // Without points: the cameras' sphere, as for any capture.
+  const SceneFrame bare = fit_scene_frame(capture_of(poses), "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_TRUE(bare.looks_outward);
+  EXPECT_NEAR(bare.scale, 1 / 0.3, 1e-4);
+  // Cameras round an object, and a forward-facing row, do not look outward.
+  EXPECT_FALSE(
+      fit_scene_frame(capture_of(ring_poses(8, {0, 0, 0}, {0, 0, 1}, 3, 1)), "cap", SceneKind::Auto, 2, 6, false)
+          .looks_outward);
+  std::vector<Pose34> row;
+  for (int i = 0; i < 5; ++i) row.push_back(look_at_pose({1.0 + i, 3, 2}, {1.0 + i, -10, 2}, {0, 0, 1}));
+  EXPECT_FALSE(fit_scene_frame(capture_of(row), "cap", SceneKind::Auto, 2, 6, false).looks_outward);
 }
 
 TEST(SceneFrame, DegenerateLayoutsAndSyntheticScenes) {

@@ -78,7 +78,7 @@ TEST(ForwardFacing, LlffStyleCaptureTrainsInNdcAndRendersItsPath) {
   const double unbounded = test::held_out_psnr(t / "run_unbounded");
   std::cout << "forward-facing capture, held-out PSNR: NDC " << psnr << " dB, unbounded " << unbounded << " dB"
             << std::endl;
-  // Measured (2026-11-25, 2-vCPU VM): NDC 22.53 dB, unbounded 22.62 dB.
+  // Measured (2026-11-25, 2-core machine): NDC 22.53 dB, unbounded 22.62 dB.
   EXPECT_GT(psnr, 17.0);  // learnt (an untrained model gives ~10 dB)
   EXPECT_GT(psnr, unbounded - 1.0);
   // Geometry out: the attention depth (the NDC ray's t') turned back into metric depth lands the

@@ -144,7 +144,7 @@ TEST(GridTraining, MismatchedTablesAreRefusedNamingThem) {
 
 // The demo model on a 32x32 demo scene, 300 steps of 256 uniformly drawn rays, with the paper's IPE
 // and with the grid front end (a coarse grid, IPE of 4 degrees beside it), same seed: scored on the
-// held-out views. Measured (2026-11-26, 2-vCPU VM, the CLI with these settings): IPE 22.71 / 22.74 /
+// held-out views. Measured (2026-11-26, 2-core machine, the CLI with these settings): IPE 22.71 / 22.74 /
 // 22.79 dB, grid 24.53 / 23.55 / 24.45 dB for seeds 4 / 5 / 6.
 TEST(GridTraining, LearnsTheDemoSceneInFewerStepsThanIpe) {
   test::TempDir t;

@@ -57,7 +57,7 @@ TEST(LensTraining, DistortedCaptureTrainsAsWellAsThePinholeOne) {
   const double ignored = trained_psnr(t / "data_ignored", t / "run_ignored", gt);
   std::cout << "PSNR on the pinhole test views: trained on pinhole images " << pinhole << " dB, through the lens "
             << lens << " dB, lens ignored " << ignored << " dB" << std::endl;
-  // Measured (2026-11-25, 2-vCPU VM): 18.72 / 20.14 / 18.45 dB. Through the lens the views cover a
+  // Measured (2026-11-25, 2-core machine): 18.72 / 20.14 / 18.45 dB. Through the lens the views cover a
   // wider field, so that run may do better than the pinhole one; it must not do worse.
   EXPECT_GT(pinhole, 17.0);  // the scene was learnt (an untrained model gives ~10 dB)
   EXPECT_GT(lens, pinhole - 0.75);
