@@ -46,6 +46,7 @@ void setup(CLI::App& app) {
   app.add_flag("--compare", a->compare,
                "Also measure the same model with every fast path off (compute.precision=fp32, "
                "compute.attention=plain, compute.cpu_split=ops, train.graph=false) in this run, and report the ratios");
+  add_json_flag(app);
   app.callback([a] {
     const Config c = resolve_config(a->cfg);
     if (a->rays < 1) throw InputError("bench", "--rays", "must be >= 1");

@@ -217,6 +217,7 @@ void setup(CLI::App& app) {
                  "A picture of the points with the cameras that saw them, as FILE.png (default "
                  "RUN/geometry_preview.png, shown in the run's report; none: no picture)");
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)")->capture_default_str();
+  add_json_flag(app);
   app.callback([a] { run_export(*a); });
 }
 

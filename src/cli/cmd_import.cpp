@@ -38,6 +38,7 @@ void setup(CLI::App& app) {
   app.add_option("--weights", a->weights, "Release state dict (.pt, name -> tensor)")->required();
   a->cfg.add_to(app, true);
   app.add_option("--out", a->out, "Run folder to create")->required();
+  add_json_flag(app);
   app.callback([a] { run_import(*a); });
 }
 

@@ -65,6 +65,7 @@ void setup(CLI::App& app) {
   auto cfg = std::make_shared<ConfigOptions>();
   app.add_option("--data", *data, "Dataset folder to validate and summarise");
   cfg->add_to(app, false);
+  add_json_flag(app);
   app.callback([data, cfg] {
     nlohmann::json out;
     if (!cfg->config_path.empty() || !cfg->preset.empty() || !cfg->sets.empty()) {

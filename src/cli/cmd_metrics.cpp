@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli/command.h"
+#include "cli/common.h"
 #include "eval/lpips.h"
 #include "eval/metrics.h"
 #include "eval/pose_error.h"
@@ -256,6 +257,7 @@ void setup(CLI::App& app) {
                  "LPIPS AlexNet v0.1 weights (default: $ABLENERF_LPIPS_WEIGHTS or ../shared/weights)");
   app.add_option("--ssim", a->ssim, "SSIM variant: standard (mip-NeRF, valid) or release (authors', zero-padded)")
       ->capture_default_str();
+  add_json_flag(app);
   app.callback([a] { run(*a); });
 }
 

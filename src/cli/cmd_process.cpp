@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli/command.h"
+#include "cli/common.h"
 #include "data/colmap_process.h"
 
 namespace ablenerf::cli {
@@ -27,6 +28,7 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   app.add_option("--threads", o->threads, "COLMAP's threads (0 = all cores)")->capture_default_str();
   app.add_option("--colmap", o->colmap, "The COLMAP program")->capture_default_str();
+  add_json_flag(app);
   app.callback([o] {
     const ProcessResult r = process_capture(*o, std::cerr);
     nlohmann::json j{{"capture", o->out},

@@ -45,6 +45,7 @@ struct RenderArgs {
   int frames = kDefaultFrames, width = 0, height = 0;
   int look = -1;  // a training photo's look (per-photo colour, appearance code); -1 = the mean
   bool raw = false, depth = false, branches = false, le_zero = false, fallback_frames = false;
+  bool json = false;
   double le_noise = 0, fps = kDefaultFps;
   int64_t seed = 0, chunk = 0;
 };
@@ -233,7 +234,12 @@ void run_render(const RenderArgs& a) {
   }
   if (writer) writer->close();
   bar.finish();
-  std::cout << "wrote " << n << " frames (" << w << "x" << h << ") to " << (writer ? a.out : frame_dir) << std::endl;
+  const std::string where = writer ? a.out : frame_dir;
+  if (a.json) {
+    std::cout << nlohmann::json{{"frames", n}, {"width", w}, {"height", h}, {"out", where}}.dump() << std::endl;
+    return;
+  }
+  std::cout << "wrote " << n << " frames (" << w << "x" << h << ") to " << where << std::endl;
 }
 
 void setup(CLI::App& app) {
@@ -275,6 +281,7 @@ void setup(CLI::App& app) {
   app.add_flag("--fallback-frames", a->fallback_frames,
                "With a .mp4 --out and no ffmpeg: write PNG frames to OUT_frames/ instead of failing");
   app.add_option("--out", a->out, "Output folder for PNG frames, or FILE.mp4 (needs ffmpeg)")->required();
+  add_json_flag(app, a->json);
   app.callback([a] {
     if (a->cameras.empty() && a->path.empty())
       throw InputError("render", "--path", "give --path orbit|spiral|FILE.json or --cameras FILE");

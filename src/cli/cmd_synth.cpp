@@ -8,6 +8,7 @@
 #include <memory>
 
 #include "cli/command.h"
+#include "cli/common.h"
 #include "synth/scene.h"
 #include "util/log.h"
 #include "util/errors.h"
@@ -17,6 +18,7 @@ namespace cmd_synth {
 
 struct SynthArgs {
   std::string out;
+  bool json = false;
   synth::SynthOptions opts;
 };
 
@@ -68,6 +70,7 @@ void setup(CLI::App& app) {
       "--distractor", a->opts.distractor,
       "Train views only: a magenta ball at a new place in every photo, with masks (mask_path) that leave it out "
       "(demo only)");
+  add_json_flag(app, a->json);
   app.callback([a] {
     synth::validate(a->opts);  // fail before creating any folder
     const auto start = std::chrono::steady_clock::now();
@@ -76,6 +79,18 @@ void setup(CLI::App& app) {
       opts.progress = [start](int done, int total) { print_progress(done, total, start); };
     write_synthetic_dataset(a->out, opts);
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (a->json) {
+      std::cout << nlohmann::json{{"out", a->out},
+                                  {"scene", opts.scene},
+                                  {"train_views", opts.train_views},
+                                  {"test_views", opts.test_views},
+                                  {"width", opts.res},
+                                  {"height", opts.res},
+                                  {"seconds", secs}}
+                       .dump()
+                << std::endl;
+      return;
+    }
     std::fprintf(stdout, "synth: wrote %d train + %d test views (%dx%d, test depth maps) to %s in %.1f s\n",
                  opts.train_views, opts.test_views, opts.res, opts.res, a->out.c_str(), secs);
   });

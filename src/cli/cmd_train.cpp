@@ -27,6 +27,7 @@ struct TrainArgs {
   std::string time_budget;
   double dist_timeout = 120;
   bool view = false;
+  bool json = false;
   int view_port = 7007;
   std::string view_host = "127.0.0.1";
   int downscale = 0;  // 0: the config's data.downscale
@@ -68,14 +69,22 @@ void setup(CLI::App& app) {
   app.add_option("--out", a->out, "Run folder to create (or continue with --resume)")->required();
   app.add_flag("--resume", a->resume, "Continue the run in --out from its last checkpoint (starts fresh if none)");
   app.add_option("--device", a->device, "cpu, cuda, cuda:N or auto (cuda when available)");
-  app.add_option("--stop-after", a->max_steps, "Checkpoint and stop after this many steps of this invocation");
+  // Two kinds of length, in two groups of --help: the run's (its schedule is laid over it) and this
+  // invocation's (a pause: the run continues with --resume where it stopped).
+  const std::string run_length = "The run's length (the learning-rate schedule is laid over it)";
+  const std::string pause = "Stopping this invocation early (checkpointed; continue with --resume)";
+  app.add_option("--stop-after", a->max_steps, "Checkpoint and stop after this many steps of this invocation")
+      ->group(pause);
   app.add_option("--time-limit", a->time_limit,
                  "Checkpoint and stop after this many seconds of training in this invocation (0 = none)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::NonNegativeNumber)
+      ->group(pause);
   app.add_option("--time-budget", a->time_budget,
                  "Train for this wall-clock budget with the schedule laid out over it (train.time_budget_s): "
-                 "5m, 90s, 2h, 1h30m or seconds");
+                 "5m, 90s, 2h, 1h30m or seconds")
+      ->group(run_length);
   app.add_flag("--view", a->view, "Serve the live viewer while training (--host, --port): see `ablenerf view`");
+  add_json_flag(app, a->json);
   app.add_option("--port", a->view_port, "Port of --view's viewer (0 = any free port)")
       ->capture_default_str()
       ->check(CLI::Range(0, 65535));
@@ -85,7 +94,8 @@ void setup(CLI::App& app) {
   app.add_option("--downscale", a->downscale, "Train on the images reduced N times (data.downscale)")
       ->check(CLI::PositiveNumber);
   app.add_option("--steps", a->steps, "Train this many steps in all (train.steps; with --time-budget, a cap)")
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::PositiveNumber)
+      ->group(run_length);
   app.add_option("--dist-backend", a->backend, "c10d backend when launched with WORLD_SIZE: gloo (CPU) or nccl (CUDA)");
   app.add_option("--dist-timeout", a->dist_timeout, "Seconds before a stalled collective fails (a dead rank)");
   a->cfg.add_to(app, false);
@@ -150,6 +160,17 @@ void setup(CLI::App& app) {
     if (r == TrainResult::Interrupted) throw CommandExit(kExitInterrupted);
     if (env.rank == 0) {
       const std::string& run = a->out;
+      if (a->json) {
+        std::cout << nlohmann::json{{"run", run},
+                                    {"next",
+                                     {"ablenerf eval --run " + run,
+                                      "ablenerf render --run " + run + " --path orbit --out " + run + "/orbit.mp4",
+                                      "ablenerf export --run " + run + " --mesh " + run + "/mesh.ply",
+                                      "ablenerf view --run " + run}}}
+                         .dump()
+                  << std::endl;
+        return;
+      }
       std::cout << "train: run written to " << run << "\nnext:\n  ablenerf eval --run " << run
                 << "\n  ablenerf render --run " << run << " --path orbit --out " << run << "/orbit.mp4"
                 << "\n  ablenerf export --run " << run << " --mesh " << run << "/mesh.ply"

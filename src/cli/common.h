@@ -19,6 +19,17 @@ void add_old_spelling(CLI::App& app, const std::string& old_name, const std::str
   });
 }
 
+// --json on a command whose report is text: the report as one JSON object on stdout instead.
+inline CLI::Option* add_json_flag(CLI::App& app, bool& json) {
+  return app.add_flag("--json", json, "Print the report as one JSON object on stdout instead of text");
+}
+// --json on a command whose report is JSON already: accepted, so that a script may pass it to every
+// command.
+inline CLI::Option* add_json_flag(CLI::App& app) {
+  return app.add_flag_callback(
+      "--json", [] {}, "The report is one JSON object on stdout either way");
+}
+
 // Defaults <- --config file <- --set overrides, validated.
 Config resolve_config(const ConfigOptions& opts);
 

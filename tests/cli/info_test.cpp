@@ -14,6 +14,7 @@
 
 #include "test_geometry.h"
 #include "test_util.h"
+#include "util/fs.h"
 #include "util/image_io.h"
 
 using namespace ablenerf;
@@ -169,6 +170,45 @@ TEST(Cli, QuietAndVerboseSetHowMuchOfTheLogShows) {
   for (const char* next :
        {"ablenerf eval --run ", "ablenerf render --run ", "ablenerf export --run ", "ablenerf view --run "})
     EXPECT_NE(quiet.output.find(next), std::string::npos) << next << "\n" << quiet.output;
+}
+
+// --json on every command that reports: with --quiet the whole output is one JSON object holding
+// what the text report says (synth, train, eval and render report text otherwise; info, metrics,
+// export, import, process and bench report JSON either way and accept the flag).
+TEST(Cli, JsonGivesOneObjectFromEveryReportingCommand) {
+  test::TempDir t;
+  const auto one_object = [](const test::CommandResult& r) {
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
+    return nlohmann::json::parse(r.output);
+  };
+  const auto synth =
+      one_object(test::run_cli("synth --quiet --json --out " + t / "d" + " --res 8 --train-views 3 --test-views 2"));
+  EXPECT_EQ(synth["out"], t / "d");
+  EXPECT_EQ(synth["train_views"], 3);
+  EXPECT_EQ(synth["test_views"], 2);
+  const auto train = one_object(test::run_cli("train --quiet --json --data " + t / "d" + " --config " +
+                                              test::source_dir() + "/configs/demo.toml --steps 2 --out " + t / "r"));
+  EXPECT_EQ(train["run"], t / "r");
+  ASSERT_EQ(train["next"].size(), 4u);
+  EXPECT_EQ(train["next"][0], "ablenerf eval --run " + t / "r");
+  const auto eval = one_object(test::run_cli("eval --quiet --json --run " + t / "r"));
+  EXPECT_EQ(eval["views"], 2);
+  EXPECT_TRUE(eval["mean"]["psnr"].is_number());
+  // The same figures as the metrics file it names.
+  const auto metrics = nlohmann::json::parse(read_file(eval["metrics"].get<std::string>()));
+  EXPECT_DOUBLE_EQ(eval["mean"]["psnr"].get<double>(), metrics["mean"]["psnr"].get<double>());
+  const auto render = one_object(test::run_cli("render --quiet --json --run " + t / "r" +
+                                               " --path orbit --frames 2 --width 8 --height 6 --out " + t / "frames"));
+  EXPECT_EQ(render["frames"], 2);
+  EXPECT_EQ(render["width"], 8);
+  const auto info = test::run_cli("info --quiet --json --data " + t / "d");  // JSON either way (indented)
+  ASSERT_EQ(info.exit_code, 0) << info.output;
+  EXPECT_TRUE(nlohmann::json::parse(info.output).is_object());
+  // Without --json the text reports stay.
+  const auto text = test::run_cli("eval --quiet --run " + t / "r");
+  EXPECT_NE(text.output.find("PSNR"), std::string::npos) << text.output;
+  EXPECT_THROW(nlohmann::json::parse(text.output), nlohmann::json::exception);
 }
 
 // On a CPU with AVX2 and FMA, `ablenerf` never runs OpenBLAS's Prescott (SSE3) kernels, which
