@@ -22,9 +22,8 @@ Vec3 spherical(double elevation, double azimuth) {
 
 double focal_from_angle(int width, double angle_x) { return 0.5 * width / std::tan(0.5 * angle_x); }
 
-Camera look_at_origin(const Vec3& centre, int res) {
-  const Vec3 back = normalize(centre);  // camera z: from the origin towards the camera
-  const Vec3 right = normalize(cross(Vec3{0, 0, 1}, back));
+Camera upright_camera(const Vec3& centre, const Vec3& back, int res, double angle_x) {
+  const Vec3 right = normalize(cross(Vec3{0, 0, 1}, back));  // horizontal: no roll
   const Vec3 up = cross(back, right);
   Camera cam;
   const Vec3 cols[4] = {right, up, back, centre};
@@ -34,8 +33,12 @@ Camera look_at_origin(const Vec3& centre, int res) {
     cam.c2w[2][c] = cols[c].z;
   }
   cam.width = cam.height = res;
-  cam.focal = focal_from_angle(res, kCameraAngleX);
+  cam.focal = focal_from_angle(res, angle_x);
   return cam;
+}
+
+Camera look_at_origin(const Vec3& centre, int res) {
+  return upright_camera(centre, normalize(centre), res, kCameraAngleX);  // z: from the origin to the camera
 }
 
 void distort_point(const SynthLens& l, double x, double y, double& xd, double& yd) {

@@ -49,6 +49,10 @@ inline double unit_uniform(std::mt19937_64& rng) { return static_cast<double>(rn
 // f = 0.5 W / tan(0.5 angle_x).
 double focal_from_angle(int width, double angle_x);
 
+// A square res x res camera at `centre` whose backward axis (camera z) is the unit vector `back`, its
+// right axis horizontal (no roll, +z as the up hint), with horizontal field of view angle_x.
+Camera upright_camera(const Vec3& centre, const Vec3& back, int res, double angle_x);
+
 // A square res x res camera at `centre` looking at the origin with +z as the up hint.
 Camera look_at_origin(const Vec3& centre, int res);
 

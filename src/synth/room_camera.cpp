@@ -29,19 +29,7 @@ std::vector<Camera> draw_cameras(int count, int res, std::mt19937_64& rng) {
 
 Camera look_along(const Vec3& centre, double yaw, double pitch, int res) {
   const Vec3 forward{std::cos(pitch) * std::cos(yaw), std::cos(pitch) * std::sin(yaw), std::sin(pitch)};
-  const Vec3 back = -forward;
-  const Vec3 right = normalize(cross(Vec3{0, 0, 1}, back));  // horizontal: no roll
-  const Vec3 up = cross(back, right);
-  Camera cam;
-  const Vec3 cols[4] = {right, up, back, centre};
-  for (int c = 0; c < 4; ++c) {
-    cam.c2w[0][c] = cols[c].x;
-    cam.c2w[1][c] = cols[c].y;
-    cam.c2w[2][c] = cols[c].z;
-  }
-  cam.width = cam.height = res;
-  cam.focal = focal_from_angle(res, kRoomCameraAngleX);
-  return cam;
+  return upright_camera(centre, -forward, res, kRoomCameraAngleX);
 }
 
 std::vector<Camera> room_train_cameras(int count, int res, uint64_t seed) {

@@ -17,6 +17,7 @@
 #include "synth/room_camera.h"
 #include "synth/scene.h"
 #include "synth_test_util.h"
+#include "loader_rays.h"
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -308,30 +309,10 @@ TEST_F(SynthRoom, LoadsAsARealCaptureAndTheLoadersRaysAreTheRenderers) {
   ASSERT_EQ(ds.split("test").size(), kTest);
   EXPECT_EQ(ds.intrinsics.width, kRes);
   EXPECT_NEAR(ds.intrinsics.fx, synth::focal_from_angle(kRes, synth::kRoomCameraAngleX), 1e-9);
-  const auto cams = synth::room_train_cameras(kTrain, kRes, kSeed);
-  const auto& R = ds.scene.rotation;
-  double worst_dir = 0, worst_origin = 0;
-  for (int64_t i = 0; i < kTrain; ++i) {
-    const synth::Camera& cam = cams[static_cast<size_t>(i)];
-    for (const auto& [col, row] :
-         std::vector<std::pair<double, double>>{{0, 0}, {31, 0}, {0, 31}, {31, 31}, {15, 16}}) {
-      const Rays r = rays_for_pixels(ds.split("train").c2w[i].unsqueeze(0).to(torch::kFloat64),
-                                     torch::tensor({col}, torch::kFloat64), torch::tensor({row}, torch::kFloat64),
-                                     CameraTable::of({ds.split("train").cameras[static_cast<size_t>(i)]}));
-      const synth::Ray s = synth::camera_ray(cam, col + 0.5, row + 0.5);
-      // The renderer's ray in the scene frame: origin moved, direction rotated (both have camera z = -1).
-      const auto o_s = ds.scene.point_to_scene({s.origin.x, s.origin.y, s.origin.z});
-      const double d[3] = {s.dir.x, s.dir.y, s.dir.z};
-      for (int k = 0; k < 3; ++k) {
-        const double dk = R[static_cast<size_t>(3 * k)] * d[0] + R[static_cast<size_t>(3 * k + 1)] * d[1] +
-                          R[static_cast<size_t>(3 * k + 2)] * d[2];
-        worst_dir = std::max(worst_dir, std::abs(r.directions[0][k].item<double>() - dk));
-        worst_origin = std::max(worst_origin, std::abs(r.origins[0][k].item<double>() - o_s[static_cast<size_t>(k)]));
-      }
-    }
-  }
-  EXPECT_LT(worst_dir, 2e-6);  // poses are stored in float32
-  EXPECT_LT(worst_origin, 2e-6);
+  const RayMismatch worst = loader_ray_mismatch(ds, synth::room_train_cameras(kTrain, kRes, kSeed),
+                                                {{0, 0}, {31, 0}, {0, 31}, {31, 31}, {15, 16}});
+  EXPECT_LT(worst.direction, 2e-6);  // poses are stored in float32
+  EXPECT_LT(worst.origin, 2e-6);
   // Opaque photos load unchanged by the white background; depth in scene units.
   EXPECT_EQ(ds.split("train").alpha.min().item<float>(), 1.0f);
   ASSERT_TRUE(ds.split("test").depth.defined());

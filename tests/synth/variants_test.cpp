@@ -12,6 +12,7 @@
 #include "data/dataset.h"
 #include "synth/scene.h"
 #include "synth/world.h"
+#include "loader_rays.h"
 #include "test_util.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -70,30 +71,11 @@ TEST(SynthVariants, LoaderRaysThroughTheLensAreTheRenderersRays) {
   ASSERT_EQ(ds.split("test").size(), o.test_views);
   EXPECT_EQ(ds.intrinsics.model, LensModel::RadialTangential);
   auto cams = synth::train_cameras(o.train_views, o.res, o.seed);
-  const auto& R = ds.scene.rotation;
-  double worst_dir = 0, worst_origin = 0;
-  for (int64_t i = 0; i < o.train_views; ++i) {
-    synth::Camera cam = cams[static_cast<size_t>(i)];
-    cam.lens = synth::kWideLens;
-    for (const auto& [col, row] :
-         std::vector<std::pair<double, double>>{{0, 0}, {23, 0}, {0, 23}, {23, 23}, {11, 12}, {5, 17}}) {
-      const Rays r = rays_for_pixels(ds.split("train").c2w[i].unsqueeze(0).to(torch::kFloat64),
-                                     torch::tensor({col}, torch::kFloat64), torch::tensor({row}, torch::kFloat64),
-                                     CameraTable::of({ds.split("train").cameras[static_cast<size_t>(i)]}));
-      const synth::Ray s = synth::camera_ray(cam, col + 0.5, row + 0.5);
-      // The renderer's ray in the scene frame: origin moved, direction rotated (both have camera z = -1).
-      const auto o_s = ds.scene.point_to_scene({s.origin.x, s.origin.y, s.origin.z});
-      const double d[3] = {s.dir.x, s.dir.y, s.dir.z};
-      for (int k = 0; k < 3; ++k) {
-        const double dk = R[static_cast<size_t>(3 * k)] * d[0] + R[static_cast<size_t>(3 * k + 1)] * d[1] +
-                          R[static_cast<size_t>(3 * k + 2)] * d[2];
-        worst_dir = std::max(worst_dir, std::abs(r.directions[0][k].item<double>() - dk));
-        worst_origin = std::max(worst_origin, std::abs(r.origins[0][k].item<double>() - o_s[static_cast<size_t>(k)]));
-      }
-    }
-  }
-  EXPECT_LT(worst_dir, 2e-6);  // poses are stored in float32
-  EXPECT_LT(worst_origin, 2e-6);
+  for (auto& cam : cams) cam.lens = synth::kWideLens;
+  const synth_test::RayMismatch worst =
+      synth_test::loader_ray_mismatch(ds, cams, {{0, 0}, {23, 0}, {0, 23}, {23, 23}, {11, 12}, {5, 17}});
+  EXPECT_LT(worst.direction, 2e-6);  // poses are stored in float32
+  EXPECT_LT(worst.origin, 2e-6);
   // Depth maps are in scene units: the renderer's depth times the scene frame's scale.
   const auto raw = torch::pickle_load([&] {
                      const std::string b = read_file(t / "test/r_0_depth.pt");
