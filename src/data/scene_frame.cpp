@@ -81,15 +81,23 @@ double percentile(std::vector<double> v, double q) {
 // milliseconds.
 constexpr size_t kMaxBoundPoints = 20000;
 
+// The sparse points the bounds use (capture units): every one, or kMaxBoundPoints evenly strided.
+std::vector<V3> bound_points(const Capture& cap) {
+  std::vector<V3> points;
+  const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
+  for (size_t i = 0; i < cap.points.size(); i += stride) points.push_back(to_vec3(cap.points[i]));
+  return points;
+}
+
 // Depths (capture units, along each optical axis) of the sparse points in front of each camera;
 // InputError(root, "points") when none is.
 std::vector<double> point_depths(const Capture& cap, const std::vector<Pose34>& poses, const std::string& root) {
   std::vector<double> depths;
-  const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
+  const std::vector<V3> points = bound_points(cap);
   for (const auto& p : poses) {
     const V3 o = column(p, 3), z = column(p, 2);
-    for (size_t i = 0; i < cap.points.size(); i += stride) {
-      const double d = -dot((to_vec3(cap.points[i]) - o), z);
+    for (const V3& q : points) {
+      const double d = -dot(q - o, z);
       if (d > 0) depths.push_back(d);
     }
   }
@@ -312,9 +320,7 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
   f.looks_outward = !use_focus && !facing_one_way;
   if (f.looks_outward && !cap.points.empty()) {
     std::vector<double> distances;
-    const size_t stride = std::max<size_t>(1, cap.points.size() / kMaxBoundPoints);
-    for (size_t i = 0; i < cap.points.size(); i += stride)
-      distances.push_back(length(to_vec3(cap.points[i]) - to_vec3(f.centre)));
+    for (const V3& q : bound_points(cap)) distances.push_back(length(q - to_vec3(f.centre)));
     radius = std::max(radius, percentile(distances, 0.5));
   }
   f.scale = 1.0 / radius;

@@ -103,8 +103,7 @@ struct Addressing {
   bool dense;
   uint32_t side, mask;
   Addressing(const HashGridShape& s, int level)
-      : dense(static_cast<uint64_t>(s.resolution[level] + 1) * (s.resolution[level] + 1) * (s.resolution[level] + 1) <=
-              static_cast<uint64_t>(s.table_size)),
+      : dense(hash_grid_level_is_dense(s, level)),
         side(static_cast<uint32_t>(s.resolution[level]) + 1),
         mask(static_cast<uint32_t>(s.table_size - 1)) {}
 };
@@ -208,6 +207,16 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
 }  // namespace hash_grid_avx512
 #endif
 
+// Whether `form` has its own loops for rows of `features` floats (else the scalar loops serve it).
+bool vector_loops(HashGridCpuForm form, int64_t features) {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  return form == HashGridCpuForm::Avx512 && features == 2;
+#else
+  (void)form, (void)features;
+  return false;
+#endif
+}
+
 }  // namespace
 
 bool hash_grid_cpu_form_available(HashGridCpuForm form) { return form == HashGridCpuForm::Scalar || cpu_has_avx512(); }
@@ -220,20 +229,20 @@ void hash_grid_forward_cpu_in(HashGridCpuForm form, const float* positions, int6
                               const HashGridShape& s, float* out) {
   if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
-#ifdef ABLENERF_HAVE_AVX2_FORM
-  if (form == HashGridCpuForm::Avx512 && features == 2) {
-    at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
-      for (int l = 0; l < s.levels; ++l)
-        hash_grid_avx512::gather_level(positions, lo, hi, table + l * rows * features, s, l, out);
-    });
-    return;
-  }
-#endif
+  const bool vector = vector_loops(form, features);
   with_features(features, [&](auto f) {
     constexpr int F = decltype(f)::value;
     at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
-      for (int l = 0; l < s.levels; ++l)
-        forward_level<F>(positions, lo, hi, table + l * rows * features, s, l, features, out);
+      for (int l = 0; l < s.levels; ++l) {
+        const float* level_rows = table + l * rows * features;
+#ifdef ABLENERF_HAVE_AVX2_FORM
+        if (vector) {
+          hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l, out);
+          continue;
+        }
+#endif
+        forward_level<F>(positions, lo, hi, level_rows, s, l, features, out);
+      }
     });
   });
 }
@@ -242,21 +251,20 @@ void hash_grid_backward_cpu_in(HashGridCpuForm form, const float* positions, int
                                const HashGridShape& s, float* grad_table) {
   if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
-#ifdef ABLENERF_HAVE_AVX2_FORM
-  if (form == HashGridCpuForm::Avx512 && features == 2) {
-    at::parallel_for(0, s.levels, 1, [&](int64_t lo, int64_t hi) {
-      for (int64_t l = lo; l < hi; ++l)
-        hash_grid_avx512::scatter_level(positions, n, grad_out, s, static_cast<int>(l),
-                                        grad_table + l * rows * features);
-    });
-    return;
-  }
-#endif
+  const bool vector = vector_loops(form, features);
   with_features(features, [&](auto f) {
     constexpr int F = decltype(f)::value;
     at::parallel_for(0, s.levels, 1, [&](int64_t lo, int64_t hi) {
-      for (int64_t l = lo; l < hi; ++l)
-        backward_level<F>(positions, n, grad_out, s, static_cast<int>(l), features, grad_table + l * rows * features);
+      for (int64_t l = lo; l < hi; ++l) {
+        float* level_rows = grad_table + l * rows * features;
+#ifdef ABLENERF_HAVE_AVX2_FORM
+        if (vector) {
+          hash_grid_avx512::scatter_level(positions, n, grad_out, s, static_cast<int>(l), level_rows);
+          continue;
+        }
+#endif
+        backward_level<F>(positions, n, grad_out, s, static_cast<int>(l), features, level_rows);
+      }
     });
   });
 }

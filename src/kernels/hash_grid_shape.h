@@ -34,12 +34,17 @@ struct HashGridShape {
 constexpr uint32_t kHashPrimeY = 2654435761u;
 constexpr uint32_t kHashPrimeZ = 805459861u;
 
+// Whether `level`'s vertices fit in its rows, so that it is indexed densely rather than hashed.
+ABLENERF_HOST_DEVICE inline bool hash_grid_level_is_dense(const HashGridShape& s, int level) {
+  const uint64_t side = static_cast<uint64_t>(s.resolution[level]) + 1;
+  return side * side * side <= static_cast<uint64_t>(s.table_size);
+}
+
 // The row of vertex (x, y, z) at `level`.
 ABLENERF_HOST_DEVICE inline uint32_t hash_grid_row(const HashGridShape& s, int level, uint32_t x, uint32_t y,
                                                    uint32_t z) {
   const uint32_t side = static_cast<uint32_t>(s.resolution[level]) + 1;
-  if (static_cast<uint64_t>(side) * side * side <= static_cast<uint64_t>(s.table_size))
-    return x + side * (y + side * z);
+  if (hash_grid_level_is_dense(s, level)) return x + side * (y + side * z);
   return (x ^ (y * kHashPrimeY) ^ (z * kHashPrimeZ)) & static_cast<uint32_t>(s.table_size - 1);
 }
 
