@@ -45,32 +45,35 @@ CameraTable CameraTable::to(const torch::Device& device) const { return {params.
 
 double pixel_radius(const Intrinsics& k) { return (1.0 / k.fy) * kRadiusScale; }
 
-Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
-                     const CameraTable& cams) {
-  const auto f64 = c2w.options().dtype(torch::kDouble);
+LensCoordinates lens_coordinates(const torch::Tensor& col, const torch::Tensor& row, const CameraTable& cams) {
+  const auto f64 = col.options().dtype(torch::kDouble);
+  const auto f32 = col.options().dtype(torch::kFloat);
   const auto p = cams.params.to(f64);
   const auto fx = p.select(1, 0), fy = p.select(1, 1), cx = p.select(1, 2), cy = p.select(1, 3);
   // Normalised coordinates in OpenCV axes (y down), in float64 for the lens inverse.
   const auto xd = (col.to(f64) + 0.5 - cx) / fx;
   const auto yd = (row.to(f64) + 0.5 - cy) / fy;
+  if (cams.all_pinhole()) return {xd.to(f32), yd.to(f32), (kRadiusScale / fy).unsqueeze(1).to(f32)};
+  const CameraTable lens{p, cams.model.to(col.device()), cams.models};
+  const auto xy = undistort_points(lens, torch::stack({xd, yd}, 1));
+  // One pixel down in the image is 1/fy in distorted coordinates.
+  const auto radii = (undistorted_step_y(lens, xy).norm(2, 1) * (kRadiusScale / fy)).unsqueeze(1).to(f32);
+  return {xy.select(1, 0).to(f32), xy.select(1, 1).to(f32), radii};
+}
+
+Rays rays_from_lens_coordinates(const torch::Tensor& c2w, const LensCoordinates& lens) {
   const auto opts = c2w.options().dtype(torch::kFloat);
-  torch::Tensor x, y, radii;
-  if (cams.all_pinhole()) {
-    x = xd, y = yd;
-    radii = (kRadiusScale / fy).unsqueeze(1).to(opts);
-  } else {
-    const CameraTable lens{p, cams.model.to(c2w.device()), cams.models};
-    const auto xy = undistort_points(lens, torch::stack({xd, yd}, 1));
-    x = xy.select(1, 0), y = xy.select(1, 1);
-    // One pixel down in the image is 1/fy in distorted coordinates.
-    radii = (undistorted_step_y(lens, xy).norm(2, 1) * (kRadiusScale / fy)).unsqueeze(1).to(opts);
-  }
   // OpenGL camera axes: y up, looking down -z.
-  auto dirs_cam = torch::stack({x, -y, -torch::ones_like(x)}, -1).to(opts);  // (B,3)
-  auto rot = c2w.slice(1, 0, 3).slice(2, 0, 3).to(torch::kFloat);            // (B,3,3)
+  auto dirs_cam = torch::stack({lens.x, -lens.y, -torch::ones_like(lens.x)}, -1).to(opts);  // (B,3)
+  auto rot = c2w.slice(1, 0, 3).slice(2, 0, 3).to(torch::kFloat);                           // (B,3,3)
   auto dirs = torch::bmm(rot, dirs_cam.unsqueeze(-1)).squeeze(-1);
   auto origins = c2w.slice(1, 0, 3).select(2, 3).to(torch::kFloat).contiguous();
-  return {origins, dirs.contiguous(), radii.contiguous()};
+  return {origins, dirs.contiguous(), lens.radii.to(opts).contiguous()};
+}
+
+Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,
+                     const CameraTable& cams) {
+  return rays_from_lens_coordinates(c2w, lens_coordinates(col.to(c2w.device()), row.to(c2w.device()), cams));
 }
 
 Rays rays_for_pixels(const torch::Tensor& c2w, const torch::Tensor& col, const torch::Tensor& row,

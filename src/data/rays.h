@@ -47,6 +47,21 @@ struct Rays {
 // undistorted pixel's top and bottom edges (to first order), per pixel.
 double pixel_radius(const Intrinsics& k);
 
+// A ray in its camera's frame, before the pose: the pixel centre's normalised coordinates with the
+// lens undone (OpenCV axes), rounded to float32 as the ray's direction is, and the cone radius at
+// t = 1 (float32).
+struct LensCoordinates {
+  torch::Tensor x, y;   // (B) float32
+  torch::Tensor radii;  // (B,1) float32
+};
+
+// The lens's part of rays_for_pixels: through pixel centres (col + 0.5, row + 0.5) of `cams` (one
+// row per ray), in float64, on col's device. It depends on the camera and the pixel only, so a
+// sampler may compute it once per camera and pixel and look it up (train/ray_batch.h).
+LensCoordinates lens_coordinates(const torch::Tensor& col, const torch::Tensor& row, const CameraTable& cams);
+// The pose's part: rays from camera-frame coordinates and c2w (B,3,4) or (B,4,4) (OpenGL axes).
+Rays rays_from_lens_coordinates(const torch::Tensor& c2w, const LensCoordinates& lens);
+
 // Rays through pixel centres (col + 0.5, row + 0.5). c2w: (B,3,4) or (B,4,4) camera-to-world
 // (OpenGL axes); col,row: (B) integer or float pixel indices; cams: one camera row per ray
 // (CameraTable::index). All on the same device.

@@ -16,6 +16,11 @@
 
 #define ABLENERF_ALWAYS_INLINE inline __attribute__((always_inline))
 
+// GCC contracts a * b + c into one fused multiply-add (one rounding instead of two) wherever the
+// target has FMA, intrinsics included. On a function whose vector form must round as the baseline
+// scalar loop does (forms that agree to the bit), contraction is off.
+#define ABLENERF_SEPARATE_ROUNDINGS __attribute__((optimize("fp-contract=off")))
+
 namespace ablenerf {
 
 // True when this CPU runs AVX2 and FMA instructions (checked once).
@@ -37,5 +42,13 @@ inline bool cpu_has_avx512() {
   return false;
 #endif
 }
+
+// The instruction forms of the CPU kernels that have a scalar loop and an AVX-512 one (Adam's
+// update, the table gradient's finishing pass): Scalar runs everywhere.
+enum class CpuVectorForm { Scalar, Avx512 };
+
+inline bool cpu_vector_form_available(CpuVectorForm form) { return form == CpuVectorForm::Scalar || cpu_has_avx512(); }
+
+inline CpuVectorForm cpu_best_vector_form() { return cpu_has_avx512() ? CpuVectorForm::Avx512 : CpuVectorForm::Scalar; }
 
 }  // namespace ablenerf

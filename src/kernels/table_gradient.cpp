@@ -4,6 +4,10 @@
 
 #include "kernels/cpu_parallel.h"
 
+#ifdef ABLENERF_HAVE_AVX2_FORM
+#include <immintrin.h>
+#endif
+
 namespace ablenerf {
 
 namespace table_gradient_impl {
@@ -12,6 +16,67 @@ thread_local int t_slot = -1;
 
 // Entries per thread of the finishing pass, below which a second thread does not pay.
 constexpr int64_t kEntriesPerWorker = 1 << 16;
+
+// What the finishing pass reads and writes: out = g0 (or 0) + src[0] + ... + two_decay x w, the
+// slots zeroed.
+struct FinishArgs {
+  const float* g0;
+  const std::vector<float*>& src;
+  const float* w;
+  float two_decay;
+  float* out;
+};
+
+// Entries [lo, hi); returns the sum of w^2 over them.
+double finish_scalar(const FinishArgs& a, int64_t lo, int64_t hi) {
+  double sq = 0.0;
+  for (int64_t j = lo; j < hi; ++j) {
+    float g = a.g0 != nullptr ? a.g0[j] : 0.0f;
+    for (float* s : a.src) {
+      g += s[j];
+      s[j] = 0.0f;
+    }
+    a.out[j] = g + a.two_decay * a.w[j];
+    sq += static_cast<double>(a.w[j]) * a.w[j];
+  }
+  return sq;
+}
+
+#ifdef ABLENERF_HAVE_AVX2_FORM
+// 16 entries at a time, the same float additions in the same order (no fused multiply-add); the
+// squares summed in float64 in 16 lanes (another order of the sum than the scalar loop's).
+ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS double finish_avx512(const FinishArgs& a, int64_t lo, int64_t hi) {
+  const __m512 zero = _mm512_setzero_ps(), two_decay = _mm512_set1_ps(a.two_decay);
+  __m512d sq_low = _mm512_setzero_pd(), sq_high = _mm512_setzero_pd();
+  int64_t j = lo;
+  for (; j + 16 <= hi; j += 16) {
+    __m512 g = a.g0 != nullptr ? _mm512_loadu_ps(a.g0 + j) : zero;
+    for (float* s : a.src) {
+      g = _mm512_add_ps(g, _mm512_loadu_ps(s + j));
+      _mm512_storeu_ps(s + j, zero);
+    }
+    const __m512 w = _mm512_loadu_ps(a.w + j);
+    _mm512_storeu_ps(a.out + j, _mm512_add_ps(g, _mm512_mul_ps(two_decay, w)));
+    const __m512d w_low = _mm512_cvtps_pd(_mm512_castps512_ps256(w));
+    const __m512d w_high = _mm512_cvtps_pd(_mm512_castps512_ps256(_mm512_shuffle_f32x4(w, w, 0xEE)));
+    sq_low = _mm512_add_pd(sq_low, _mm512_mul_pd(w_low, w_low));
+    sq_high = _mm512_add_pd(sq_high, _mm512_mul_pd(w_high, w_high));
+  }
+  alignas(64) double lanes[8];
+  _mm512_store_pd(lanes, _mm512_add_pd(sq_low, sq_high));
+  double sq = 0.0;
+  for (const double lane : lanes) sq += lane;
+  return sq + finish_scalar(a, j, hi);
+}
+#endif
+
+double finish_in(CpuVectorForm form, const FinishArgs& a, int64_t lo, int64_t hi) {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == CpuVectorForm::Avx512) return finish_avx512(a, lo, hi);
+#endif
+  (void)form;
+  return finish_scalar(a, lo, hi);
+}
 
 }  // namespace table_gradient_impl
 
@@ -46,7 +111,8 @@ void TableGradient::discard() {
   std::fill(written_.begin(), written_.end(), false);
 }
 
-double TableGradient::finish(torch::Tensor& parameter, double decay) {
+double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorForm form) {
+  TORCH_CHECK(cpu_vector_form_available(form), "TableGradient: the AVX-512 form on a CPU without it");
   const std::lock_guard<std::mutex> lock(mutex_);
   std::vector<float*> src;
   for (size_t k = 0; k < slots_.size(); ++k) {
@@ -72,18 +138,9 @@ double TableGradient::finish(torch::Tensor& parameter, double decay) {
   const float two_decay = static_cast<float>(2 * decay);
   const int64_t workers = cpu_workers(n, table_gradient_impl::kEntriesPerWorker);
   std::vector<double> squares(static_cast<size_t>(workers), 0.0);
+  const table_gradient_impl::FinishArgs args{g0, src, w, two_decay, out};
   parallel_slices(n, workers, [&](int64_t t, int64_t lo, int64_t hi) {
-    double sq = 0.0;
-    for (int64_t j = lo; j < hi; ++j) {
-      float g = g0 != nullptr ? g0[j] : 0.0f;
-      for (float* s : src) {
-        g += s[j];
-        s[j] = 0.0f;
-      }
-      out[j] = g + two_decay * w[j];
-      sq += static_cast<double>(w[j]) * w[j];
-    }
-    squares[static_cast<size_t>(t)] = sq;
+    squares[static_cast<size_t>(t)] = table_gradient_impl::finish_in(form, args, lo, hi);
   });
   std::fill(written_.begin(), written_.end(), false);
   parameter.mutable_grad() = grad_;

@@ -21,6 +21,8 @@
 #include <mutex>
 #include <vector>
 
+#include "kernels/cpu_features.h"
+
 namespace ablenerf {
 
 class TableGradient {
@@ -35,7 +37,8 @@ class TableGradient {
   // parameter.grad = (parameter.grad if defined) + the slots' sum + 2 decay x parameter, and the
   // slots zeroed; returns decay x sum(parameter^2) (0 without decay). Without a written slot and
   // without decay nothing changes and 0 is returned. Call after the threads that wrote have joined.
-  double finish(torch::Tensor& parameter, double decay);
+  // `form` forces the scalar loop (tests); every form writes the same gradient to the bit.
+  double finish(torch::Tensor& parameter, double decay, CpuVectorForm form = cpu_best_vector_form());
 
   // The slots zeroed without a gradient (a step abandoned between its backward and finish()).
   void discard();

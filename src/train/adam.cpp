@@ -9,6 +9,7 @@
 #include <string>
 #include <type_traits>
 
+#include "kernels/adam_cpu.h"
 #include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
@@ -142,9 +143,9 @@ bool Adam::gradients_finite_loop(const std::vector<torch::Tensor>& grads) {
   return true;
 }
 
-// torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element: the
-// same per-parameter state (created on a parameter's first gradient, step counted per parameter)
-// and the same operations in the same order, in float32.
+// torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element
+// (kernels/adam_cpu.h): the same per-parameter state (created on a parameter's first gradient, step
+// counted per parameter) and the same operations in the same order, in float32.
 void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
   torch::NoGradGuard no_grad;
   auto& group = optim_.param_groups().front();
@@ -181,13 +182,9 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     // a million entries; the transformer's matrices are far smaller and stay on one thread). The
     // project's own threads (kernels/cpu_parallel.h), not at::parallel_for: that one is serial in
     // code built without OpenMP, as ours is.
+    const AdamScalars scalars{b1, one_b1, b2, one_b2, eps, sqrt_bias2, neg_step};
     parallel_slices(p.numel(), cpu_workers(p.numel(), kElementsPerTask), [&](int64_t, int64_t lo, int64_t hi) {
-      for (int64_t j = lo; j < hi; ++j) {
-        m[j] = m[j] * b1 + one_b1 * g[j];
-        v[j] = v[j] * b2 + one_b2 * (g[j] * g[j]);
-        const float denom = std::sqrt(v[j]) / sqrt_bias2 + eps;
-        w[j] = w[j] + neg_step * (m[j] / denom);
-      }
+      adam_update_cpu(hi - lo, g + lo, m + lo, v + lo, w + lo, scalars);
     });
   }
 }

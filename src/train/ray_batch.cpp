@@ -11,8 +11,6 @@ RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Dev
   images_ = split.images.reshape({-1, 3}).to(device);
   c2w_ = split.c2w.to(device);
   pixels_ = images_.size(0);
-  const auto n = static_cast<size_t>(split.c2w.size(0));
-  cams_ = CameraTable::of(split.cameras.size() == n ? split.cameras : std::vector<Intrinsics>(n, k), device);
   if (error_map) {
     map_.emplace(split.c2w.size(0), k.height, k.width, *error_map, split.mask);
   } else if (split.mask.defined()) {
@@ -33,6 +31,72 @@ RaySampler::RaySampler(const Split& split, const Intrinsics& k, const torch::Dev
       coarse_.emplace(count, h, w, ErrorMapOptions{4, 1.0}, keep);
     }
   }
+  const auto n = static_cast<size_t>(count);
+  build_lens_table(split.cameras.size() == n ? split.cameras : std::vector<Intrinsics>(n, k), device);
+}
+
+namespace {
+
+bool same_camera(const Intrinsics& a, const Intrinsics& b) {
+  return a.fx == b.fx && a.fy == b.fy && a.cx == b.cx && a.cy == b.cy && a.model == b.model && a.dist == b.dist;
+}
+
+// Pixels per lens_coordinates call while the table is made: bounds its float64 temporaries.
+constexpr int64_t kLensChunk = int64_t{1} << 18;
+
+// Rows (col, row) of the points (col0 + i % w * step, row0 + i / w * step), i < h * w, through
+// `camera`: x, y, radius x radius_scale, float32, (h * w, 3).
+torch::Tensor lens_block(const Intrinsics& camera, int64_t h, int64_t w, double step, double offset,
+                         double radius_scale) {
+  auto out = torch::empty({h * w, 3}, torch::kFloat);
+  const CameraTable one = CameraTable::of({camera});
+  for (int64_t lo = 0; lo < h * w; lo += kLensChunk) {
+    const int64_t hi = std::min(h * w, lo + kLensChunk);
+    const auto i = torch::arange(lo, hi, torch::kLong);
+    const auto col = i.remainder(w).to(torch::kDouble) * step + offset;
+    const auto row = i.div(w, "floor").to(torch::kDouble) * step + offset;
+    const LensCoordinates c = lens_coordinates(col, row, one.repeat_first(hi - lo));
+    out.slice(0, lo, hi).copy_(torch::stack({c.x, c.y, c.radii.squeeze(1) * radius_scale}, 1));
+  }
+  return out;
+}
+
+}  // namespace
+
+void RaySampler::build_lens_table(const std::vector<Intrinsics>& cameras, const torch::Device& device) {
+  std::vector<Intrinsics> distinct;
+  std::vector<int64_t> camera_of;
+  for (const Intrinsics& c : cameras) {
+    auto it = std::find_if(distinct.begin(), distinct.end(), [&](const Intrinsics& d) { return same_camera(c, d); });
+    camera_of.push_back(it - distinct.begin());
+    if (it == distinct.end()) distinct.push_back(c);
+  }
+  const int64_t full = int64_t{k_.height} * k_.width, coarse = coarse_factor_ ? coarse_h_ * coarse_w_ : 0;
+  std::vector<torch::Tensor> blocks;
+  const double f = static_cast<double>(coarse_factor_);
+  for (const Intrinsics& c : distinct) {
+    blocks.push_back(lens_block(c, k_.height, k_.width, 1.0, 0.0, 1.0));
+    // A block's centre, in the full image's pixel indices (lens_coordinates adds half a pixel); its
+    // cone f times wider.
+    if (coarse > 0) blocks.push_back(lens_block(c, coarse_h_, coarse_w_, f, (f - 1.0) / 2.0, f));
+  }
+  lens_ = torch::cat(blocks).to(device);
+  auto full_start = torch::empty({static_cast<int64_t>(cameras.size())}, torch::kLong);
+  auto coarse_start = full_start.clone();
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    full_start[static_cast<int64_t>(i)] = camera_of[i] * (full + coarse);
+    coarse_start[static_cast<int64_t>(i)] = camera_of[i] * (full + coarse) + full;
+  }
+  full_lens_start_ = full_start.to(device);
+  coarse_lens_start_ = coarse_start.to(device);
+}
+
+torch::Tensor RaySampler::full_lens_rows(const torch::Tensor& image, const torch::Tensor& pixel) const {
+  return full_lens_start_.index_select(0, image) + pixel;
+}
+
+torch::Tensor RaySampler::coarse_lens_rows(const CoarsePixel& c) const {
+  return coarse_lens_start_.index_select(0, c.image) + c.row * coarse_w_ + c.col;
 }
 
 torch::Tensor RaySampler::draw(int64_t global_size, int64_t coarse) {
@@ -57,16 +121,18 @@ RaySampler::CoarsePixel RaySampler::split_coarse(const torch::Tensor& coarse_idx
   return {image, row, pix - row * coarse_w_};
 }
 
+Rays RaySampler::rays_from(const torch::Tensor& image, const torch::Tensor& lens_rows) const {
+  const auto l = lens_.index_select(0, lens_rows);
+  return rays_from_lens_coordinates(c2w_.index_select(0, image), {l.select(1, 0), l.select(1, 1), l.slice(1, 2, 3)});
+}
+
 RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   auto idx = flat_indices.to(images_.device());
   const int64_t per_image = static_cast<int64_t>(k_.width) * k_.height;
   if (coarse_factor_ == 0) {
     auto image = idx.div(per_image, "floor");
     auto pix = idx - image * per_image;
-    auto row = pix.div(k_.width, "floor");
-    auto col = pix - row * k_.width;
-    return {rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image)), images_.index_select(0, idx),
-            image};
+    return {rays_from(image, full_lens_rows(image, pix)), images_.index_select(0, idx), image};
   }
   // Full and coarse pixels side by side, chosen per ray by tensor ops (no host synchronisation).
   const auto coarse = idx >= pixels_;
@@ -76,15 +142,8 @@ RayBatch RaySampler::gather(const torch::Tensor& flat_indices) const {
   const CoarsePixel c = split_coarse(coarse_idx);
   const auto full_image = full_idx.div(per_image, "floor");
   const auto full_pix = full_idx - full_image * per_image;
-  const auto full_row = full_pix.div(k_.width, "floor");
-  const auto full_col = full_pix - full_row * k_.width;
-  // A block's centre, in the full image's pixel indices (rays_for_pixels adds half a pixel).
-  const double f = static_cast<double>(coarse_factor_), centre = (f - 1.0) / 2.0;
   const auto image = torch::where(coarse, c.image, full_image);
-  const auto col = torch::where(coarse, c.col.to(torch::kDouble) * f + centre, full_col.to(torch::kDouble));
-  const auto row = torch::where(coarse, c.row.to(torch::kDouble) * f + centre, full_row.to(torch::kDouble));
-  Rays rays = rays_for_pixels(c2w_.index_select(0, image), col, row, cams_.index(image));
-  rays.radii = rays.radii * (coarse.to(rays.radii.scalar_type()) * (f - 1.0) + 1.0).unsqueeze(1);
+  const Rays rays = rays_from(image, torch::where(coarse, coarse_lens_rows(c), full_lens_rows(full_image, full_pix)));
   const auto target =
       torch::where(coarse.unsqueeze(1), coarse_images_.index_select(0, coarse_idx), images_.index_select(0, full_idx));
   return {rays, target, image};

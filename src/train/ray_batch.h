@@ -1,7 +1,8 @@
 #pragma once
 // Training batches: rays drawn across every pixel of every training image (uniformly, or guided by
 // an error map: train/error_map.h), generated on the fly from the poses (docs/MODEL.md, section 1: no table of all
-// rays). Every process of a data-parallel group draws the same global batch from one identically
+// rays; the lens's part of each pixel's ray, which depends on its camera alone, is computed once per
+// camera). Every process of a data-parallel group draws the same global batch from one identically
 // seeded stream and keeps its own slice, so a run does not depend on how many processes share it.
 //
 // Coarse pixels (train.coarse_pixel_*; docs/MODEL.md, "Coarse pixels first"): with a factor f, the
@@ -76,10 +77,21 @@ class RaySampler {
   };
   CoarsePixel split_coarse(const torch::Tensor& coarse_idx) const;
 
+  void build_lens_table(const std::vector<Intrinsics>& cameras, const torch::Device& device);
+  // The rays of pixels of the images `image` whose rows of lens_ are `lens_rows`.
+  Rays rays_from(const torch::Tensor& image, const torch::Tensor& lens_rows) const;
+  // The rows of lens_ for a pixel, full (flat index below pixels_) or coarse (counted from pixels_).
+  torch::Tensor full_lens_rows(const torch::Tensor& image, const torch::Tensor& pixel) const;
+  torch::Tensor coarse_lens_rows(const CoarsePixel& c) const;
+
   torch::Tensor images_, c2w_;  // on device: (N*H*W,3), (N,3,4)
   Intrinsics k_;                // the first image's camera (the image size of every image)
-  CameraTable cams_;            // on device: one row per image
   int64_t pixels_;
+  // The lens's part of every ray that can be drawn, computed once per distinct camera
+  // (lens_coordinates; the lens inverse is 20 Newton iterations of float64 tensor ops, a tenth of a
+  // CPU step if run per batch): on device, (rows, 3) float32 x, y, radius, each camera's H*W full
+  // pixels then its h*w coarse ones; per image, the first row of its camera's full and coarse blocks.
+  torch::Tensor lens_, full_lens_start_, coarse_lens_start_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
   std::optional<ErrorMap> map_;
   // Uniform draws over a mask's kept pixels: an ErrorMap that never observes (uniform share 1).

@@ -18,27 +18,34 @@ torch::Tensor slot_tensor(TableGradient& tg, const torch::Tensor& table, int k) 
   return torch::from_blob(tg.slot(table, k), table.sizes(), torch::kFloat).clone();
 }
 
+// Every instruction form this CPU runs (the scalar one always), on a table whose size leaves a
+// partial vector and one whose size does not.
 TEST(TableGradient, FinishAddsTheSlotsAndTheDecayInOnePass) {
-  const auto param = test::seeded_randn({3, 40, 2}, 1).to(torch::kFloat);
-  for (const bool with_grad : {false, true}) {
-    for (const double decay : {0.0, 0.125}) {
-      TableGradient tg;
-      std::vector<torch::Tensor> slots;
-      for (int k = 0; k < 3; ++k) {
-        const auto v = test::seeded_randn({3, 40, 2}, 10 + k).to(torch::kFloat);
-        torch::from_blob(tg.slot(param, k), param.sizes(), torch::kFloat).copy_(v);
-        slots.push_back(v);
+  for (const int64_t rows : {int64_t(40), int64_t(41)}) {
+    for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+      if (!cpu_vector_form_available(form)) continue;
+      const auto param = test::seeded_randn({3, rows, 2}, 1).to(torch::kFloat);
+      for (const bool with_grad : {false, true}) {
+        for (const double decay : {0.0, 0.125}) {
+          TableGradient tg;
+          std::vector<torch::Tensor> slots;
+          for (int k = 0; k < 3; ++k) {
+            const auto v = test::seeded_randn({3, rows, 2}, 10 + k).to(torch::kFloat);
+            torch::from_blob(tg.slot(param, k), param.sizes(), torch::kFloat).copy_(v);
+            slots.push_back(v);
+          }
+          auto p = param.clone().set_requires_grad(true);
+          const auto before = test::seeded_randn({3, rows, 2}, 7).to(torch::kFloat);
+          if (with_grad) p.mutable_grad() = before.clone();
+          EXPECT_TRUE(tg.pending());
+          const double value = tg.finish(p, decay, form);
+          const auto want = table_gradient_reference(with_grad ? before : torch::Tensor(), slots, param, decay);
+          EXPECT_TRUE(torch::allclose(p.grad(), want, 0, 0)) << with_grad << " " << decay << " " << rows;
+          EXPECT_NEAR(value, decay * param.to(torch::kDouble).pow(2).sum().item<double>(), 1e-9);
+          EXPECT_FALSE(tg.pending());
+          for (int k = 0; k < 3; ++k) EXPECT_EQ(slot_tensor(tg, param, k).abs().max().item<float>(), 0.f) << k;
+        }
       }
-      auto p = param.clone().set_requires_grad(true);
-      const auto before = test::seeded_randn({3, 40, 2}, 7).to(torch::kFloat);
-      if (with_grad) p.mutable_grad() = before.clone();
-      EXPECT_TRUE(tg.pending());
-      const double value = tg.finish(p, decay);
-      const auto want = table_gradient_reference(with_grad ? before : torch::Tensor(), slots, param, decay);
-      EXPECT_TRUE(torch::allclose(p.grad(), want, 0, 0)) << with_grad << " " << decay;
-      EXPECT_NEAR(value, decay * param.to(torch::kDouble).pow(2).sum().item<double>(), 1e-9);
-      EXPECT_FALSE(tg.pending());
-      for (int k = 0; k < 3; ++k) EXPECT_EQ(slot_tensor(tg, param, k).abs().max().item<float>(), 0.f) << k;
     }
   }
 }

@@ -152,6 +152,51 @@ TEST(RaySampler, CoarsePixelsAreTheReducedCamerasPixels) {
   }
 }
 
+// With lenses (a phone's radial-tangential camera shared by two images, a fisheye for the third),
+// the sampler's looked-up rays are rays_for_pixels' through each image's own camera, full pixels
+// and coarse ones (the block's centre through the camera reduced f times, its cone f times wider).
+TEST(RaySampler, LensRaysAreEachImagesOwnCamerasRays) {
+  const int n = 3, h = 9, w = 11, f = 3;
+  Split s = make_split(n, h, w);
+  Intrinsics phone = intr(h, w), fisheye = intr(h, w);
+  phone.model = LensModel::RadialTangential, phone.dist = {-0.12, 0.03, 0.0, 0.0, 0.001, -0.002};
+  phone.cx = 5.2, phone.cy = 4.7;
+  fisheye.model = LensModel::Fisheye, fisheye.dist = {0.05, -0.01, 0.003, -0.0005, 0.0, 0.0};
+  s.cameras = {phone, fisheye, phone};
+  RaySampler sampler(s, phone, torch::kCPU, 3, std::nullopt, f);
+  const int64_t coarse = 40, total = 200;
+  const auto idx = sampler.draw(total, coarse);
+  const RayBatch b = sampler.gather(idx);
+  for (int64_t r = 0; r < total; ++r) {
+    const int64_t flat = idx[r].item<int64_t>();
+    const bool is_coarse = flat >= sampler.pixels();
+    Intrinsics k;
+    int64_t img = 0, row = 0, col = 0;
+    if (is_coarse) {
+      const int64_t c = flat - sampler.pixels(), per = (h / f) * (w / f);
+      img = c / per, row = (c % per) / (w / f), col = (c % per) % (w / f);
+      k = s.cameras[static_cast<size_t>(img)];
+      k.fx /= f, k.fy /= f, k.cx /= f, k.cy /= f;
+    } else {
+      img = flat / (h * w), row = flat % (h * w) / w, col = flat % w;
+      k = s.cameras[static_cast<size_t>(img)];
+    }
+    const Rays want =
+        rays_for_pixels(s.c2w[img].unsqueeze(0), torch::tensor({col}), torch::tensor({row}), CameraTable::of({k}));
+    EXPECT_TRUE(torch::allclose(b.rays.directions[r], want.directions[0], 1e-6, 1e-6)) << r;
+    EXPECT_TRUE(torch::equal(b.rays.origins[r], want.origins[0])) << r;
+    EXPECT_TRUE(torch::allclose(b.rays.radii[r], want.radii[0], 1e-6, 1e-7)) << r;
+    // Not the pinhole's ray: the lens is undone.
+    if (!is_coarse && std::abs(col - w / 2) > 2) {
+      Intrinsics pin = k;
+      pin.model = LensModel::Pinhole;
+      const Rays flat_ray =
+          rays_for_pixels(s.c2w[img].unsqueeze(0), torch::tensor({col}), torch::tensor({row}), CameraTable::of({pin}));
+      EXPECT_GT((flat_ray.directions[0] - b.rays.directions[r]).abs().max().item<double>(), 1e-3) << r;
+    }
+  }
+}
+
 // Without coarse draws the stream is the one a sampler without coarse pixels draws; with a mask,
 // coarse pixels come only from blocks whose every pixel is kept, and all of those are drawn.
 TEST(RaySampler, CoarseDrawsKeepTheStreamAndTheMask) {

@@ -1,0 +1,67 @@
+#include "kernels/adam_cpu.h"
+
+#include <cmath>
+#include <stdexcept>
+
+#include "kernels/cpu_features.h"
+
+// GCC 12 warns that its own AVX-512 sqrt intrinsic reads an uninitialised pass-through operand.
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+
+#ifdef ABLENERF_HAVE_AVX2_FORM
+#include <immintrin.h>
+#endif
+
+namespace ablenerf {
+
+namespace {
+
+ABLENERF_SEPARATE_ROUNDINGS void update_scalar(int64_t lo, int64_t hi, const float* g, float* m, float* v, float* w,
+                                               const AdamScalars& s) {
+  for (int64_t j = lo; j < hi; ++j) {
+    m[j] = m[j] * s.b1 + s.one_b1 * g[j];
+    v[j] = v[j] * s.b2 + s.one_b2 * (g[j] * g[j]);
+    const float denom = std::sqrt(v[j]) / s.sqrt_bias2 + s.eps;
+    w[j] = w[j] + s.neg_step * (m[j] / denom);
+  }
+}
+
+#ifdef ABLENERF_HAVE_AVX2_FORM
+ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS void update_avx512(int64_t n, const float* g, float* m, float* v,
+                                                                      float* w, const AdamScalars& s) {
+  const __m512 b1 = _mm512_set1_ps(s.b1), one_b1 = _mm512_set1_ps(s.one_b1), b2 = _mm512_set1_ps(s.b2),
+               one_b2 = _mm512_set1_ps(s.one_b2), eps = _mm512_set1_ps(s.eps),
+               sqrt_bias2 = _mm512_set1_ps(s.sqrt_bias2), neg_step = _mm512_set1_ps(s.neg_step);
+  int64_t j = 0;
+  for (; j + 16 <= n; j += 16) {
+    const __m512 gj = _mm512_loadu_ps(g + j);
+    // Products and sums as separate instructions: the scalar loop's roundings.
+    const __m512 mj = _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(m + j), b1), _mm512_mul_ps(one_b1, gj));
+    const __m512 vj =
+        _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(v + j), b2), _mm512_mul_ps(one_b2, _mm512_mul_ps(gj, gj)));
+    const __m512 denom = _mm512_add_ps(_mm512_div_ps(_mm512_sqrt_ps(vj), sqrt_bias2), eps);
+    const __m512 wj = _mm512_add_ps(_mm512_loadu_ps(w + j), _mm512_mul_ps(neg_step, _mm512_div_ps(mj, denom)));
+    _mm512_storeu_ps(m + j, mj);
+    _mm512_storeu_ps(v + j, vj);
+    _mm512_storeu_ps(w + j, wj);
+  }
+  update_scalar(j, n, g, m, v, w, s);
+}
+#endif
+
+}  // namespace
+
+void adam_update_cpu_in(CpuVectorForm form, int64_t n, const float* g, float* m, float* v, float* w,
+                        const AdamScalars& s) {
+  if (!cpu_vector_form_available(form)) throw std::invalid_argument("adam: AVX-512 form on a CPU without it");
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == CpuVectorForm::Avx512) return update_avx512(n, g, m, v, w, s);
+#endif
+  update_scalar(0, n, g, m, v, w, s);
+}
+
+void adam_update_cpu(int64_t n, const float* g, float* m, float* v, float* w, const AdamScalars& s) {
+  adam_update_cpu_in(cpu_best_vector_form(), n, g, m, v, w, s);
+}
+
+}  // namespace ablenerf
