@@ -420,7 +420,9 @@ void Trainer::report_coverage() {
   line << std::fixed << "train: " << s.state.step << " steps of " << tc.rays_per_step << " rays drew each of the "
        << s.sampler->pixels() << " training pixels " << passes << " times on average";
   log_info(line.str());
-  const std::string advice = coverage_advice(passes, config_.get<DataConfig>().downscale, tc.time_budget_s);
+  const Intrinsics& k = s.ds->intrinsics;
+  const std::string advice =
+      coverage_advice(passes, config_.get<DataConfig>().downscale, tc.time_budget_s, std::min(k.width, k.height));
   if (!advice.empty()) log_warn(advice);
 }
 
@@ -429,21 +431,22 @@ double passes_per_pixel(int64_t steps, int64_t rays_per_step, int64_t pixels) {
   return static_cast<double>(steps) * static_cast<double>(rays_per_step) / static_cast<double>(pixels);
 }
 
-std::string coverage_advice(double passes, int downscale, double budget_s) {
+std::string coverage_advice(double passes, int downscale, double budget_s, int short_side) {
   if (passes >= kFewPasses || passes <= 0) return std::string();
   const double factor = kFewPasses / passes;
   std::ostringstream out;
   out.precision(1);
   out << std::fixed << "train: under " << kFewPasses << " passes per pixel, so fine detail was still forming: ";
-  if (budget_s > 0) {
-    out.precision(0);
-    out << "train about " << factor << "x longer (--time-budget " << std::ceil(budget_s * factor / 60.0) << "m) or ";
-  } else {
-    out.precision(0);
-    out << "train about " << factor << "x more steps or ";
-  }
+  out.precision(0);
+  out << "train about " << factor << "x ";
+  if (budget_s > 0)
+    out << "longer (--time-budget " << std::ceil(budget_s * factor / 60.0) << "m)";
+  else
+    out << "more steps";
   const int smaller = static_cast<int>(std::ceil(downscale * std::sqrt(factor)));
-  out << "on smaller images (--set data.downscale=" << smaller << ")";
+  // The short side the smaller images would keep.
+  if (static_cast<int64_t>(short_side) * downscale / smaller >= kSmallestAdvisedSide)
+    out << " or on smaller images (--downscale " << smaller << ")";
   return out.str();
 }
 

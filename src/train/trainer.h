@@ -141,10 +141,13 @@ TrainResult train(const Config& config, const TrainOptions& opts);
 double passes_per_pixel(int64_t steps, int64_t rays_per_step, int64_t pixels);
 // Below this many passes fine detail is still being learnt when a run ends.
 inline constexpr double kFewPasses = 2.0;
+// Images are not advised smaller than this many pixels on their short side.
+inline constexpr int kSmallestAdvisedSide = 64;
 // For a run that made `passes` passes at data.downscale `downscale` within `budget_s` seconds
-// (0 = a run of steps): "" from kFewPasses on, else one line saying what reaches kFewPasses: a
-// budget that many times longer, or images reduced by the factor that divides the pixels by it.
-std::string coverage_advice(double passes, int downscale, double budget_s);
+// (0 = a run of steps) on images `short_side` pixels on their short side: "" from kFewPasses on,
+// else one line saying what reaches kFewPasses: a budget that many times longer, or images reduced
+// by the factor that divides the pixels by it (when they keep kSmallestAdvisedSide pixels).
+std::string coverage_advice(double passes, int downscale, double budget_s, int short_side);
 
 // Installs SIGINT/SIGTERM handlers that ask the training loop to checkpoint and stop.
 void install_interrupt_handlers();

@@ -109,17 +109,25 @@ TEST(Trainer, LossFallsAndRunFolderIsComplete) {
 TEST(Trainer, FewPassesPerPixelGetAdviceThatReachesEnough) {
   EXPECT_DOUBLE_EQ(passes_per_pixel(1000, 256, 128000), 2.0);
   EXPECT_EQ(passes_per_pixel(10, 256, 0), 0.0);
-  EXPECT_EQ(coverage_advice(kFewPasses, 8, 900), "");
-  EXPECT_EQ(coverage_advice(5.0, 8, 900), "");
-  // A third of a pass (the Ethiopian head in 15 minutes): 6x the budget, or images reduced
-  // sqrt(6) = 2.45 times more (8 -> 20).
-  const std::string a = coverage_advice(1.0 / 3.0, 8, 900);
+  EXPECT_EQ(coverage_advice(kFewPasses, 8, 900, 135), "");
+  EXPECT_EQ(coverage_advice(5.0, 8, 900, 135), "");
+  // A third of a pass (the Ethiopian head in 15 minutes, 378 x 504 at 8): 6x the budget, or images
+  // reduced sqrt(6) = 2.45 times more (8 -> 20, a short side of 151).
+  const std::string a = coverage_advice(1.0 / 3.0, 8, 900, 378);
   EXPECT_NE(a.find("6x longer (--time-budget 90m)"), std::string::npos) << a;
-  EXPECT_NE(a.find("--set data.downscale=20"), std::string::npos) << a;
+  EXPECT_NE(a.find("--downscale 20"), std::string::npos) << a;
   // A run of steps: more steps, not a budget.
-  const std::string b = coverage_advice(1.0, 1, 0);
+  const std::string b = coverage_advice(1.0, 1, 0, 800);
   EXPECT_NE(b.find("2x more steps"), std::string::npos) << b;
-  EXPECT_NE(b.find("--set data.downscale=2"), std::string::npos) << b;
+  EXPECT_NE(b.find("--downscale 2"), std::string::npos) << b;
+  // Images that would fall under kSmallestAdvisedSide pixels are not advised: 100 pixels at 1
+  // reduced 40 times would be 2.
+  const std::string c = coverage_advice(0.00128, 1, 5, 100);
+  EXPECT_NE(c.find("x longer"), std::string::npos) << c;
+  EXPECT_EQ(c.find("downscale"), std::string::npos) << c;
+  // The edge: 135 pixels reduced 2.45 times more keep 54 < 64; 160 keep 64.
+  EXPECT_EQ(coverage_advice(1.0 / 3.0, 8, 900, 135).find("downscale"), std::string::npos);
+  EXPECT_NE(coverage_advice(1.0 / 3.0, 8, 900, 160).find("--downscale 20"), std::string::npos);
 }
 
 TEST(Trainer, HeldOutViewsSpreadOverTheSplit) {
