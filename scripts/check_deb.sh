@@ -2,7 +2,8 @@
 # The Debian package on a machine that has nothing else: a minimal Debian bookworm made with
 # debootstrap in a temporary folder, the package installed there by apt (which brings its
 # dependencies from Debian's archive), then, from an empty folder inside it, `ablenerf --version`,
-# `synth`, `train --preset demo` for a few steps and `eval` (LPIPS from the installed copy).
+# `synth`, `train --preset demo` for a few steps, `eval` (LPIPS from the installed copy), `render`
+# (a video through ffmpeg) and `export` (a mesh and points).
 # Needs root (debootstrap, chroot), debootstrap, and a package: scripts/package.sh makes one.
 #   scripts/check_deb.sh [build/ablenerf_VERSION_amd64.deb]   (about five minutes, most of it apt)
 set -euo pipefail
@@ -29,5 +30,9 @@ chroot "$root" /bin/bash -euc '
   ablenerf synth --out scene --quiet
   ablenerf train --data scene --preset demo --out run --steps 5 --quiet 2>/dev/null
   ablenerf eval --run run --json | grep -q "\"lpips\"" && echo "check_deb: eval with LPIPS ran"
-  test -f run/report.html'
-echo "check_deb: $name installs with apt on a bare bookworm and runs synth, train, eval"
+  test -f run/report.html
+  ablenerf render --run run --path orbit --frames 8 --out run/orbit.mp4 --quiet
+  test -s run/orbit.mp4 && echo "check_deb: render wrote an mp4 (ffmpeg, a recommended package)"
+  ablenerf export --run run --mesh run/mesh.ply --points run/points.ply --quiet
+  test -s run/mesh.ply && test -s run/points.ply && echo "check_deb: export wrote a mesh and points"'
+echo "check_deb: $name installs with apt on a bare bookworm and runs synth, train, eval, render, export"

@@ -208,9 +208,9 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
 #endif
 
 // Whether `form` has its own loops for rows of `features` floats (else the scalar loops serve it).
-bool vector_loops(HashGridCpuForm form, int64_t features) {
+bool vector_loops(CpuVectorForm form, int64_t features) {
 #ifdef ABLENERF_HAVE_AVX2_FORM
-  return form == HashGridCpuForm::Avx512 && features == 2;
+  return form == CpuVectorForm::Avx512 && features == 2;
 #else
   (void)form, (void)features;
   return false;
@@ -219,15 +219,9 @@ bool vector_loops(HashGridCpuForm form, int64_t features) {
 
 }  // namespace
 
-bool hash_grid_cpu_form_available(HashGridCpuForm form) { return form == HashGridCpuForm::Scalar || cpu_has_avx512(); }
-
-HashGridCpuForm hash_grid_cpu_best_form() {
-  return cpu_has_avx512() ? HashGridCpuForm::Avx512 : HashGridCpuForm::Scalar;
-}
-
-void hash_grid_forward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* table,
+void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
                               const HashGridShape& s, float* out) {
-  if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
+  if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
   const bool vector = vector_loops(form, features);
   with_features(features, [&](auto f) {
@@ -247,9 +241,9 @@ void hash_grid_forward_cpu_in(HashGridCpuForm form, const float* positions, int6
   });
 }
 
-void hash_grid_backward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* grad_out,
+void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
                                const HashGridShape& s, float* grad_table) {
-  if (!hash_grid_cpu_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
+  if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
   const bool vector = vector_loops(form, features);
   with_features(features, [&](auto f) {
@@ -270,12 +264,12 @@ void hash_grid_backward_cpu_in(HashGridCpuForm form, const float* positions, int
 }
 
 void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out) {
-  hash_grid_forward_cpu_in(hash_grid_cpu_best_form(), positions, n, table, s, out);
+  hash_grid_forward_cpu_in(cpu_best_vector_form(), positions, n, table, s, out);
 }
 
 void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
                             float* grad_table) {
-  hash_grid_backward_cpu_in(hash_grid_cpu_best_form(), positions, n, grad_out, s, grad_table);
+  hash_grid_backward_cpu_in(cpu_best_vector_form(), positions, n, grad_out, s, grad_table);
 }
 
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,

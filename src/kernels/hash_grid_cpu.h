@@ -3,6 +3,7 @@
 // in hash_grid.cpp has made them.
 #include <cstdint>
 
+#include "kernels/cpu_features.h"
 #include "kernels/hash_grid_shape.h"
 
 namespace ablenerf {
@@ -25,20 +26,17 @@ void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad
 // grad_positions (n, 3) = the gradient of sum(grad_out * out) with respect to the positions: at
 // every level, each vertex row's dot product with grad_out times its weight's derivative
 // (hash_grid_corners_with_gradient). Points split across threads; each writes only its own row.
+void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
+                                      const HashGridShape& s, float* grad_positions);
+
 // The instruction forms of the table's gather and scatter: AVX-512 (16 points at a time: their cells,
 // rows and trilinear weights computed as vectors, the rows read with vector gathers; for 2 floats
 // per row, the presets' width, else as Scalar) and the scalar loops every x86-64 CPU runs. The forms
 // agree up to the rounding of a fused multiply-add in the forward; the scatter adds the same
 // products in the same order (each point's 8 vertices in turn), so its sums are the same bits.
-enum class HashGridCpuForm { Avx512, Scalar };
-bool hash_grid_cpu_form_available(HashGridCpuForm form);
-HashGridCpuForm hash_grid_cpu_best_form();  // the widest this CPU runs (the one the calls above use)
-void hash_grid_forward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* table,
+void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
                               const HashGridShape& s, float* out);
-void hash_grid_backward_cpu_in(HashGridCpuForm form, const float* positions, int64_t n, const float* grad_out,
+void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
                                const HashGridShape& s, float* grad_table);
-
-void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
-                                      const HashGridShape& s, float* grad_positions);
 
 }  // namespace ablenerf

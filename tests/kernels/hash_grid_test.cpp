@@ -129,11 +129,11 @@ TEST(HashGrid, EveryRowWidthMatchesTheReference) {
 // floats per row and hands the others to the scalar loops): values and the table's gradient against
 // the reference; the scatter the same bits as the scalar loops', the values within an FMA's rounding.
 TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
-  std::vector<HashGridCpuForm> forms;
-  for (const auto f : {HashGridCpuForm::Avx512, HashGridCpuForm::Scalar})
-    if (hash_grid_cpu_form_available(f)) forms.push_back(f);
-  ASSERT_EQ(forms.back(), HashGridCpuForm::Scalar);
-  EXPECT_TRUE(hash_grid_cpu_form_available(hash_grid_cpu_best_form()));
+  std::vector<CpuVectorForm> forms;
+  for (const auto f : {CpuVectorForm::Avx512, CpuVectorForm::Scalar})
+    if (cpu_vector_form_available(f)) forms.push_back(f);
+  ASSERT_EQ(forms.back(), CpuVectorForm::Scalar);
+  EXPECT_TRUE(cpu_vector_form_available(cpu_best_vector_form()));
   int checked = 0;
   for (const int features : {2, 1, 4}) {
     const HashGridShape s = hash_grid_shape(4, features, 7, 4, 32);
@@ -177,8 +177,8 @@ TEST(HashGrid, EveryInstructionFormReadsANaNCoordinateAsZero) {
     q[i][i % 3] = 0.f;
   }
   const auto table = table_for(s, 91);
-  for (const auto form : {HashGridCpuForm::Avx512, HashGridCpuForm::Scalar}) {
-    if (!hash_grid_cpu_form_available(form)) continue;
+  for (const auto form : {CpuVectorForm::Avx512, CpuVectorForm::Scalar}) {
+    if (!cpu_vector_form_available(form)) continue;
     auto a = torch::empty({32, s.levels, s.features}), b = torch::empty({32, s.levels, s.features});
     hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, a.data_ptr<float>());
     hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, b.data_ptr<float>());
