@@ -2,8 +2,9 @@
 # The Debian package on a machine that has nothing else: a minimal Debian bookworm made with
 # debootstrap in a temporary folder, the package installed there by apt (which brings its
 # dependencies from Debian's archive), then, from an empty folder inside it, `ablenerf --version`,
-# `synth`, `train --preset demo` for a few steps, `eval` (LPIPS from the installed copy), `render`
-# (a video through ffmpeg) and `export` (a mesh and points).
+# `synth`, `train --preset demo` for 1,500 steps (a minute; a run much earlier has no surfaces to
+# export), `eval` (LPIPS from the installed copy), `render` (a video through ffmpeg) and `export`
+# (a mesh and points).
 # Needs root (debootstrap, chroot), debootstrap, and a package: scripts/package.sh makes one.
 #   scripts/check_deb.sh [build/ablenerf_VERSION_amd64.deb]   (about five minutes, most of it apt)
 set -euo pipefail
@@ -28,7 +29,7 @@ chroot "$root" /bin/bash -euc '
   mkdir /root/empty && cd /root/empty
   ablenerf --version
   ablenerf synth --out scene --quiet
-  ablenerf train --data scene --preset demo --out run --steps 5 --quiet 2>/dev/null
+  ablenerf train --data scene --preset demo --out run --steps 1500 --quiet 2>/dev/null
   ablenerf eval --run run --json | grep -q "\"lpips\"" && echo "check_deb: eval with LPIPS ran"
   test -f run/report.html
   ablenerf render --run run --path orbit --frames 8 --out run/orbit.mp4 --quiet

@@ -248,8 +248,12 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     PointSet clean = clean_points(all, opts.num_points, kOutlierNeighbours, kOutlierStdRatio, eye);
     clean.xyz = to_output(clean.xyz);
     clean.normals = to_output_normals(clean.normals);
+    const bool any = clean.size() > 0;
     if (opts.crop) clean = crop_points(clean, *opts.crop);
     if (!opts.points_path.empty()) {
+      if (!any)
+        throw InputError("export", "--run",
+                         "the run's depth maps hold no surface point (a run this early has none yet: train it longer)");
       if (clean.size() == 0) throw InputError("export", "--crop", "no point of the scene lies inside the crop box");
       write_points(clean, opts.points_path);
       out["points"] = {
