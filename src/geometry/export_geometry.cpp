@@ -24,6 +24,12 @@ namespace ablenerf {
 
 namespace {
 
+// A run whose depth maps gave no surface point at all (an early run): the run is named, not a flag.
+InputError export_no_surface_error() {
+  return InputError("export", "--run",
+                    "the run's depth maps hold no surface point (a run this early has none yet: train it longer)");
+}
+
 // Outlier removal: each point against its 20 nearest, dropped beyond 2 deviations (Open3D's usual).
 constexpr int kOutlierNeighbours = 20;
 constexpr double kOutlierStdRatio = 2.0;
@@ -203,7 +209,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
   if (box_from_points) {
     // The box of the central 98% of the points on each axis, 5% wider on every side.
     const PointSet raw = concat_points(sets);
-    if (raw.size() == 0) throw InputError("export", "--crop", "the run's depth gave no point to export");
+    if (raw.size() == 0) throw export_no_surface_error();
     scene_box = CropBox::around(raw.xyz, kForwardBoxShare, kForwardBoxMargin);
     for (auto& set : sets) set = crop_points(set, scene_box);
     // Each view's rows of `eyes` are its camera centre repeated: as many as its points left.
@@ -251,9 +257,7 @@ nlohmann::json export_geometry(const RunFolder& run, const GeometryOptions& opts
     const bool any = clean.size() > 0;
     if (opts.crop) clean = crop_points(clean, *opts.crop);
     if (!opts.points_path.empty()) {
-      if (!any)
-        throw InputError("export", "--run",
-                         "the run's depth maps hold no surface point (a run this early has none yet: train it longer)");
+      if (!any) throw export_no_surface_error();
       if (clean.size() == 0) throw InputError("export", "--crop", "no point of the scene lies inside the crop box");
       write_points(clean, opts.points_path);
       out["points"] = {

@@ -5,9 +5,6 @@
 
 #include "kernels/cpu_features.h"
 
-// GCC 12 warns that its own AVX-512 sqrt intrinsic reads an uninitialised pass-through operand.
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-
 #ifdef ABLENERF_HAVE_AVX2_FORM
 #include <immintrin.h>
 #endif
@@ -27,6 +24,9 @@ ABLENERF_SEPARATE_ROUNDINGS void update_scalar(int64_t lo, int64_t hi, const flo
 }
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
+// GCC 12 warns that its own AVX-512 sqrt intrinsic reads an uninitialised pass-through operand.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS void update_avx512(int64_t n, const float* g, float* m, float* v,
                                                                       float* w, const AdamScalars& s) {
   const __m512 b1 = _mm512_set1_ps(s.b1), one_b1 = _mm512_set1_ps(s.one_b1), b2 = _mm512_set1_ps(s.b2),
@@ -47,6 +47,7 @@ ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS void update_avx512(int64_t n,
   }
   update_scalar(j, n, g, m, v, w, s);
 }
+#pragma GCC diagnostic pop
 #endif
 
 }  // namespace

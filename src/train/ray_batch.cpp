@@ -81,22 +81,18 @@ void RaySampler::build_lens_table(const std::vector<Intrinsics>& cameras, const 
     if (coarse > 0) blocks.push_back(lens_block(c, coarse_h_, coarse_w_, f, (f - 1.0) / 2.0, f));
   }
   lens_ = torch::cat(blocks).to(device);
-  auto full_start = torch::empty({static_cast<int64_t>(cameras.size())}, torch::kLong);
-  auto coarse_start = full_start.clone();
-  for (size_t i = 0; i < cameras.size(); ++i) {
-    full_start[static_cast<int64_t>(i)] = camera_of[i] * (full + coarse);
-    coarse_start[static_cast<int64_t>(i)] = camera_of[i] * (full + coarse) + full;
-  }
-  full_lens_start_ = full_start.to(device);
-  coarse_lens_start_ = coarse_start.to(device);
+  std::vector<int64_t> start;
+  for (const int64_t c : camera_of) start.push_back(c * (full + coarse));
+  lens_start_ = torch::tensor(start, torch::kLong).to(device);
 }
 
 torch::Tensor RaySampler::full_lens_rows(const torch::Tensor& image, const torch::Tensor& pixel) const {
-  return full_lens_start_.index_select(0, image) + pixel;
+  return lens_start_.index_select(0, image) + pixel;
 }
 
 torch::Tensor RaySampler::coarse_lens_rows(const CoarsePixel& c) const {
-  return coarse_lens_start_.index_select(0, c.image) + c.row * coarse_w_ + c.col;
+  // The coarse block follows the camera's H*W full pixels.
+  return lens_start_.index_select(0, c.image) + int64_t{k_.height} * k_.width + c.row * coarse_w_ + c.col;
 }
 
 torch::Tensor RaySampler::draw(int64_t global_size, int64_t coarse) {

@@ -90,8 +90,8 @@ class RaySampler {
   // The lens's part of every ray that can be drawn, computed once per distinct camera
   // (lens_coordinates; the lens inverse is 20 Newton iterations of float64 tensor ops, a tenth of a
   // CPU step if run per batch): on device, (rows, 3) float32 x, y, radius, each camera's H*W full
-  // pixels then its h*w coarse ones; per image, the first row of its camera's full and coarse blocks.
-  torch::Tensor lens_, full_lens_start_, coarse_lens_start_;
+  // pixels then its h*w coarse ones; per image, the first row of its camera's block.
+  torch::Tensor lens_, lens_start_;
   torch::Generator gen_;  // CPU stream: identical on every device and rank
   std::optional<ErrorMap> map_;
   // Uniform draws over a mask's kept pixels: an ErrorMap that never observes (uniform share 1).
