@@ -42,7 +42,8 @@ void setup(CLI::App& app) {
   app.add_option("--threads", a->threads, "Intra-op CPU threads (0 = LibTorch default)")->capture_default_str();
   app.add_option("--trace", a->trace,
                  "After the timed steps, run --steps more under LibTorch's profiler: write their operator trace "
-                 "(Chrome trace JSON, for Perfetto) to this file and add the ops of largest self time to the report");
+                 "(Chrome trace JSON, for Perfetto) to this file and add the ops of largest self time and the time of "
+                 "each of the model's stages to the report");
   app.add_flag("--compare", a->compare,
                "Also measure the same model with every fast path off (compute.precision=fp32, "
                "compute.attention=plain, compute.cpu_split=ops, train.graph=false) in this run, and report the ratios");

@@ -1,10 +1,13 @@
 #include "kernels/block_tail.h"
 
+#include <ATen/record_function.h>
 #include <algorithm>
 #include <cmath>
 #include <vector>
 
+#include "kernels/cpu_features.h"
 #include "kernels/gelu_cpu.h"
+#include "kernels/row_reduce.h"
 #include "kernels/small_gemm.h"
 
 namespace ablenerf {
@@ -28,12 +31,12 @@ int64_t default_chunk_rows(int64_t e, int64_t f) {
 }
 
 // C (m x n) += A (m x n).
-void add_into(float* c, const float* a, int64_t count) {
+ABLENERF_ALWAYS_INLINE void add_into(float* __restrict c, const float* __restrict a, int64_t count) {
   for (int64_t i = 0; i < count; ++i) c[i] += a[i];
 }
 
 // Column sums of a (rows x n) added into acc (n).
-void add_column_sums(float* acc, const float* a, int64_t rows, int64_t n) {
+ABLENERF_ALWAYS_INLINE void add_column_sums(float* acc, const float* a, int64_t rows, int64_t n) {
   for (int64_t i = 0; i < rows; ++i) add_into(acc, a + i * n, n);
 }
 
@@ -50,36 +53,36 @@ void add_transposed_product(float* acc, const float* a, int64_t m, const float* 
   add_into(acc, scratch.data(), m * n);
 }
 
-// LayerNorm of one row s (E) in place into its normalised form; returns 1 / sqrt(var + eps).
-float normalise_row(float* s, int64_t e, double eps) {
-  float mean = 0;
-  for (int64_t j = 0; j < e; ++j) mean += s[j];
-  mean /= float(e);
-  float var = 0;
-  for (int64_t j = 0; j < e; ++j) {
-    s[j] -= mean;
-    var += s[j] * s[j];
+// LayerNorm of n rows of E in place into their normalised form; rstd[i * stride] = 1 / sqrt(var +
+// eps). In passes: each row centred and its variance taken, then every row's reciprocal deviation
+// (independent square roots, not one latency chain per row), then the scaling.
+ABLENERF_ALWAYS_INLINE void normalise_rows(float* rows, int64_t n, int64_t e, double eps, float* rstd, int64_t stride) {
+  for (int64_t i = 0; i < n; ++i) {
+    float* s = rows + i * e;
+    const float mean = row_sum(s, e) / float(e);
+    for (int64_t j = 0; j < e; ++j) s[j] -= mean;
+    rstd[i * stride] = row_dot(s, s, e) / float(e);
   }
-  const float rstd = float(1.0 / std::sqrt(double(var / float(e)) + eps));
-  for (int64_t j = 0; j < e; ++j) s[j] *= rstd;
-  return rstd;
+  for (int64_t i = 0; i < n; ++i) rstd[i * stride] = float(1.0 / std::sqrt(double(rstd[i * stride]) + eps));
+  for (int64_t i = 0; i < n; ++i) {
+    float* s = rows + i * e;
+    const float r = rstd[i * stride];
+    for (int64_t j = 0; j < e; ++j) s[j] *= r;
+  }
 }
 
 // LayerNorm's backward of one row: dy (E) the output's gradient, xhat the normalised row, gamma the
 // scale. Writes the input's gradient into dx and adds the parameters' gradients into dgamma, dbeta.
-void layer_norm_backward_row(const float* dy, const float* xhat, const float* gamma, float rstd, int64_t e, float* dx,
-                             float* dgamma, float* dbeta) {
-  float mean_g = 0, mean_gx = 0;
+ABLENERF_ALWAYS_INLINE void layer_norm_backward_row(const float* __restrict dy, const float* __restrict xhat,
+                                                    const float* __restrict gamma, float rstd, int64_t e,
+                                                    float* __restrict dx, float* __restrict dgamma,
+                                                    float* __restrict dbeta) {
   for (int64_t j = 0; j < e; ++j) {
-    const float g = dy[j] * gamma[j];
-    dx[j] = g;
-    mean_g += g;
-    mean_gx += g * xhat[j];
+    dx[j] = dy[j] * gamma[j];
     dgamma[j] += dy[j] * xhat[j];
     dbeta[j] += dy[j];
   }
-  mean_g /= float(e);
-  mean_gx /= float(e);
+  const float mean_g = row_sum(dx, e) / float(e), mean_gx = row_dot(dx, xhat, e) / float(e);
   for (int64_t j = 0; j < e; ++j) dx[j] = rstd * (dx[j] - mean_g - xhat[j] * mean_gx);
 }
 
@@ -116,9 +119,10 @@ struct TailSaved {
 
 // The forward of rows [lo, hi): y's rows and the saved values (at their rows, or at row 0 of
 // chunk-sized buffers when `chunk_saved`).
-void forward_chunk(const TailShape& s, const TailParams& p, double eps, const float* x, const float* heads,
-                   TailSaved& sv, bool chunk_saved, float* y, int64_t lo, int64_t hi, std::vector<float>& h_buf,
-                   std::vector<float>& a_buf) {
+ABLENERF_ALWAYS_INLINE void forward_chunk_body(const TailShape& s, const TailParams& p, double eps, const float* x,
+                                               const float* heads, TailSaved& sv, bool chunk_saved, float* y,
+                                               int64_t lo, int64_t hi, std::vector<float>& h_buf,
+                                               std::vector<float>& a_buf) {
   const int64_t n = hi - lo, e = s.e, f = s.f, base = chunk_saved ? 0 : lo;
   float* xhat1 = sv.xhat1.data_ptr<float>() + base * e;
   float* g = sv.g.data_ptr<float>() + base * f;
@@ -135,9 +139,10 @@ void forward_chunk(const TailShape& s, const TailParams& p, double eps, const fl
     float* row = xhat1 + i * e;
     const float* xr = x + s.residual_row(lo + i) * e;
     for (int64_t j = 0; j < e; ++j) row[j] += p.bo[j] + xr[j];
-    rstd[2 * i] = normalise_row(row, e, eps);
-    for (int64_t j = 0; j < e; ++j) h[i * e + j] = row[j] * p.g1[j] + p.be1[j];
   }
+  normalise_rows(xhat1, n, e, eps, rstd, 2);
+  for (int64_t i = 0; i < n; ++i)
+    for (int64_t j = 0; j < e; ++j) h[i * e + j] = xhat1[i * e + j] * p.g1[j] + p.be1[j];
   // a1 = h W1^T + b1; g = GELU(a1) and GELU'(a1).
   product(n, f, e, h, p.w1_t.data(), a1);
   for (int64_t i = 0; i < n; ++i)
@@ -146,12 +151,11 @@ void forward_chunk(const TailShape& s, const TailParams& p, double eps, const fl
   // xhat2 <- g W2^T + b2 + h, normalised; y = xhat2 * g2 + be2.
   product(n, e, f, g, p.w2_t.data(), xhat2);
   float* yc = y + lo * e;
-  for (int64_t i = 0; i < n; ++i) {
-    float* row = xhat2 + i * e;
-    for (int64_t j = 0; j < e; ++j) row[j] += p.b2[j] + h[i * e + j];
-    rstd[2 * i + 1] = normalise_row(row, e, eps);
-    for (int64_t j = 0; j < e; ++j) yc[i * e + j] = row[j] * p.g2[j] + p.be2[j];
-  }
+  for (int64_t i = 0; i < n; ++i)
+    for (int64_t j = 0; j < e; ++j) xhat2[i * e + j] += p.b2[j] + h[i * e + j];
+  normalise_rows(xhat2, n, e, eps, rstd + 1, 2);
+  for (int64_t i = 0; i < n; ++i)
+    for (int64_t j = 0; j < e; ++j) yc[i * e + j] = xhat2[i * e + j] * p.g2[j] + p.be2[j];
 }
 
 // The gradients the backward accumulates over chunks (each zeroed once per call).
@@ -177,8 +181,9 @@ struct BackwardScratch {
 
 // The backward of rows [lo, hi): dx's and dheads' rows (dx added into: several rows share one
 // residual row when x is shared by the batch), and the weights' gradients added into `gr`.
-void backward_chunk(const TailShape& s, const TailParams& p, const float* heads, const TailSaved& sv, const float* dy,
-                    float* dx, float* dheads, TailGrads& gr, int64_t lo, int64_t hi, BackwardScratch& t) {
+ABLENERF_ALWAYS_INLINE void backward_chunk_body(const TailShape& s, const TailParams& p, const float* heads,
+                                                const TailSaved& sv, const float* dy, float* dx, float* dheads,
+                                                TailGrads& gr, int64_t lo, int64_t hi, BackwardScratch& t) {
   const int64_t n = hi - lo, e = s.e, f = s.f;
   const float* xhat1 = sv.xhat1.data_ptr<float>() + lo * e;
   const float* g = sv.g.data_ptr<float>() + lo * f;
@@ -220,6 +225,41 @@ void backward_chunk(const TailShape& s, const TailParams& p, const float* heads,
   small_gemm(false, n, e, e, 1.0f, d1, e, p.wo, e, dheads + lo * e, e);
 }
 
+// The two passes in each instruction form: the bodies above compiled for AVX-512 (their row loops
+// and sums in 16-lane vectors) and for the baseline; the products and GELU dispatch on their own.
+#ifdef ABLENERF_HAVE_AVX2_FORM
+ABLENERF_TARGET_AVX512 void forward_chunk_avx512(const TailShape& s, const TailParams& p, double eps, const float* x,
+                                                 const float* heads, TailSaved& sv, bool chunk_saved, float* y,
+                                                 int64_t lo, int64_t hi, std::vector<float>& h_buf,
+                                                 std::vector<float>& a_buf) {
+  forward_chunk_body(s, p, eps, x, heads, sv, chunk_saved, y, lo, hi, h_buf, a_buf);
+}
+ABLENERF_TARGET_AVX512 void backward_chunk_avx512(const TailShape& s, const TailParams& p, const float* heads,
+                                                  const TailSaved& sv, const float* dy, float* dx, float* dheads,
+                                                  TailGrads& gr, int64_t lo, int64_t hi, BackwardScratch& t) {
+  backward_chunk_body(s, p, heads, sv, dy, dx, dheads, gr, lo, hi, t);
+}
+#endif
+
+void forward_chunk(CpuVectorForm form, const TailShape& s, const TailParams& p, double eps, const float* x,
+                   const float* heads, TailSaved& sv, bool chunk_saved, float* y, int64_t lo, int64_t hi,
+                   std::vector<float>& h_buf, std::vector<float>& a_buf) {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == CpuVectorForm::Avx512)
+    return forward_chunk_avx512(s, p, eps, x, heads, sv, chunk_saved, y, lo, hi, h_buf, a_buf);
+#endif
+  forward_chunk_body(s, p, eps, x, heads, sv, chunk_saved, y, lo, hi, h_buf, a_buf);
+}
+
+void backward_chunk(CpuVectorForm form, const TailShape& s, const TailParams& p, const float* heads,
+                    const TailSaved& sv, const float* dy, float* dx, float* dheads, TailGrads& gr, int64_t lo,
+                    int64_t hi, BackwardScratch& t) {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (form == CpuVectorForm::Avx512) return backward_chunk_avx512(s, p, heads, sv, dy, dx, dheads, gr, lo, hi, t);
+#endif
+  backward_chunk_body(s, p, heads, sv, dy, dx, dheads, gr, lo, hi, t);
+}
+
 torch::Tensor from_vector(const std::vector<float>& v, const torch::Tensor& like) {
   auto t = torch::empty(like.sizes(), like.options());
   std::copy(v.begin(), v.end(), t.data_ptr<float>());
@@ -232,7 +272,7 @@ TailShape shape_of(const torch::Tensor& x, const torch::Tensor& heads, const Blo
 
 // One call's forward over every chunk; with `keep` the saved values are full-size (for backward).
 torch::Tensor forward_all(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w, double eps,
-                          int64_t chunk, bool keep, TailSaved* saved) {
+                          int64_t chunk, CpuVectorForm form, bool keep, TailSaved* saved) {
   const TailShape s = shape_of(x, heads, w);
   const TailParams p(w, s);
   const int64_t held = keep ? s.rows : std::min(chunk, s.rows);
@@ -242,7 +282,7 @@ torch::Tensor forward_all(const torch::Tensor& x, const torch::Tensor& heads, co
   auto y = torch::empty(heads.sizes(), opts);
   std::vector<float> h_buf, a_buf;
   for (int64_t lo = 0; lo < s.rows; lo += chunk)
-    forward_chunk(s, p, eps, x.data_ptr<float>(), heads.data_ptr<float>(), sv, !keep, y.data_ptr<float>(), lo,
+    forward_chunk(form, s, p, eps, x.data_ptr<float>(), heads.data_ptr<float>(), sv, !keep, y.data_ptr<float>(), lo,
                   std::min(s.rows, lo + chunk), h_buf, a_buf);
   if (saved) *saved = sv;
   return y;
@@ -260,13 +300,15 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
                                const torch::Tensor& heads, const torch::Tensor& wo, const torch::Tensor& bo,
                                const torch::Tensor& g1, const torch::Tensor& be1, const torch::Tensor& w1,
                                const torch::Tensor& b1, const torch::Tensor& w2, const torch::Tensor& b2,
-                               const torch::Tensor& g2, const torch::Tensor& be2, double eps, int64_t chunk) {
+                               const torch::Tensor& g2, const torch::Tensor& be2, double eps, int64_t chunk,
+                               int64_t form) {
     const BlockTailWeights w{wo, bo, g1, be1, w1, b1, w2, b2, g2, be2};
     TailSaved sv;
-    auto y = forward_all(x, heads, w, eps, chunk, /*keep=*/true, &sv);
+    auto y = forward_all(x, heads, w, eps, chunk, CpuVectorForm(form), /*keep=*/true, &sv);
     ctx->save_for_backward(
         {x, heads, wo, bo, g1, be1, w1, b1, w2, b2, g2, be2, sv.xhat1, sv.g, sv.dgelu, sv.xhat2, sv.rstd});
     ctx->saved_data["chunk"] = chunk;
+    ctx->saved_data["form"] = form;
     return y;
   }
 
@@ -277,6 +319,7 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
     const BlockTailWeights w = weights_from(v, 2);
     const TailSaved sv{v[12], v[13], v[14], v[15], v[16]};
     const int64_t chunk = ctx->saved_data["chunk"].toInt();
+    const auto form = CpuVectorForm(ctx->saved_data["form"].toInt());
     const TailShape s = shape_of(x, heads, w);
     const TailParams p(w, s);
     const auto dy = grads[0].contiguous();
@@ -285,7 +328,7 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
     TailGrads gr(s);
     BackwardScratch scratch;
     for (int64_t lo = 0; lo < s.rows; lo += chunk)
-      backward_chunk(s, p, heads.data_ptr<float>(), sv, dy.data_ptr<float>(), dx.data_ptr<float>(),
+      backward_chunk(form, s, p, heads.data_ptr<float>(), sv, dy.data_ptr<float>(), dx.data_ptr<float>(),
                      dheads.data_ptr<float>(), gr, lo, std::min(s.rows, lo + chunk), scratch);
     return {dx,
             dheads,
@@ -299,6 +342,7 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
             from_vector(gr.b2, w.ff_out_bias),
             from_vector(gr.g2, w.norm2_weight),
             from_vector(gr.be2, w.norm2_bias),
+            torch::Tensor(),
             torch::Tensor(),
             torch::Tensor()};
   }
@@ -355,8 +399,10 @@ bool block_tail_available(const torch::Tensor& x, const torch::Tensor& heads, co
 }
 
 torch::Tensor block_tail(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w, double eps,
-                         int64_t chunk_rows) {
+                         int64_t chunk_rows, CpuVectorForm form) {
+  RECORD_FUNCTION("ablenerf::block_tail", std::vector<c10::IValue>());
   tail::check_inputs(x, heads, w, eps, chunk_rows);
+  TORCH_CHECK(cpu_vector_form_available(form), tail::kBlockTailOp, ": this CPU does not run the requested form");
   const int64_t chunk = chunk_rows > 0 ? chunk_rows : tail::default_chunk_rows(heads.size(2), w.ff_in_weight.size(0));
   const auto c = [](const torch::Tensor& t) { return t.contiguous(); };
   const BlockTailWeights wc{c(w.out_weight),   c(w.out_bias),   c(w.norm1_weight),  c(w.norm1_bias),
@@ -369,11 +415,11 @@ torch::Tensor block_tail(const torch::Tensor& x, const torch::Tensor& heads, con
                           &wc.ff_in_bias, &wc.ff_out_weight, &wc.ff_out_bias, &wc.norm2_weight, &wc.norm2_bias})
       needs_graph = needs_graph || t->requires_grad();
   if (!needs_graph) {
-    return tail::forward_all(xc, hc, wc, eps, chunk, /*keep=*/false, nullptr);
+    return tail::forward_all(xc, hc, wc, eps, chunk, form, /*keep=*/false, nullptr);
   }
   return tail::BlockTailFunction::apply(xc, hc, wc.out_weight, wc.out_bias, wc.norm1_weight, wc.norm1_bias,
                                         wc.ff_in_weight, wc.ff_in_bias, wc.ff_out_weight, wc.ff_out_bias,
-                                        wc.norm2_weight, wc.norm2_bias, eps, chunk);
+                                        wc.norm2_weight, wc.norm2_bias, eps, chunk, static_cast<int64_t>(form));
 }
 
 torch::Tensor block_tail_reference(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w,

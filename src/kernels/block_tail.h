@@ -20,6 +20,8 @@
 // erf or exp. Mathematics of the reference below; only summation order and rounding differ.
 #include <torch/torch.h>
 
+#include "kernels/cpu_features.h"
+
 namespace ablenerf {
 
 // The block's parameters, as its modules hold them: Linear weights (out, in).
@@ -35,10 +37,12 @@ struct BlockTailWeights {
 bool block_tail_available(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w);
 
 // Differentiable in x, heads and every weight. `chunk_rows` (> 0) sets the tokens taken through the
-// tail at a time (0: the default, sized so that a chunk's rows stay in a core's L2 cache).
-// Throws c10::Error naming "block_tail" and the argument on a bad shape, dtype or device.
+// tail at a time (0: the default, sized so that a chunk's rows stay in a core's L2 cache). `form`:
+// the instruction form of the row loops (LayerNorms, residuals, biases; the tests run each one this
+// CPU has). Throws c10::Error naming "block_tail" and the argument on a bad shape, dtype or device,
+// or a form this CPU does not run.
 torch::Tensor block_tail(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w, double eps,
-                         int64_t chunk_rows = 0);
+                         int64_t chunk_rows = 0, CpuVectorForm form = cpu_best_vector_form());
 
 // The plain LibTorch version the kernel is tested against (any dtype and device).
 torch::Tensor block_tail_reference(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w,

@@ -3,9 +3,10 @@
 //   GELU(a)  = a Phi(a),            Phi(a) = (1 + erf(a / sqrt 2)) / 2
 //   GELU'(a) = Phi(a) + a phi(a),   phi(a) = exp(-a^2 / 2) / sqrt(2 pi)
 // A fused layer's forward computes both and keeps the derivative, so its backward multiplies
-// instead of evaluating erf again. erf and exp come from Sleef (its 1-ulp vector functions,
-// 16 lanes with AVX-512, 8 with AVX2 + FMA), chosen at run time by what the CPU runs; the C
-// library's scalar functions where neither runs or Sleef was not found at build time.
+// instead of evaluating erf again. The vector forms (16 lanes with AVX-512, 8 with AVX2 + FMA, chosen
+// at run time by what the CPU runs) take exp from Sleef (its 1-ulp vector function) and Phi from
+// that same exponential by a rational approximation of erfc (absolute error under 1.5e-7, see
+// gelu_cpu.cpp); the C library's erf and exp where neither runs or Sleef was not found at build time.
 #include <cstdint>
 
 namespace ablenerf {

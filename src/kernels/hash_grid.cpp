@@ -1,5 +1,6 @@
 #include "kernels/hash_grid.h"
 
+#include <ATen/record_function.h>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -147,6 +148,7 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
                                TableGradient* gradient) {
+  RECORD_FUNCTION("ablenerf::hash_grid", std::vector<c10::IValue>());
   check_inputs(positions, table, shape);
   const int slot = TableGradient::current_slot();
   const bool to_slot =

@@ -2,6 +2,7 @@
 
 #include "kernels/small_gemm.h"
 
+#include <ATen/record_function.h>
 #include <algorithm>
 #include <vector>
 
@@ -88,6 +89,7 @@ bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight) {
 }
 
 torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+  RECORD_FUNCTION("ablenerf::linear_cpu", std::vector<c10::IValue>());
   TORCH_CHECK(linear_cpu_available(x, weight), "linear_cpu: expected CPU float32 x (M, K) and weight (N, K), got ",
               x.sizes(), " ", x.scalar_type(), " and ", weight.sizes(), " ", weight.scalar_type());
   TORCH_CHECK(!bias.defined() || (bias.dim() == 1 && bias.size(0) == weight.size(0) &&

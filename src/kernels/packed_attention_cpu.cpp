@@ -1,5 +1,6 @@
 #include "kernels/packed_attention.h"
 
+#include <ATen/record_function.h>
 #include <dlfcn.h>
 
 #include <algorithm>
@@ -8,6 +9,7 @@
 #include <vector>
 
 #include "kernels/cpu_parallel.h"
+#include "kernels/row_reduce.h"
 #include "kernels/small_gemm.h"
 #include "kernels/vector_exp.h"
 
@@ -113,20 +115,17 @@ void softmax_rows(T* s, const T* mask, int64_t items, int64_t lq, int64_t lk) {
   const int64_t rows = items * lq;
   for (int64_t q = 0; q < rows; ++q) {
     T* row = s + q * lk;
-    const T* m = mask ? mask + (q % lq) * lk : nullptr;
-    T max = -std::numeric_limits<T>::infinity();
-    for (int64_t j = 0; j < lk; ++j) {
-      if (m) row[j] += m[j];
-      max = std::max(max, row[j]);
+    if (mask) {
+      const T* m = mask + (q % lq) * lk;
+      for (int64_t j = 0; j < lk; ++j) row[j] += m[j];
     }
+    const T max = row_max(row, lk);
     for (int64_t j = 0; j < lk; ++j) row[j] -= max;
   }
   exp_block(s, rows * lk);
   for (int64_t q = 0; q < rows; ++q) {
     T* row = s + q * lk;
-    T sum = 0;
-    for (int64_t j = 0; j < lk; ++j) sum += row[j];
-    const T inv = T(1) / sum;
+    const T inv = T(1) / row_sum(row, lk);
     for (int64_t j = 0; j < lk; ++j) row[j] *= inv;
   }
 }
@@ -138,8 +137,7 @@ void softmax_backward_rows(T* dp, const T* p, int64_t rows, int64_t lk) {
   for (int64_t r = 0; r < rows; ++r) {
     T* d = dp + r * lk;
     const T* pr = p + r * lk;
-    T dot = 0;
-    for (int64_t j = 0; j < lk; ++j) dot += d[j] * pr[j];
+    const T dot = row_dot(d, pr, lk);
     for (int64_t j = 0; j < lk; ++j) d[j] = (d[j] - dot) * pr[j];
   }
 }
@@ -292,6 +290,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
 
 torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
                   int64_t width, double scale) {
+  RECORD_FUNCTION("ablenerf::packed_attention", std::vector<c10::IValue>());
   const bool self = !kv_src.defined();
   TORCH_CHECK(width % heads == 0, "packed attention: width ", width, " is not divisible by ", heads, " heads");
   const auto q = q_src.contiguous();

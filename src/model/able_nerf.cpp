@@ -3,8 +3,10 @@
 #include <stdexcept>
 
 #include <ATen/CPUGeneratorImpl.h>
+#include <ATen/record_function.h>
 
 #include "kernels/cpu_parallel.h"
+#include "kernels/sample_encoding_cpu.h"
 #include "model/contraction.h"
 #include "model/frustum.h"
 #include "model/ipe.h"
@@ -27,6 +29,14 @@ constexpr double kProposalPadding = 0.2;
 static_assert(sizeof(ModelOutput) ==
                   sizeof(ModelOutput::kFields) / sizeof(ModelOutput::kFields[0]) * sizeof(torch::Tensor),
               "every ModelOutput field must be listed in ModelOutput::kFields");
+
+// f() inside a named scope of LibTorch's profiler: the stages of the figure in `ablenerf bench
+// --trace`'s operator trace (nothing is recorded when no profiler runs).
+template <class F>
+auto staged(const char* name, F&& f) {
+  RECORD_FUNCTION(name, std::vector<c10::IValue>());
+  return f();
+}
 
 // Row-wise concatenation of the outputs of consecutive ray slices (undefined fields stay so).
 ModelOutput concat_outputs(const std::vector<ModelOutput>& parts) {
@@ -161,40 +171,48 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
                                           const torch::Tensor& view_code, bool colour, bool weights_grad) {
   const int64_t b = t.size(0);
-  const Gaussians g = frustums(t, rays);
-  const auto ipe = [&](int64_t degrees) {
-    auto f = integrated_pos_enc(g.mean, g.cov, degrees);
-    return band_weights_.defined() ? f * band_weights_ : f;
-  };
-  torch::Tensor features;
-  if (!grid_)
-    features = ipe(cfg_.ipe_degrees);
-  else if (cfg_.grid_ipe_degrees == 0)
-    features = grid_(g.mean, g.cov);
-  else  // the grid's features beside a coarse IPE that says where the sample is
-    features = torch::cat({grid_(g.mean, g.cov), ipe(cfg_.grid_ipe_degrees)}, -1);
-  const auto volumes = volume_embedding_(features);
+  const auto features = staged("ablenerf.embedding", [&] {
+    const Gaussians g = frustums(t, rays);
+    const auto ipe = [&](int64_t degrees) {
+      auto f = fused_encoding({g.mean, g.cov}) ? integrated_pos_enc_cpu(g.mean, g.cov, degrees)
+                                               : integrated_pos_enc(g.mean, g.cov, degrees);
+      return band_weights_.defined() ? f * band_weights_ : f;
+    };
+    if (!grid_) return ipe(cfg_.ipe_degrees);
+    if (cfg_.grid_ipe_degrees == 0) return grid_(g.mean, g.cov);
+    // the grid's features beside a coarse IPE that says where the sample is
+    return torch::cat({grid_(g.mean, g.cov), ipe(cfg_.grid_ipe_degrees)}, -1);
+  });
+  const auto volumes = staged("ablenerf.volume_embedding", [&] { return volume_embedding_(features); });
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
   probe.keep_graph = weights_grad;
   // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).
-  const auto y = ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour);
+  const auto y =
+      staged("ablenerf.ab_transformer", [&] { return ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour); });
   Pass p;
   p.ray_token = y.select(1, 0);
   p.weights = ray_token_attention(probe);
   if (!colour) return p;
-  p.ray_colour = ray_head(p.ray_token);
-  if (le_tf) p.le_colour = (*le_head)((*le_tf)(le, y.slice(1, 1), view), view_code);
+  p.ray_colour = staged("ablenerf.ray_head", [&] { return ray_head(p.ray_token); });
+  if (le_tf) {
+    const auto decoded = staged("ablenerf.le_transformer", [&] { return (*le_tf)(le, y.slice(1, 1), view); });
+    p.le_colour = staged("ablenerf.le_head", [&] { return (*le_head)(decoded, view_code); });
+  }
   p.rgb = tonemap(p.ray_colour, p.le_colour);
   return p;
 }
 
+bool AbleNerfImpl::fused_encoding(const std::vector<torch::Tensor>& inputs) const {
+  return compute_.attention == AttentionKernel::Fused && sample_encoding_cpu_available(inputs);
+}
+
 Gaussians AbleNerfImpl::frustums(const torch::Tensor& t, const Rays& rays) const {
-  if (!unbounded_) return cast_intervals(t, rays);
-  const int64_t n = t.size(-1);
-  const auto m = conical_frustum_moments(t.slice(-1, 0, n - 1), t.slice(-1, 1, n), rays.radii);
-  const auto mean = rays.origins.unsqueeze(1) + rays.directions.unsqueeze(1) * m.t_mean.unsqueeze(-1);
-  return contract_gaussians(mean, rays.directions, m);
+  if (fused_encoding({t, rays.origins, rays.directions, rays.radii})) {
+    const SampleGaussians g = sample_gaussians_cpu(t, rays.origins, rays.directions, rays.radii, unbounded_);
+    return {g.mean, g.cov};
+  }
+  return unbounded_ ? contract_intervals(t, rays) : cast_intervals(t, rays);
 }
 
 ForwardOptions ForwardOptions::slice(int64_t lo, int64_t hi) const {
@@ -260,7 +278,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     // On the rays detached: the proposal only places samples, so its loss must not move the
     // cameras that camera refinement corrects (model/camera_refine.h).
     const Rays fixed{rays.origins.detach(), rays.directions.detach(), rays.radii.detach()};
-    proposal_w = density_weights(proposal_->density(frustums(depths(s_p), fixed)), proposal_s);
+    proposal_w = staged("ablenerf.proposal",
+                        [&] { return density_weights(proposal_->density(frustums(depths(s_p), fixed)), proposal_s); });
     const auto s_unit =
         proposal_fence_posts(proposal_s, proposal_w, cfg_.samples, kProposalPadding, opts.coarse_jitter);
     s_c = unbounded_ ? s_unit : near + (far - near) * s_unit;

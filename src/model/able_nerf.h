@@ -143,6 +143,9 @@ class AbleNerfImpl : public torch::nn::Module {
   ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
   // The interval Gaussians of fence-posts t (B,N+1) (depths): contracted for unbounded scenes.
   Gaussians frustums(const torch::Tensor& t, const Rays& rays) const;
+  // True when the samples' Gaussians and encoding run as kernels/sample_encoding_cpu.h (CPU float32
+  // under compute.attention = "fused", nothing to differentiate through these inputs).
+  bool fused_encoding(const std::vector<torch::Tensor>& inputs) const;
   torch::Tensor effective_le(const ForwardOptions& opts) const;
 
   ModelConfig cfg_;

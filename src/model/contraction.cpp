@@ -1,15 +1,13 @@
 #include "model/contraction.h"
 
+#include "kernels/sample_encoding_cpu.h"
+
 #include <algorithm>
 
 namespace ablenerf {
 
-namespace {
-constexpr double kContractEps = 1e-12;
-}  // namespace
-
 torch::Tensor contract_points(const torch::Tensor& x) {
-  const auto r = x.norm(2, -1, /*keepdim=*/true).clamp_min(kContractEps);
+  const auto r = x.norm(2, -1, /*keepdim=*/true).clamp_min(kContractRadiusEps);
   return torch::where(r <= 1, x, (2 - 1 / r) * x / r);
 }
 
@@ -21,7 +19,7 @@ Gaussians contract_gaussians(const torch::Tensor& mean, const torch::Tensor& dir
   const auto a = m.t_var - m.r_var / d2;   // (B,S)
   // Inside the unit ball J = I: diag S = a d_c^2 + b.
   // Outside, with r = |x|, f(r) = (2 - 1/r) / r: J = f I + f'(r)/r x x^T, f' = (2/r^3 - 2/r^2).
-  const auto r = mean.norm(2, -1, /*keepdim=*/true).clamp_min(kContractEps);  // (B,S,1)
+  const auto r = mean.norm(2, -1, /*keepdim=*/true).clamp_min(kContractRadiusEps);  // (B,S,1)
   const auto outside = r > 1;
   const auto f = torch::where(outside, (2 - 1 / r) / r, torch::ones_like(r));
   const auto g = torch::where(outside, (2 / (r * r * r) - 2 / (r * r)) / r, torch::zeros_like(r));  // f'(r) / r
@@ -35,6 +33,13 @@ Gaussians contract_gaussians(const torch::Tensor& mean, const torch::Tensor& dir
   out.mean = contract_points(mean);
   out.cov = b.unsqueeze(-1) * jj + a.unsqueeze(-1) * jd * jd;
   return out;
+}
+
+Gaussians contract_intervals(const torch::Tensor& t, const Rays& rays) {
+  const int64_t n = t.size(-1);
+  const auto m = conical_frustum_moments(t.slice(-1, 0, n - 1), t.slice(-1, 1, n), rays.radii);
+  const auto mean = rays.origins.unsqueeze(1) + rays.directions.unsqueeze(1) * m.t_mean.unsqueeze(-1);
+  return contract_gaussians(mean, rays.directions, m);
 }
 
 torch::Tensor unbounded_depths(const torch::Tensor& s, double near, double far) {

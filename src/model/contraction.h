@@ -23,6 +23,10 @@ namespace ablenerf {
 // directions (B,3) the rays' unnormalised directions; moments from conical_frustum_moments.
 Gaussians contract_gaussians(const torch::Tensor& mean, const torch::Tensor& directions, const FrustumMoments& m);
 
+// The interval Gaussians of fence posts t (B,S+1) along `rays`, lifted and contracted: the
+// unbounded scene's counterpart of cast_intervals (model/frustum.h).
+Gaussians contract_intervals(const torch::Tensor& t, const Rays& rays);
+
 // The point map alone (B,...,3), for tests and for drawing where samples land.
 torch::Tensor contract_points(const torch::Tensor& x);
 

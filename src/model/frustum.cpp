@@ -1,11 +1,8 @@
 #include "model/frustum.h"
 
-namespace ablenerf {
+#include "kernels/sample_encoding_cpu.h"
 
-namespace {
-// Keeps the perpendicular projector finite for a zero direction (same constant as the release).
-constexpr double kDirNormEps = 1e-10;
-}  // namespace
+namespace ablenerf {
 
 FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1, const torch::Tensor& radius) {
   const auto mu = 0.5 * (t0 + t1);
@@ -22,7 +19,7 @@ FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Ten
 Gaussians lift_gaussian(const torch::Tensor& origins, const torch::Tensor& directions, const FrustumMoments& m) {
   const auto d = directions.unsqueeze(1);  // (B,1,3)
   const auto d2 = d * d;
-  const auto perp = 1.0 - d2 / (d2.sum(-1, /*keepdim=*/true) + kDirNormEps);
+  const auto perp = 1.0 - d2 / (d2.sum(-1, /*keepdim=*/true) + kFrustumDirNormEps);
   Gaussians g;
   g.mean = origins.unsqueeze(1) + d * m.t_mean.unsqueeze(-1);
   g.cov = m.t_var.unsqueeze(-1) * d2 + m.r_var.unsqueeze(-1) * perp;

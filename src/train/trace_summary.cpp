@@ -13,6 +13,8 @@ namespace ablenerf {
 namespace {
 
 constexpr size_t kMaxOpName = 200;  // kernel names are whole template signatures
+// The model's named stages (model/able_nerf.cpp's profiler scopes) start with this.
+constexpr const char* kStagePrefix = "ablenerf.";
 
 // Names with their summed microseconds, largest first (ties by name).
 std::vector<std::pair<std::string, double>> largest_first(const std::map<std::string, double>& us) {
@@ -57,8 +59,8 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
     }
     by_thread[e.contains("tid") ? e["tid"].dump() : ""].push_back({ts, ts + dur, e.value("name", "?")});
   }
-  std::map<std::string, double> self_us;
-  std::map<std::string, int64_t> calls;
+  std::map<std::string, double> self_us, stage_us;
+  std::map<std::string, int64_t> calls, stage_ops;
   int64_t ops = 0;
   double total_us = 0;
   for (auto& [tid, list] : by_thread) {
@@ -73,6 +75,12 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
       open.push_back(i);
     }
     for (size_t i = 0; i < list.size(); ++i) {
+      if (list[i].name.rfind(kStagePrefix, 0) == 0) {
+        // A stage: its whole duration, and the ops inside it (those that follow it in this order
+        // and start before it ends).
+        stage_us[list[i].name] += list[i].end - list[i].start;
+        for (size_t j = i + 1; j < list.size() && list[j].start < list[i].end; ++j) ++stage_ops[list[i].name];
+      }
       const double self = std::max(0.0, list[i].end - list[i].start - child_us[i]);
       self_us[list[i].name] += self;
       calls[list[i].name] += 1;
@@ -90,6 +98,14 @@ nlohmann::json trace_summary(const std::string& trace_json, int64_t steps, size_
     out["top"].push_back({{"op", ranked[i].first},
                           {"self_ms_per_step", ranked[i].second / 1000.0 / per_step},
                           {"calls_per_step", static_cast<double>(calls[ranked[i].first]) / per_step}});
+  if (!stage_us.empty()) {
+    out["stages"] = nlohmann::json::array();
+    for (const auto& [name, us] : largest_first(stage_us))
+      out["stages"].push_back({{"stage", name},
+                               {"ms_per_step", us / 1000.0 / per_step},
+                               {"calls_per_step", static_cast<double>(calls[name]) / per_step},
+                               {"ops_per_step", static_cast<double>(stage_ops[name]) / per_step}});
+  }
   if (device_events > 0) {
     const auto by_time = largest_first(device_us);
     nlohmann::json gpu{{"events_per_step", static_cast<double>(device_events) / per_step},

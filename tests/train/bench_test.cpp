@@ -189,6 +189,33 @@ TEST(BenchTrace, SelfTimesFromNestedEvents) {
   EXPECT_THROW(trace_summary("{}", 1, 3), std::invalid_argument);
   EXPECT_THROW(trace_summary("not json", 1, 3), std::invalid_argument);
   EXPECT_THROW(trace_summary(R"([{"name": "x", "ph": "X", "ts": "a", "dur": 1}])", 1, 3), std::invalid_argument);
+  EXPECT_FALSE(j.contains("stages"));  // no stage scopes in this trace
+}
+
+TEST(BenchTrace, StagesTakeTheirWholeDurationAndCountTheOpsInside) {
+  // One step: stage "ablenerf.a" 0-50 holding "mm" 5-20 (holding "copy" 6-8) and "add" 30-40;
+  // "ablenerf.b" 60-70 holding "add" 61-62, then a second "ablenerf.b" 80-100 holding nothing;
+  // "sum" 100-110 after them.
+  const std::string trace = R"([
+    {"name": "ablenerf.a", "ph": "X", "ts": 0, "dur": 50, "tid": 1},
+    {"name": "mm", "ph": "X", "ts": 5, "dur": 15, "tid": 1},
+    {"name": "copy", "ph": "X", "ts": 6, "dur": 2, "tid": 1},
+    {"name": "add", "ph": "X", "ts": 30, "dur": 10, "tid": 1},
+    {"name": "ablenerf.b", "ph": "X", "ts": 60, "dur": 10, "tid": 1},
+    {"name": "add", "ph": "X", "ts": 61, "dur": 1, "tid": 1},
+    {"name": "ablenerf.b", "ph": "X", "ts": 80, "dur": 20, "tid": 1},
+    {"name": "sum", "ph": "X", "ts": 100, "dur": 10, "tid": 1}
+  ])";
+  const auto j = trace_summary(trace, 1, 10);
+  ASSERT_TRUE(j.contains("stages"));
+  ASSERT_EQ(j["stages"].size(), 2u);
+  EXPECT_EQ(j["stages"][0]["stage"], "ablenerf.a");
+  EXPECT_NEAR(j["stages"][0]["ms_per_step"].get<double>(), 0.050, 1e-12);
+  EXPECT_DOUBLE_EQ(j["stages"][0]["ops_per_step"].get<double>(), 3.0);
+  EXPECT_EQ(j["stages"][1]["stage"], "ablenerf.b");
+  EXPECT_NEAR(j["stages"][1]["ms_per_step"].get<double>(), 0.030, 1e-12);
+  EXPECT_DOUBLE_EQ(j["stages"][1]["calls_per_step"].get<double>(), 2.0);
+  EXPECT_DOUBLE_EQ(j["stages"][1]["ops_per_step"].get<double>(), 1.0);
 }
 
 TEST(BenchTrace, DeviceEventsOfAKinetoTraceAreSummedApart) {

@@ -1,0 +1,146 @@
+// The samples' Gaussians and encoding in one loop (kernels/sample_encoding_cpu.h) against the plain
+// path of the model's stages (model/frustum.h, model/contraction.h, model/ipe.h) computed in
+// float64: bounded and contracted scenes, samples inside and outside the unit ball, encodings of
+// one sample, a block's tail and several blocks, every vector form this CPU runs; the whole model
+// under "fused" against "plain"; bad inputs refused naming the argument.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include "kernels/kernel_test_util.h"
+#include "kernels/sample_encoding_cpu.h"
+#include "model/able_nerf.h"
+#include "model/compute.h"
+#include "model/contraction.h"
+#include "model/frustum.h"
+#include "model/ipe.h"
+#include "model/model_config.h"
+#include "test_util.h"
+
+namespace ablenerf {
+namespace {
+
+// Rays from around the origin with unnormalised directions, cone radii of a few thousandths, and
+// increasing fence posts from 0.05 to 12: the contracted scene's samples fall inside the unit ball
+// and far outside it.
+struct SampleCase {
+  torch::Tensor t;
+  Rays rays;
+};
+
+SampleCase sample_case(int64_t b, int64_t s, uint64_t seed) {
+  SampleCase c;
+  c.rays.origins = test::seeded_randn({b, 3}, seed, 0.5).to(torch::kFloat);
+  c.rays.directions = test::seeded_randn({b, 3}, seed + 1).to(torch::kFloat);
+  c.rays.radii = (test::seeded_randn({b, 1}, seed + 2, 0.001, 0.003).abs() + 1e-4).to(torch::kFloat);
+  const auto steps = test::seeded_randn({b, s + 1}, seed + 3).abs() + 0.05;
+  c.t = (steps.cumsum(-1) * (12.0 / (s + 1))).to(torch::kFloat);
+  return c;
+}
+
+Rays to_double(const Rays& r) {
+  return {r.origins.to(torch::kDouble), r.directions.to(torch::kDouble), r.radii.to(torch::kDouble)};
+}
+
+void expect_close(const torch::Tensor& got, const torch::Tensor& want, double rtol, const std::string& what) {
+  ASSERT_EQ(got.sizes(), want.sizes()) << what;
+  const auto err = (got.to(torch::kDouble) - want).abs();
+  const auto bound = rtol * (want.abs() + want.abs().max() * 1e-3);
+  EXPECT_TRUE((err <= bound).all().item<bool>()) << what << ": worst excess " << (err - bound).max().item<double>();
+}
+
+TEST(SampleEncoding, GaussiansMatchTheModelsStagesBoundedAndContracted) {
+  const SampleCase c = sample_case(37, 16, 5);
+  for (const bool contract : {false, true}) {
+    const SampleGaussians got = sample_gaussians_cpu(c.t, c.rays.origins, c.rays.directions, c.rays.radii, contract);
+    const auto t = c.t.to(torch::kDouble);
+    const Gaussians want = contract ? contract_intervals(t, to_double(c.rays)) : cast_intervals(t, to_double(c.rays));
+    const std::string what = contract ? "contracted" : "bounded";
+    expect_close(got.mean, want.mean, 1e-5, what + " mean");
+    expect_close(got.cov, want.cov, 1e-4, what + " cov");
+    if (contract) {
+      // Both sides of the unit ball are exercised, and the contracted means stay within radius 2.
+      const auto r = want.mean.norm(2, -1);
+      EXPECT_TRUE((r < 1).any().item<bool>());
+      EXPECT_TRUE((r > 1.5).any().item<bool>());
+      EXPECT_LT(got.mean.norm(2, -1).max().item<double>(), 2.0);
+    }
+  }
+}
+
+TEST(SampleEncoding, EncodingMatchesTheModelsIpeInEveryForm) {
+  int ran = 0;
+  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+    // The Avx512 form needs Sleef as well as the CPU: refused, naming the op, where either lacks.
+    if (!cpu_vector_form_available(form)) continue;
+    for (const int64_t n : {int64_t(1), int64_t(63), int64_t(65), int64_t(200)})
+      for (const int64_t degrees : {int64_t(1), int64_t(4), int64_t(10)}) {
+        const auto mean = test::seeded_randn({n, 3}, uint64_t(n + degrees), 1.0).to(torch::kFloat);
+        const auto cov = test::seeded_randn({n, 3}, uint64_t(n + degrees + 7), 0.02).abs().to(torch::kFloat);
+        torch::Tensor got;
+        try {
+          got = integrated_pos_enc_cpu(mean, cov, degrees, form);
+        } catch (const c10::Error& e) {
+          EXPECT_NE(std::string(e.what()).find("integrated_pos_enc_cpu"), std::string::npos);
+          EXPECT_NE(form, CpuVectorForm::Scalar);
+          continue;
+        }
+        ++ran;
+        // The reference from the same float32 angles (2^l mean is exact; y + pi/2 rounds alike).
+        const auto want = integrated_pos_enc(mean, cov, degrees);
+        const double err = test::max_abs(got - want);
+        EXPECT_LT(err, 2e-6) << "form " << static_cast<int>(form) << " n " << n << " degrees " << degrees;
+        EXPECT_EQ(got.sizes(), want.sizes());
+      }
+  }
+  EXPECT_GE(ran, 12);  // the scalar form at least
+}
+
+TEST(SampleEncoding, TheWholeModelAgreesWithThePlainPath) {
+  ModelConfig cfg;
+  cfg.width = 32;
+  cfg.heads = 2;
+  cfg.ff_ratio = 2;
+  cfg.samples = 16;
+  cfg.embedding = Embedding::Grid;
+  cfg.grid_levels = 4;
+  cfg.grid_log2_table = 12;
+  cfg.grid_max_resolution = 64;
+  cfg.grid_ipe_degrees = 4;
+  cfg.proposal_samples = 16;
+  cfg.le_count = 4;
+  torch::manual_seed(3);
+  AbleNerf model(cfg, SceneKind::Unbounded);
+  model->eval();
+  const Rays rays = test::random_rays(24, 11);
+  torch::NoGradGuard no_grad;
+  ModelOutput out[2];
+  for (int i = 0; i < 2; ++i) {
+    Compute c;
+    c.attention = i == 0 ? AttentionKernel::Fused : AttentionKernel::Plain;
+    model->set_compute(c);
+    out[i] = model->forward(rays, 0.2, 20.0);
+  }
+  EXPECT_LT(test::max_abs(out[0].rgb_fine - out[1].rgb_fine), 1e-4);
+  EXPECT_LT(test::max_abs(out[0].fine_s - out[1].fine_s), 1e-4);
+}
+
+TEST(SampleEncoding, BadInputsAreRefusedNamingTheArgument) {
+  const SampleCase c = sample_case(4, 8, 1);
+  test::expect_error_naming(
+      [&] { sample_gaussians_cpu(c.t, c.rays.origins.slice(1, 0, 2), c.rays.directions, c.rays.radii, true); },
+      "sample_gaussians_cpu: origins");
+  test::expect_error_naming(
+      [&] { sample_gaussians_cpu(c.t, c.rays.origins, c.rays.directions, c.rays.radii.squeeze(1), true); },
+      "sample_gaussians_cpu: radii");
+  test::expect_error_naming(
+      [&] { sample_gaussians_cpu(c.t.to(torch::kDouble), c.rays.origins, c.rays.directions, c.rays.radii, false); },
+      "sample_gaussians_cpu: t");
+  const auto m = torch::zeros({5, 3});
+  test::expect_error_naming([&] { integrated_pos_enc_cpu(m, torch::zeros({5, 2}), 4); }, "integrated_pos_enc_cpu: cov");
+  test::expect_error_naming([&] { integrated_pos_enc_cpu(m, m, 0); }, "integrated_pos_enc_cpu: degrees");
+  // Not for inputs autograd has to differentiate.
+  EXPECT_FALSE(sample_encoding_cpu_available({m.clone().requires_grad_()}));
+}
+
+}  // namespace
+}  // namespace ablenerf
