@@ -28,6 +28,12 @@ namespace sample_encoding_impl {
 
 constexpr const char* kGaussiansOp = "sample_gaussians_cpu";
 constexpr const char* kIpeOp = "integrated_pos_enc_cpu";
+constexpr const char* kGridOp = "grid_inputs_cpu";
+// Abramowitz and Stegun 7.1.26 (kernels/gelu_cpu.cpp uses the same): for z >= 0,
+// erf(z) = 1 - t (c1 + t (c2 + t (c3 + t (c4 + t c5)))) exp(-z^2), t = 1 / (1 + p z).
+constexpr float kErfP = 0.3275911f;
+constexpr float kErfC1 = 0.254829592f, kErfC2 = -0.284496736f, kErfC3 = 1.421413741f, kErfC4 = -1.453152027f,
+                kErfC5 = 1.061405429f;
 // Samples whose angles and exponentials are taken at a time (their buffers stay in L1).
 constexpr int64_t kIpeBlock = 64;
 constexpr float kHalfPi = float(M_PI / 2.0);
@@ -152,6 +158,61 @@ void ipe_rows(const float* mean, const float* cov, int64_t n, int64_t degrees, C
   }
 }
 
+// x[i] <- erf(1 / sqrt(x[i])) for x >= 0 (x = 0 gives 1), in place over n floats.
+void erf_rsqrt_block(float* x, int64_t n, CpuVectorForm form);
+
+#ifdef ABLENERF_ENCODING_SLEEF
+__attribute__((target("avx512f"))) __m512 erf_rsqrt16(__m512 x) {
+  const __m512 one = _mm512_set1_ps(1.0f);
+  // +inf at x = 0: t = 0, erf = 1. (The masked square root with every lane set: GCC 12's unmasked
+  // form reads an undefined vector and warns.)
+  const __m512 z = _mm512_div_ps(one, _mm512_mask_sqrt_ps(x, static_cast<__mmask16>(0xFFFF), x));
+  const __m512 e = Sleef_expf16_u10avx512f(_mm512_sub_ps(_mm512_setzero_ps(), _mm512_div_ps(one, x)));
+  const __m512 t = _mm512_div_ps(one, _mm512_fmadd_ps(_mm512_set1_ps(kErfP), z, one));
+  __m512 poly = _mm512_fmadd_ps(t, _mm512_set1_ps(kErfC5), _mm512_set1_ps(kErfC4));
+  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC3));
+  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC2));
+  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC1));
+  return _mm512_sub_ps(one, _mm512_mul_ps(_mm512_mul_ps(t, poly), e));
+}
+
+__attribute__((target("avx512f"))) void erf_rsqrt_avx512(float* x, int64_t n) {
+  int64_t i = 0;
+  for (; i + 16 <= n; i += 16) _mm512_storeu_ps(x + i, erf_rsqrt16(_mm512_loadu_ps(x + i)));
+  if (i < n) {
+    const __mmask16 k = static_cast<__mmask16>((1u << (n - i)) - 1u);
+    // Lanes past n read 1 (a harmless argument) and are not stored.
+    const __m512 v = _mm512_mask_loadu_ps(_mm512_set1_ps(1.0f), k, x + i);
+    _mm512_mask_storeu_ps(x + i, k, erf_rsqrt16(v));
+  }
+}
+#endif
+
+void erf_rsqrt_block(float* x, int64_t n, CpuVectorForm form) {
+#ifdef ABLENERF_ENCODING_SLEEF
+  if (form == CpuVectorForm::Avx512) return erf_rsqrt_avx512(x, n);
+#endif
+  for (int64_t i = 0; i < n; ++i) x[i] = std::erf(1.0f / std::sqrt(x[i]));
+}
+
+// Points [0, n): unit coordinates, then 8 sigma2 n_l^2 per level into weights, erf(1 / sqrt(.)) of
+// them a block at a time, times the scale inside the cube and 0 outside.
+void grid_rows(const float* mean, const float* cov, int64_t n, float lo, float hi, const float* res, int64_t levels,
+               float scale, CpuVectorForm form, float* unit, float* weights) {
+  const float side = hi - lo, inv_side2 = 1.0f / (side * side);
+  for (int64_t i = 0; i < n; ++i) {
+    for (int c = 0; c < 3; ++c) unit[3 * i + c] = (mean[3 * i + c] - lo) / side;
+    const float sigma2 = (cov[3 * i] + cov[3 * i + 1] + cov[3 * i + 2]) / 3.0f * inv_side2;
+    for (int64_t l = 0; l < levels; ++l) weights[i * levels + l] = 8.0f * sigma2 * (res[l] * res[l]);
+  }
+  erf_rsqrt_block(weights, n * levels, form);
+  for (int64_t i = 0; i < n; ++i) {
+    const float* u = unit + 3 * i;
+    const bool inside = u[0] >= 0 && u[0] <= 1 && u[1] >= 0 && u[1] <= 1 && u[2] >= 0 && u[2] <= 1;
+    for (int64_t l = 0; l < levels; ++l) weights[i * levels + l] = inside ? weights[i * levels + l] * scale : 0.0f;
+  }
+}
+
 void check_cpu_float(const char* op, const char* name, const torch::Tensor& x) {
   TORCH_CHECK(x.defined() && x.device().is_cpu() && x.scalar_type() == torch::kFloat, op, ": ", name,
               " must be a CPU float32 tensor");
@@ -209,6 +270,27 @@ torch::Tensor integrated_pos_enc_cpu(const torch::Tensor& mean, const torch::Ten
   const auto mc = mean.contiguous(), cc = cov.contiguous();
   enc::ipe_rows(mc.data_ptr<float>(), cc.data_ptr<float>(), mean.numel() / 3, degrees, form, out.data_ptr<float>());
   return out;
+}
+
+GridInputs grid_inputs_cpu(const torch::Tensor& mean, const torch::Tensor& cov, double lo, double hi,
+                           const torch::Tensor& resolution, double scale, CpuVectorForm form) {
+  RECORD_FUNCTION("ablenerf::grid_inputs", std::vector<c10::IValue>());
+  enc::check_cpu_float(enc::kGridOp, "mean", mean);
+  enc::check_cpu_float(enc::kGridOp, "cov", cov);
+  enc::check_cpu_float(enc::kGridOp, "resolution", resolution);
+  TORCH_CHECK(mean.dim() >= 1 && mean.size(-1) == 3, enc::kGridOp, ": mean must be (..., 3), got ", mean.sizes());
+  TORCH_CHECK(cov.sizes() == mean.sizes(), enc::kGridOp, ": cov must have mean's shape ", mean.sizes(), ", got ",
+              cov.sizes());
+  TORCH_CHECK(resolution.dim() == 1 && resolution.size(0) >= 1, enc::kGridOp, ": resolution must be (levels), got ",
+              resolution.sizes());
+  TORCH_CHECK(hi > lo, enc::kGridOp, ": the cube's hi must exceed its lo, got ", lo, " and ", hi);
+  TORCH_CHECK(enc::form_runs(form), enc::kGridOp, ": this CPU or build does not run the requested form");
+  const int64_t n = mean.numel() / 3, levels = resolution.size(0);
+  GridInputs g{torch::empty({n, 3}, mean.options()), torch::empty({n, levels}, mean.options())};
+  const auto mc = mean.contiguous(), cc = cov.contiguous(), rc = resolution.contiguous();
+  enc::grid_rows(mc.data_ptr<float>(), cc.data_ptr<float>(), n, float(lo), float(hi), rc.data_ptr<float>(), levels,
+                 float(scale), form, g.unit.data_ptr<float>(), g.weights.data_ptr<float>());
+  return g;
 }
 
 }  // namespace ablenerf

@@ -87,7 +87,10 @@ AbleNerfImpl::AbleNerfImpl(const ModelConfig& cfg, SceneKind scene, NdcProjectio
 void AbleNerfImpl::set_compute(const Compute& c) {
   compute_ = c;
   for (const auto& m : modules(/*include_self=*/false))
-    if (auto* attn = m->as<MultiHeadAttentionImpl>()) attn->set_kernel(c.attention);
+    if (auto* attn = m->as<MultiHeadAttentionImpl>())
+      attn->set_kernel(c.attention);
+    else if (auto* grid = m->as<GridEmbeddingImpl>())
+      grid->set_fused_inputs(c.attention == AttentionKernel::Fused);
 }
 
 void AbleNerfImpl::set_frequency_window(double alpha) {

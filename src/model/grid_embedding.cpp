@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "kernels/hash_grid.h"
+#include "kernels/sample_encoding_cpu.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
 
@@ -61,13 +62,20 @@ torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch:
   const double side = cube_.hi - cube_.lo;
   auto lead = mean.sizes().vec();
   lead.pop_back();
-  const auto unit = unit_coordinates(mean);
-  const auto inside = in_unit_cube(unit).unsqueeze(-1);  // (N,1)
-  // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
-  const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
   // The lookup is linear in the table: scaling its output by lr_scale reads table(), without
   // materialising the scaled table.
-  const auto weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;  // (N,L)
+  torch::Tensor unit, weights;  // (N,3), (N,L)
+  if (fused_inputs_ && sample_encoding_cpu_available({mean, cov, resolution_})) {
+    GridInputs in = grid_inputs_cpu(mean, cov, cube_.lo, cube_.hi, resolution_, lr_scale_);
+    unit = std::move(in.unit);
+    weights = std::move(in.weights);
+  } else {
+    unit = unit_coordinates(mean);
+    const auto inside = in_unit_cube(unit).unsqueeze(-1);  // (N,1)
+    // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
+    const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
+    weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;
+  }
   const auto features =
       hash_grid_encode(unit, table_, shape_, table_gradient_.get()) * weights.unsqueeze(-1);  // (N,L,F)
   lead.push_back(width());

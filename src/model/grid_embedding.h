@@ -55,11 +55,16 @@ class GridEmbeddingImpl : public torch::nn::Module {
   // Where a CPU training step's threads gather the table's gradient (kernels/table_gradient.h):
   // lookups on a thread with a slot open write there, and the step's finish puts the sum in .grad.
   TableGradient& table_gradient() const { return *table_gradient_; }
+  // Under compute.attention = "fused" (set by AbleNerf::set_compute) the points' unit coordinates
+  // and level weights come from one CPU loop (kernels/sample_encoding_cpu.h) where nothing
+  // differentiates through them; "plain" keeps the tensor ops below.
+  void set_fused_inputs(bool fused) { fused_inputs_ = fused; }
 
  private:
   HashGridShape shape_;
   GridCube cube_;
   double lr_scale_;
+  bool fused_inputs_ = true;
   // The points (N,3) in the cube's unit coordinates, and whether each lies in [0, 1]^3 -> (N) bool.
   torch::Tensor unit_coordinates(const torch::Tensor& mean) const;
   static torch::Tensor in_unit_cube(const torch::Tensor& unit);

@@ -1,8 +1,8 @@
 // The samples' Gaussians and encoding in one loop (kernels/sample_encoding_cpu.h) against the plain
 // path of the model's stages (model/frustum.h, model/contraction.h, model/ipe.h) computed in
-// float64: bounded and contracted scenes, samples inside and outside the unit ball, encodings of
-// one sample, a block's tail and several blocks, every vector form this CPU runs; the whole model
-// under "fused" against "plain"; bad inputs refused naming the argument.
+// float64: bounded and contracted scenes, the grid's unit coordinates and level weights, samples inside and outside the
+// unit ball, encodings of one sample, a block's tail and several blocks, every vector form this CPU runs; the whole
+// model under "fused" against "plain"; bad inputs refused naming the argument.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -12,6 +12,7 @@
 #include "model/compute.h"
 #include "model/contraction.h"
 #include "model/frustum.h"
+#include "model/grid_embedding.h"
 #include "model/ipe.h"
 #include "model/model_config.h"
 #include "test_util.h"
@@ -95,6 +96,58 @@ TEST(SampleEncoding, EncodingMatchesTheModelsIpeInEveryForm) {
   EXPECT_GE(ran, 12);  // the scalar form at least
 }
 
+TEST(SampleEncoding, GridInputsMatchTheGridsWeightsInEveryForm) {
+  // Points in and out of the cube [-2, 2]^3 (its faces included), variances from none (every level
+  // read whole) to wide (the fine levels faded out).
+  const int64_t n = 67;
+  auto mean = test::seeded_randn({n, 3}, 21, 1.5).to(torch::kFloat);
+  mean[0] = torch::tensor({2.0f, -2.0f, 0.0f});   // on the faces: inside
+  mean[1] = torch::tensor({2.001f, 0.0f, 0.0f});  // just outside
+  auto cov = (test::seeded_randn({n, 3}, 22, 1.0).abs() * 1e-3).to(torch::kFloat);
+  cov[2] = torch::zeros({3});
+  cov[3] = torch::full({3}, 0.5f);
+  const auto res = torch::tensor({16.0f, 45.0f, 128.0f, 362.0f, 1024.0f});
+  const double lo = -2, hi = 2, scale = 5;
+  const auto unit = (mean - lo) / (hi - lo);
+  const auto inside = ((unit >= 0) & (unit <= 1)).all(-1, /*keepdim=*/true);
+  const auto want = grid_level_weights(cov.mean(-1) / ((hi - lo) * (hi - lo)), res) * inside * scale;
+  ASSERT_TRUE(inside[0].item<bool>());
+  ASSERT_FALSE(inside[1].item<bool>());
+  int ran = 0;
+  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+    if (!cpu_vector_form_available(form)) continue;
+    GridInputs got;
+    try {
+      got = grid_inputs_cpu(mean, cov, lo, hi, res, scale, form);
+    } catch (const c10::Error& e) {
+      EXPECT_NE(std::string(e.what()).find("grid_inputs_cpu"), std::string::npos);
+      EXPECT_NE(form, CpuVectorForm::Scalar);
+      continue;
+    }
+    ++ran;
+    EXPECT_LT(test::max_abs(got.unit - unit), 1e-6) << static_cast<int>(form);
+    ASSERT_EQ(got.weights.sizes(), want.sizes());
+    EXPECT_LT(test::max_abs(got.weights - want), 2e-6 * scale) << static_cast<int>(form);
+    EXPECT_FLOAT_EQ(got.weights[2][4].item<float>(), float(scale));  // no variance: every level whole
+    EXPECT_EQ(got.weights[1].abs().sum().item<float>(), 0.0f);       // outside: nothing read
+  }
+  EXPECT_GE(ran, 1);
+  // Through the module: the grid's features alike with the loop and with the tensor ops.
+  GridEmbedding grid(hash_grid_shape(5, 2, 12, 16, 1024), GridCube{lo, hi}, scale);
+  {
+    torch::NoGradGuard no_grad;
+    grid->table_parameter().uniform_(-1e-2, 1e-2);
+  }
+  torch::Tensor features[2];
+  for (int i = 0; i < 2; ++i) {
+    grid->set_fused_inputs(i == 0);
+    torch::NoGradGuard no_grad;
+    features[i] = grid(mean, cov);
+  }
+  EXPECT_LT(test::max_abs(features[0] - features[1]), 1e-6);
+  EXPECT_GT(test::max_abs(features[1]), 1e-4);
+}
+
 TEST(SampleEncoding, TheWholeModelAgreesWithThePlainPath) {
   ModelConfig cfg;
   cfg.width = 32;
@@ -138,6 +191,12 @@ TEST(SampleEncoding, BadInputsAreRefusedNamingTheArgument) {
   const auto m = torch::zeros({5, 3});
   test::expect_error_naming([&] { integrated_pos_enc_cpu(m, torch::zeros({5, 2}), 4); }, "integrated_pos_enc_cpu: cov");
   test::expect_error_naming([&] { integrated_pos_enc_cpu(m, m, 0); }, "integrated_pos_enc_cpu: degrees");
+  test::expect_error_naming(
+      [&] {
+        grid_inputs_cpu(m, m, -1, 1, torch::ones({2, 2}), 1);
+      },
+      "grid_inputs_cpu: resolution");
+  test::expect_error_naming([&] { grid_inputs_cpu(m, m, 1, 1, torch::ones({2}), 1); }, "grid_inputs_cpu: the cube");
   // Not for inputs autograd has to differentiate.
   EXPECT_FALSE(sample_encoding_cpu_available({m.clone().requires_grad_()}));
 }
