@@ -89,39 +89,31 @@ void gaussians_rows(const float* t, const float* origins, const float* direction
   }
 }
 
-// In place over n floats: sine, and exponential.
-void sin_block(float* x, int64_t n, CpuVectorForm form);
-void exp_block(float* x, int64_t n, CpuVectorForm form);
-
 #ifdef ABLENERF_ENCODING_SLEEF
-__attribute__((target("avx512f"))) void sin_avx512(float* x, int64_t n) {
+// x[i] <- F(x[i]) over n floats, 16 at a time; the lanes past n read 1 (a harmless argument for
+// every F here) and are not stored.
+template <__m512 (*F)(__m512)>
+__attribute__((target("avx512f"))) void map_avx512(float* x, int64_t n) {
   int64_t i = 0;
-  for (; i + 16 <= n; i += 16) _mm512_storeu_ps(x + i, Sleef_sinf16_u10avx512f(_mm512_loadu_ps(x + i)));
+  for (; i + 16 <= n; i += 16) _mm512_storeu_ps(x + i, F(_mm512_loadu_ps(x + i)));
   if (i < n) {
     const __mmask16 k = static_cast<__mmask16>((1u << (n - i)) - 1u);
-    _mm512_mask_storeu_ps(x + i, k, Sleef_sinf16_u10avx512f(_mm512_maskz_loadu_ps(k, x + i)));
-  }
-}
-__attribute__((target("avx512f"))) void exp_avx512(float* x, int64_t n) {
-  int64_t i = 0;
-  for (; i + 16 <= n; i += 16) _mm512_storeu_ps(x + i, Sleef_expf16_u10avx512f(_mm512_loadu_ps(x + i)));
-  if (i < n) {
-    const __mmask16 k = static_cast<__mmask16>((1u << (n - i)) - 1u);
-    _mm512_mask_storeu_ps(x + i, k, Sleef_expf16_u10avx512f(_mm512_maskz_loadu_ps(k, x + i)));
+    _mm512_mask_storeu_ps(x + i, k, F(_mm512_mask_loadu_ps(_mm512_set1_ps(1.0f), k, x + i)));
   }
 }
 #endif
 
+// In place over n floats: sine, and exponential.
 void sin_block(float* x, int64_t n, CpuVectorForm form) {
 #ifdef ABLENERF_ENCODING_SLEEF
-  if (form == CpuVectorForm::Avx512) return sin_avx512(x, n);
+  if (form == CpuVectorForm::Avx512) return map_avx512<Sleef_sinf16_u10avx512f>(x, n);
 #endif
   for (int64_t i = 0; i < n; ++i) x[i] = std::sin(x[i]);
 }
 
 void exp_block(float* x, int64_t n, CpuVectorForm form) {
 #ifdef ABLENERF_ENCODING_SLEEF
-  if (form == CpuVectorForm::Avx512) return exp_avx512(x, n);
+  if (form == CpuVectorForm::Avx512) return map_avx512<Sleef_expf16_u10avx512f>(x, n);
 #endif
   for (int64_t i = 0; i < n; ++i) x[i] = std::exp(x[i]);
 }
@@ -158,10 +150,8 @@ void ipe_rows(const float* mean, const float* cov, int64_t n, int64_t degrees, C
   }
 }
 
-// x[i] <- erf(1 / sqrt(x[i])) for x >= 0 (x = 0 gives 1), in place over n floats.
-void erf_rsqrt_block(float* x, int64_t n, CpuVectorForm form);
-
 #ifdef ABLENERF_ENCODING_SLEEF
+// erf(1 / sqrt(x)) for x >= 0 (x = 0 gives 1).
 __attribute__((target("avx512f"))) __m512 erf_rsqrt16(__m512 x) {
   const __m512 one = _mm512_set1_ps(1.0f);
   // +inf at x = 0: t = 0, erf = 1. (The masked square root with every lane set: GCC 12's unmasked
@@ -176,21 +166,12 @@ __attribute__((target("avx512f"))) __m512 erf_rsqrt16(__m512 x) {
   return _mm512_sub_ps(one, _mm512_mul_ps(_mm512_mul_ps(t, poly), e));
 }
 
-__attribute__((target("avx512f"))) void erf_rsqrt_avx512(float* x, int64_t n) {
-  int64_t i = 0;
-  for (; i + 16 <= n; i += 16) _mm512_storeu_ps(x + i, erf_rsqrt16(_mm512_loadu_ps(x + i)));
-  if (i < n) {
-    const __mmask16 k = static_cast<__mmask16>((1u << (n - i)) - 1u);
-    // Lanes past n read 1 (a harmless argument) and are not stored.
-    const __m512 v = _mm512_mask_loadu_ps(_mm512_set1_ps(1.0f), k, x + i);
-    _mm512_mask_storeu_ps(x + i, k, erf_rsqrt16(v));
-  }
-}
 #endif
 
+// x[i] <- erf(1 / sqrt(x[i])) in place over n floats.
 void erf_rsqrt_block(float* x, int64_t n, CpuVectorForm form) {
 #ifdef ABLENERF_ENCODING_SLEEF
-  if (form == CpuVectorForm::Avx512) return erf_rsqrt_avx512(x, n);
+  if (form == CpuVectorForm::Avx512) return map_avx512<erf_rsqrt16>(x, n);
 #endif
   for (int64_t i = 0; i < n; ++i) x[i] = std::erf(1.0f / std::sqrt(x[i]));
 }
