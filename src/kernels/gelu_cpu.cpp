@@ -17,6 +17,7 @@ __m512 Sleef_expf16_u10avx512f(__m512);
 __m256 Sleef_expf8_u10avx2(__m256);
 }
 #pragma GCC pop_options
+#include "kernels/erfc_approx.h"
 #endif
 
 namespace ablenerf {
@@ -37,31 +38,18 @@ void gelu_scalar(const float* a, float* g, float* d, int64_t n) {
 }
 
 #ifdef ABLENERF_GELU_SLEEF
-// The vector forms take Phi from the same exp(-a^2 / 2) that phi needs, through Abramowitz and
-// Stegun's 7.1.26: erfc(z) = t (c1 + t (c2 + t (c3 + t (c4 + t c5)))) exp(-z^2), t = 1 / (1 + p z),
-// z >= 0, absolute error under 1.5e-7 (the form ATen's vectorised erf uses). Phi(a) = 1 - erfc(z) / 2
-// for a >= 0 and erfc(z) / 2 below, z = |a| / sqrt 2. Sleef's 1-ulp erf had taken 29% of the fused
-// block tail's forward, against 1% for its exp (docs/benchmarks/history.md, "Row loops in vectors").
-constexpr float kErfP = 0.3275911f;
-constexpr float kErfC1 = 0.254829592f, kErfC2 = -0.284496736f, kErfC3 = 1.421413741f, kErfC4 = -1.453152027f,
-                kErfC5 = 1.061405429f;
-
+// The vector forms take Phi from the same exp(-a^2 / 2) that phi needs (kernels/erfc_approx.h):
+// Phi(a) = 1 - erfc(z) / 2 for a >= 0 and erfc(z) / 2 below, z = |a| / sqrt 2. Sleef's 1-ulp erf had taken 29% of the
+// fused block tail's forward, against 1% for its exp (docs/benchmarks/history.md, "Row loops in vectors").
 __attribute__((target("avx512f"))) void gelu_avx512(const float* a, float* g, float* d, int64_t n) {
   const __m512 half = _mm512_set1_ps(0.5f), one = _mm512_set1_ps(1.0f), r2 = _mm512_set1_ps(kInvSqrt2),
-               r2pi = _mm512_set1_ps(kInvSqrt2Pi), minus_half = _mm512_set1_ps(-0.5f), p = _mm512_set1_ps(kErfP),
-               c1 = _mm512_set1_ps(kErfC1), c2 = _mm512_set1_ps(kErfC2), c3 = _mm512_set1_ps(kErfC3),
-               c4 = _mm512_set1_ps(kErfC4), c5 = _mm512_set1_ps(kErfC5), zero = _mm512_setzero_ps();
+               r2pi = _mm512_set1_ps(kInvSqrt2Pi), minus_half = _mm512_set1_ps(-0.5f), zero = _mm512_setzero_ps();
   int64_t i = 0;
   for (; i + 16 <= n; i += 16) {
     const __m512 x = _mm512_loadu_ps(a + i);
     const __m512 e = Sleef_expf16_u10avx512f(_mm512_mul_ps(minus_half, _mm512_mul_ps(x, x)));
     const __m512 z = _mm512_abs_ps(_mm512_mul_ps(x, r2));
-    const __m512 t = _mm512_div_ps(one, _mm512_fmadd_ps(p, z, one));
-    __m512 poly = _mm512_fmadd_ps(t, c5, c4);
-    poly = _mm512_fmadd_ps(t, poly, c3);
-    poly = _mm512_fmadd_ps(t, poly, c2);
-    poly = _mm512_fmadd_ps(t, poly, c1);
-    const __m512 tail = _mm512_mul_ps(half, _mm512_mul_ps(_mm512_mul_ps(t, poly), e));  // erfc(z) / 2
+    const __m512 tail = _mm512_mul_ps(half, _mm512_mul_ps(erfc_approx::factor16(z), e));  // erfc(z) / 2
     const __mmask16 positive = _mm512_cmp_ps_mask(x, zero, _CMP_GE_OQ);
     const __m512 cdf = _mm512_mask_sub_ps(tail, positive, one, tail);
     _mm512_storeu_ps(g + i, _mm512_mul_ps(x, cdf));
@@ -72,21 +60,14 @@ __attribute__((target("avx512f"))) void gelu_avx512(const float* a, float* g, fl
 
 __attribute__((target("avx2,fma"))) void gelu_avx2(const float* a, float* g, float* d, int64_t n) {
   const __m256 half = _mm256_set1_ps(0.5f), one = _mm256_set1_ps(1.0f), r2 = _mm256_set1_ps(kInvSqrt2),
-               r2pi = _mm256_set1_ps(kInvSqrt2Pi), minus_half = _mm256_set1_ps(-0.5f), p = _mm256_set1_ps(kErfP),
-               c1 = _mm256_set1_ps(kErfC1), c2 = _mm256_set1_ps(kErfC2), c3 = _mm256_set1_ps(kErfC3),
-               c4 = _mm256_set1_ps(kErfC4), c5 = _mm256_set1_ps(kErfC5), zero = _mm256_setzero_ps(),
+               r2pi = _mm256_set1_ps(kInvSqrt2Pi), minus_half = _mm256_set1_ps(-0.5f), zero = _mm256_setzero_ps(),
                sign = _mm256_set1_ps(-0.0f);
   int64_t i = 0;
   for (; i + 8 <= n; i += 8) {
     const __m256 x = _mm256_loadu_ps(a + i);
     const __m256 e = Sleef_expf8_u10avx2(_mm256_mul_ps(minus_half, _mm256_mul_ps(x, x)));
     const __m256 z = _mm256_andnot_ps(sign, _mm256_mul_ps(x, r2));
-    const __m256 t = _mm256_div_ps(one, _mm256_fmadd_ps(p, z, one));
-    __m256 poly = _mm256_fmadd_ps(t, c5, c4);
-    poly = _mm256_fmadd_ps(t, poly, c3);
-    poly = _mm256_fmadd_ps(t, poly, c2);
-    poly = _mm256_fmadd_ps(t, poly, c1);
-    const __m256 tail = _mm256_mul_ps(half, _mm256_mul_ps(_mm256_mul_ps(t, poly), e));
+    const __m256 tail = _mm256_mul_ps(half, _mm256_mul_ps(erfc_approx::factor8(z), e));
     const __m256 cdf = _mm256_blendv_ps(tail, _mm256_sub_ps(one, tail), _mm256_cmp_ps(x, zero, _CMP_GE_OQ));
     _mm256_storeu_ps(g + i, _mm256_mul_ps(x, cdf));
     _mm256_storeu_ps(d + i, _mm256_fmadd_ps(x, _mm256_mul_ps(r2pi, e), cdf));

@@ -19,6 +19,7 @@ __m512 Sleef_sinf16_u10avx512f(__m512);
 __m512 Sleef_expf16_u10avx512f(__m512);
 }
 #pragma GCC pop_options
+#include "kernels/erfc_approx.h"
 #endif
 
 namespace ablenerf {
@@ -29,11 +30,6 @@ namespace sample_encoding_impl {
 constexpr const char* kGaussiansOp = "sample_gaussians_cpu";
 constexpr const char* kIpeOp = "integrated_pos_enc_cpu";
 constexpr const char* kGridOp = "grid_inputs_cpu";
-// Abramowitz and Stegun 7.1.26 (kernels/gelu_cpu.cpp uses the same): for z >= 0,
-// erf(z) = 1 - t (c1 + t (c2 + t (c3 + t (c4 + t c5)))) exp(-z^2), t = 1 / (1 + p z).
-constexpr float kErfP = 0.3275911f;
-constexpr float kErfC1 = 0.254829592f, kErfC2 = -0.284496736f, kErfC3 = 1.421413741f, kErfC4 = -1.453152027f,
-                kErfC5 = 1.061405429f;
 // Samples whose angles and exponentials are taken at a time (their buffers stay in L1).
 constexpr int64_t kIpeBlock = 64;
 constexpr float kHalfPi = float(M_PI / 2.0);
@@ -158,12 +154,7 @@ __attribute__((target("avx512f"))) __m512 erf_rsqrt16(__m512 x) {
   // form reads an undefined vector and warns.)
   const __m512 z = _mm512_div_ps(one, _mm512_mask_sqrt_ps(x, static_cast<__mmask16>(0xFFFF), x));
   const __m512 e = Sleef_expf16_u10avx512f(_mm512_sub_ps(_mm512_setzero_ps(), _mm512_div_ps(one, x)));
-  const __m512 t = _mm512_div_ps(one, _mm512_fmadd_ps(_mm512_set1_ps(kErfP), z, one));
-  __m512 poly = _mm512_fmadd_ps(t, _mm512_set1_ps(kErfC5), _mm512_set1_ps(kErfC4));
-  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC3));
-  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC2));
-  poly = _mm512_fmadd_ps(t, poly, _mm512_set1_ps(kErfC1));
-  return _mm512_sub_ps(one, _mm512_mul_ps(_mm512_mul_ps(t, poly), e));
+  return _mm512_sub_ps(one, _mm512_mul_ps(erfc_approx::factor16(z), e));  // erf = 1 - erfc (kernels/erfc_approx.h)
 }
 
 #endif
