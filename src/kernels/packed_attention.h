@@ -17,14 +17,21 @@
 // the summation order and rounding inside the products and exp differ.
 #include <torch/torch.h>
 
+#include "kernels/cpu_features.h"
+
 namespace ablenerf {
 
 // True when these kernels can run on x: a CPU float32/float64 tensor and a BLAS providing
 // cblas_sgemm / cblas_dgemm in the process (found at run time).
 bool packed_attention_available(const torch::Tensor& x);
 
-// mask: additive (Lq, Lk), broadcast over rays and heads, or undefined. Differentiable.
-torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale);
-torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale);
+// mask: additive (Lq, Lk), broadcast over rays and heads, or undefined. Differentiable. `form`:
+// with Avx512 (on a CPU that runs it, in float32, heads of 16, 32, 48 or 64 and at most 64 queries
+// and keys) each (ray, head) is computed whole in vector registers, scores to result, the
+// backward likewise; otherwise, and always with Scalar, the products described above.
+torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
+                                    CpuVectorForm form = cpu_best_vector_form());
+torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
+                                     CpuVectorForm form = cpu_best_vector_form());
 
 }  // namespace ablenerf

@@ -13,6 +13,18 @@
 #include "kernels/small_gemm.h"
 #include "kernels/vector_exp.h"
 
+#if defined(ABLENERF_HAVE_SLEEF) && defined(ABLENERF_HAVE_AVX2_FORM)
+#define ABLENERF_ATTENTION_ITEMS_AVX512 1
+#include <immintrin.h>
+// Sleef's AVX-512 exp (see kernels/gelu_cpu.cpp on why it is declared here).
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx2,fma")
+extern "C" {
+__m512 Sleef_expf16_u10avx512f(__m512);
+}
+#pragma GCC pop_options
+#endif
+
 namespace ablenerf {
 
 namespace {
@@ -86,6 +98,7 @@ struct Problem {
   Operand<const T> q, k, v;
   torch::Tensor mask;  // (lq, lk) or undefined
   double scale;
+  bool vector_items;  // float items in AVX-512 registers (attention_items below)
   int64_t items() const { return b * heads; }
 };
 
@@ -142,6 +155,273 @@ void softmax_backward_rows(T* dp, const T* p, int64_t rows, int64_t lk) {
   }
 }
 
+// The float items in AVX-512 registers (CpuVectorForm::Avx512), where every head is one to four
+// 16-float vectors and a ray has at most 64 queries and 64 keys: one (ray, head) at a time, K (or
+// V) transposed once into a small buffer, each row of scores (up to four vectors) accumulated in
+// registers, masked, exponentiated (Sleef) and normalised there, and written once as the
+// probabilities the backward keeps; the products by a row of probabilities or gradients broadcast
+// one scalar against whole rows of V, dO, K or Q, four rows of the result at a time. The same sums
+// as the loops above in another order: float rounding apart, the same values.
+constexpr int64_t kItemMaxTokens = 64, kItemMaxVectors = 4, kLanes = 16;
+
+bool vector_items_fit(int64_t dh, int64_t lq, int64_t lk) {
+  return dh % kLanes == 0 && dh <= kItemMaxVectors * kLanes && lq >= 1 && lq <= kItemMaxTokens && lk >= 1 &&
+         lk <= kItemMaxTokens;
+}
+
+// Whether `form` selects the vector items for tensors of `type` on this CPU and build.
+bool vector_items_available(CpuVectorForm form, c10::ScalarType type) {
+#ifdef ABLENERF_ATTENTION_ITEMS_AVX512
+  return form == CpuVectorForm::Avx512 && type == torch::kFloat && cpu_has_avx512();
+#else
+  (void)form;
+  (void)type;
+  return false;
+#endif
+}
+
+#ifdef ABLENERF_ATTENTION_ITEMS_AVX512
+namespace attention_items {
+
+// One item's sizes: lq x lk scores in rows of nk vectors (ldt = 16 nk floats, the last vector's
+// `last` lanes valid), heads of m vectors.
+struct Shape {
+  int64_t lq, lk, dh, nk, m, ldt;
+  __mmask16 last;
+};
+
+Shape shape_of(int64_t lq, int64_t lk, int64_t dh) {
+  const int64_t nk = (lk + kLanes - 1) / kLanes, rem = lk - (nk - 1) * kLanes;
+  return {lq, lk, dh, nk, dh / kLanes, nk * kLanes, static_cast<__mmask16>((1u << rem) - 1u)};
+}
+
+ABLENERF_ALWAYS_INLINE __mmask16 lanes_of(const Shape& s, int v) { return v == s.nk - 1 ? s.last : 0xFFFF; }
+
+// t (dh x ldt) = x^T, x the lk rows of one head (row stride `row`); the padding columns keep
+// whatever they held (their scores are masked out).
+ABLENERF_ALWAYS_INLINE void transpose_head(const float* x, int64_t row, const Shape& s, float* t) {
+  for (int64_t j = 0; j < s.lk; ++j)
+    for (int64_t d = 0; d < s.dh; ++d) t[d * s.ldt + j] = x[j * row + d];
+}
+
+// acc[r] = row r of A (dh floats at a + r * lda) times t (dh x ldt): R score rows of NK vectors.
+template <int R, int NK>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_rows(const float* a, int64_t lda, const Shape& s,
+                                                              const float* t, __m512 (&acc)[R][NK]) {
+  for (int r = 0; r < R; ++r)
+    for (int v = 0; v < NK; ++v) acc[r][v] = _mm512_setzero_ps();
+  for (int64_t d = 0; d < s.dh; ++d) {
+    __m512 tv[NK];
+    for (int v = 0; v < NK; ++v) tv[v] = _mm512_load_ps(t + d * s.ldt + v * kLanes);
+    for (int r = 0; r < R; ++r) {
+      const __m512 x = _mm512_set1_ps(a[r * lda + d]);
+      for (int v = 0; v < NK; ++v) acc[r][v] = _mm512_fmadd_ps(x, tv[v], acc[r][v]);
+    }
+  }
+}
+
+// C (R rows of m vectors, row stride ldc) = alpha * op(A) B over k: op(A)(r, p) = a[r * si + p * sp],
+// B's rows k of dh floats (stride ldb).
+template <int R, int M>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void rows_times(int64_t k, float alpha, const float* a, int64_t si,
+                                                              int64_t sp, const float* b, int64_t ldb, float* c,
+                                                              int64_t ldc) {
+  __m512 acc[R][M];
+  for (int r = 0; r < R; ++r)
+    for (int v = 0; v < M; ++v) acc[r][v] = _mm512_setzero_ps();
+  for (int64_t p = 0; p < k; ++p) {
+    __m512 bv[M];
+    for (int v = 0; v < M; ++v) bv[v] = _mm512_loadu_ps(b + p * ldb + v * kLanes);
+    for (int r = 0; r < R; ++r) {
+      const __m512 x = _mm512_set1_ps(a[r * si + p * sp]);
+      for (int v = 0; v < M; ++v) acc[r][v] = _mm512_fmadd_ps(x, bv[v], acc[r][v]);
+    }
+  }
+  const __m512 al = _mm512_set1_ps(alpha);
+  for (int r = 0; r < R; ++r)
+    for (int v = 0; v < M; ++v) _mm512_storeu_ps(c + r * ldc + v * kLanes, _mm512_mul_ps(acc[r][v], al));
+}
+
+// All `rows` rows of C = alpha op(A) B, four at a time.
+template <int M>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void product_rows(int64_t rows, int64_t k, float alpha, const float* a,
+                                                                int64_t si, int64_t sp, const float* b, int64_t ldb,
+                                                                float* c, int64_t ldc) {
+  int64_t i = 0;
+  for (; i + 4 <= rows; i += 4) rows_times<4, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc);
+  switch (rows - i) {
+    case 3: rows_times<3, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
+    case 2: rows_times<2, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
+    case 1: rows_times<1, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
+    default: break;
+  }
+}
+
+// R rows of probabilities from their scores: scale, mask (additive, (lq, lk) from row i0), softmax,
+// written to p (row stride lk).
+template <int R, int NK>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void softmax_rows(__m512 (&acc)[R][NK], const Shape& s, float scale,
+                                                                const float* mask, float* p) {
+  const __m512 sc = _mm512_set1_ps(scale), minus_inf = _mm512_set1_ps(-std::numeric_limits<float>::infinity());
+  for (int r = 0; r < R; ++r) {
+    __m512 mx = minus_inf;
+    for (int v = 0; v < NK; ++v) {
+      const __mmask16 k = lanes_of(s, v);
+      __m512 x = _mm512_mul_ps(acc[r][v], sc);
+      if (mask) x = _mm512_add_ps(x, _mm512_maskz_loadu_ps(k, mask + r * s.lk + v * kLanes));
+      acc[r][v] = _mm512_mask_blend_ps(k, minus_inf, x);
+      mx = _mm512_max_ps(mx, acc[r][v]);
+    }
+    const __m512 top = _mm512_set1_ps(_mm512_reduce_max_ps(mx));
+    __m512 sum = _mm512_setzero_ps();
+    for (int v = 0; v < NK; ++v) {
+      acc[r][v] = Sleef_expf16_u10avx512f(_mm512_sub_ps(acc[r][v], top));
+      sum = _mm512_add_ps(sum, acc[r][v]);
+    }
+    const __m512 inv = _mm512_set1_ps(1.0f / _mm512_reduce_add_ps(sum));
+    for (int v = 0; v < NK; ++v)
+      _mm512_mask_storeu_ps(p + r * s.lk + v * kLanes, lanes_of(s, v), _mm512_mul_ps(acc[r][v], inv));
+  }
+}
+
+// R rows of the scores' gradient dS = P * (dP - rowsum(dP * P)) from dP in acc and P (row stride
+// lk), written to ds (row stride lk).
+template <int R, int NK>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void softmax_backward_rows(__m512 (&acc)[R][NK], const Shape& s,
+                                                                         const float* p, float* ds) {
+  for (int r = 0; r < R; ++r) {
+    __m512 pv[NK], dot = _mm512_setzero_ps();
+    for (int v = 0; v < NK; ++v) {
+      pv[v] = _mm512_maskz_loadu_ps(lanes_of(s, v), p + r * s.lk + v * kLanes);
+      dot = _mm512_fmadd_ps(acc[r][v], pv[v], dot);
+    }
+    const __m512 total = _mm512_set1_ps(_mm512_reduce_add_ps(dot));
+    for (int v = 0; v < NK; ++v)
+      _mm512_mask_storeu_ps(ds + r * s.lk + v * kLanes, lanes_of(s, v),
+                            _mm512_mul_ps(_mm512_sub_ps(acc[r][v], total), pv[v]));
+  }
+}
+
+// The probabilities of rows [i, i + R) of one item.
+template <int R, int NK>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void probability_rows(const float* q, int64_t q_row, const Shape& s,
+                                                                    const float* kt, float scale, const float* mask,
+                                                                    float* p) {
+  __m512 acc[R][NK];
+  score_rows<R, NK>(q, q_row, s, kt, acc);
+  softmax_rows<R, NK>(acc, s, scale, mask, p);
+}
+
+// The scores' gradient of rows [i, i + R) of one item.
+template <int R, int NK>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_gradient_rows(const float* go, int64_t go_row, const Shape& s,
+                                                                       const float* vt, const float* p, float* ds) {
+  __m512 acc[R][NK];
+  score_rows<R, NK>(go, go_row, s, vt, acc);
+  softmax_backward_rows<R, NK>(acc, s, p, ds);
+}
+
+// Forward of items [lo, hi): probabilities into p (hi - lo planes of lq x lk), results into out.
+template <int NK, int M>
+ABLENERF_TARGET_AVX512 void forward_items(const Problem<float>& pr, int64_t lo, int64_t hi, float* p,
+                                          const Operand<float>& out) {
+  const Shape s = shape_of(pr.lq, pr.lk, pr.dh);
+  alignas(64) float kt[kItemMaxVectors * kLanes * kItemMaxTokens] = {};
+  const float* mask = pr.mask.defined() ? pr.mask.data_ptr<float>() : nullptr;
+  const float scale = static_cast<float>(pr.scale);
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    float* pp = p + (it - lo) * s.lq * s.lk;
+    const float* q = pr.q.at(b, h, s.dh);
+    transpose_head(pr.k.at(b, h, s.dh), pr.k.row, s, kt);
+    int64_t i = 0;
+    for (; i + 4 <= s.lq; i += 4)
+      probability_rows<4, NK>(q + i * pr.q.row, pr.q.row, s, kt, scale, mask ? mask + i * s.lk : nullptr,
+                              pp + i * s.lk);
+    for (; i < s.lq; ++i)
+      probability_rows<1, NK>(q + i * pr.q.row, pr.q.row, s, kt, scale, mask ? mask + i * s.lk : nullptr,
+                              pp + i * s.lk);
+    product_rows<M>(s.lq, s.lk, 1.0f, pp, s.lk, 1, pr.v.at(b, h, s.dh), pr.v.row, out.at(b, h, s.dh), out.row);
+  }
+}
+
+// Gradients of items [lo, hi), as backward_items above.
+template <int NK, int M>
+ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
+                                           const Operand<const float>& go, const Operand<float>& dq,
+                                           const Operand<float>& dk, const Operand<float>& dv) {
+  const Shape s = shape_of(pr.lq, pr.lk, pr.dh);
+  alignas(64) float vt[kItemMaxVectors * kLanes * kItemMaxTokens] = {};
+  float ds[kItemMaxTokens * kItemMaxTokens];
+  const float scale = static_cast<float>(pr.scale);
+  for (int64_t it = lo; it < hi; ++it) {
+    const int64_t b = it / pr.heads, h = it % pr.heads;
+    const float* pp = p + (it - lo) * s.lq * s.lk;
+    const float* g = go.at(b, h, s.dh);
+    // dV = P^T dO; dS from dP = dO V^T; dQ = s dS K; dK = s dS^T Q.
+    product_rows<M>(s.lk, s.lq, 1.0f, pp, 1, s.lk, g, go.row, dv.at(b, h, s.dh), dv.row);
+    transpose_head(pr.v.at(b, h, s.dh), pr.v.row, s, vt);
+    int64_t i = 0;
+    for (; i + 4 <= s.lq; i += 4)
+      score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
+    for (; i < s.lq; ++i) score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
+    product_rows<M>(s.lq, s.lk, scale, ds, s.lk, 1, pr.k.at(b, h, s.dh), pr.k.row, dq.at(b, h, s.dh), dq.row);
+    product_rows<M>(s.lk, s.lq, scale, ds, 1, s.lk, pr.q.at(b, h, s.dh), pr.q.row, dk.at(b, h, s.dh), dk.row);
+  }
+}
+
+// The instantiation for the problem's score vectors (nk) and head vectors (m), both 1 to 4.
+template <class F>
+void dispatch(const Problem<float>& pr, F&& f) {
+  const int64_t nk = (pr.lk + kLanes - 1) / kLanes, m = pr.dh / kLanes;
+  switch (nk * 8 + m) {
+#define ABLENERF_ITEMS_CASE(NK, M) \
+  case NK * 8 + M:                 \
+    return f(std::integral_constant<int, NK>(), std::integral_constant<int, M>());
+#define ABLENERF_ITEMS_ROW(NK) \
+  ABLENERF_ITEMS_CASE(NK, 1) ABLENERF_ITEMS_CASE(NK, 2) ABLENERF_ITEMS_CASE(NK, 3) ABLENERF_ITEMS_CASE(NK, 4)
+    ABLENERF_ITEMS_ROW(1)
+    ABLENERF_ITEMS_ROW(2)
+    ABLENERF_ITEMS_ROW(3)
+    ABLENERF_ITEMS_ROW(4)
+#undef ABLENERF_ITEMS_ROW
+#undef ABLENERF_ITEMS_CASE
+    default: TORCH_CHECK(false, "packed attention: no vector form for ", pr.lk, " keys and heads of ", pr.dh);
+  }
+}
+
+}  // namespace attention_items
+#endif
+
+// The items [lo, hi) in the vector form when the problem chose it (float only): true when done.
+template <class T>
+bool forward_vector_items(const Problem<T>&, int64_t, int64_t, T*, const Operand<T>&) {
+  return false;
+}
+template <class T>
+bool backward_vector_items(const Problem<T>&, int64_t, int64_t, const T*, const Operand<const T>&, const Operand<T>&,
+                           const Operand<T>&, const Operand<T>&) {
+  return false;
+}
+#ifdef ABLENERF_ATTENTION_ITEMS_AVX512
+bool forward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, float* p, const Operand<float>& out) {
+  if (!pr.vector_items) return false;
+  attention_items::dispatch(pr, [&](auto nk, auto m) {
+    attention_items::forward_items<decltype(nk)::value, decltype(m)::value>(pr, lo, hi, p, out);
+  });
+  return true;
+}
+bool backward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
+                           const Operand<const float>& go, const Operand<float>& dq, const Operand<float>& dk,
+                           const Operand<float>& dv) {
+  if (!pr.vector_items) return false;
+  attention_items::dispatch(pr, [&](auto nk, auto m) {
+    attention_items::backward_items<decltype(nk)::value, decltype(m)::value>(pr, lo, hi, p, go, dq, dk, dv);
+  });
+  return true;
+}
+#endif
+
 // Probabilities of items [lo, hi) into p (hi - lo, lq, lk) and their weighted values into out.
 template <class T>
 void forward_items(const Problem<T>& pr, int64_t lo, int64_t hi, torch::Tensor p, const Operand<T>& out) {
@@ -171,7 +451,7 @@ torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& opti
   const SingleThreadedBlas single;  // also when serial: OpenBLAS's pool costs more than it saves here
   parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     auto p = keep.defined() ? keep.slice(0, lo, hi) : torch::empty({hi - lo, pr.lq, pr.lk}, options);
-    forward_items(pr, lo, hi, p, o);
+    if (!forward_vector_items(pr, lo, hi, p.template data_ptr<T>(), o)) forward_items(pr, lo, hi, p, o);
   });
   return out;
 }
@@ -217,8 +497,10 @@ KvColumns kv_columns(bool self, int64_t width) { return self ? KvColumns{width, 
 // self-attention kv is q_src).
 template <class T>
 Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, bool self, int64_t heads, int64_t width,
-                        const torch::Tensor& mask, double scale) {
+                        const torch::Tensor& mask, double scale, CpuVectorForm form) {
   const KvColumns c = kv_columns(self, width);
+  const bool vector_items =
+      vector_items_available(form, q_src.scalar_type()) && vector_items_fit(width / heads, q_src.size(1), kv.size(1));
   Problem<T> pr{kv.size(0),
                 heads,
                 width / heads,
@@ -228,7 +510,8 @@ Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, boo
                 operand<T>(kv, c.k),
                 operand<T>(kv, c.v),
                 mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(),
-                scale};
+                scale,
+                vector_items};
   return pr;
 }
 
@@ -239,19 +522,21 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
   // kv_src empty = self-attention (K and V inside q_src).
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
                                const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads, int64_t width,
-                               double scale) {
+                               double scale, int64_t form) {
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
     torch::Tensor out;
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
-      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale);
+      const auto pr =
+          make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, static_cast<CpuVectorForm>(form));
       out = forward_all(pr, q_src.options(), p);
     });
     ctx->save_for_backward({q_src, kv_src, mask, p});
     ctx->saved_data["heads"] = heads;
     ctx->saved_data["width"] = width;
     ctx->saved_data["scale"] = scale;
+    ctx->saved_data["form"] = form;
     return out;
   }
 
@@ -261,6 +546,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     const auto &q_src = saved[0], &kv_src = saved[1], &mask = saved[2], &p = saved[3];
     const int64_t heads = ctx->saved_data["heads"].toInt(), width = ctx->saved_data["width"].toInt();
     const double scale = ctx->saved_data["scale"].toDouble();
+    const auto form = static_cast<CpuVectorForm>(ctx->saved_data["form"].toInt());
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     const int64_t b = kv.size(0);
@@ -270,7 +556,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     auto d_kv = torch::empty({b, kv.size(1), kv.size(2)}, kv.options());
     auto d_q = self ? d_kv : torch::empty({b, q_src.size(1), width}, q_src.options());
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention_backward", [&] {
-      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale);
+      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, form);
       const Operand<const scalar_t> g{go.data_ptr<scalar_t>(), go.size(1) * go.size(2), go.size(2)};
       const auto out_operand = [](torch::Tensor& x, int64_t offset) {
         return Operand<scalar_t>{x.data_ptr<scalar_t>() + offset, x.size(1) * x.size(2), x.size(2)};
@@ -279,17 +565,21 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
       const KvColumns c = kv_columns(self, width);
       const auto dk = out_operand(d_kv, c.k), dv = out_operand(d_kv, c.v);
       const SingleThreadedBlas single;
-      parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread),
-                      [&](int64_t, int64_t lo, int64_t hi) { backward_items(pr, lo, hi, p, g, dq, dk, dv); });
+      parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
+        if (!backward_vector_items(pr, lo, hi, p.data_ptr<scalar_t>() + lo * pr.lq * pr.lk, g, dq, dk, dv))
+          backward_items(pr, lo, hi, p, g, dq, dk, dv);
+      });
     });
-    if (self) return {d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+    if (self)
+      return {d_kv,           torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(),
+              torch::Tensor()};
     if (q_src.size(0) == 1 && b != 1) d_q = d_q.sum(0, /*keepdim=*/true);
-    return {d_q, d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+    return {d_q, d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
   }
 };
 
 torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
-                  int64_t width, double scale) {
+                  int64_t width, double scale, CpuVectorForm form) {
   RECORD_FUNCTION("ablenerf::packed_attention", std::vector<c10::IValue>());
   const bool self = !kv_src.defined();
   TORCH_CHECK(width % heads == 0, "packed attention: width ", width, " is not divisible by ", heads, " heads");
@@ -302,11 +592,12 @@ torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const
   const bool needs_graph = torch::GradMode::is_enabled() && (q.requires_grad() || (kv.defined() && kv.requires_grad()));
   if (needs_graph)
     return PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
-                                          m.defined() ? m : torch::empty({0}, q.options()), heads, width, scale);
+                                          m.defined() ? m : torch::empty({0}, q.options()), heads, width, scale,
+                                          static_cast<int64_t>(form));
   torch::Tensor out;
   AT_DISPATCH_FLOATING_TYPES(q.scalar_type(), "packed_attention_inference", [&] {
     const auto& kvt = self ? q : kv;
-    const auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale);
+    const auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale, form);
     out = forward_all(pr, q.options(), torch::Tensor());
   });
   return out;
@@ -321,16 +612,18 @@ bool packed_attention_available(const torch::Tensor& x) {
   return false;
 }
 
-torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale) {
+torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
+                                    CpuVectorForm form) {
   TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale);
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form);
 }
 
-torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale) {
+torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
+                                     CpuVectorForm form) {
   TORCH_CHECK(
       q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
       "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ", kv.sizes());
-  return run(q, kv, torch::Tensor(), heads, q.size(2), scale);
+  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form);
 }
 
 }  // namespace ablenerf

@@ -18,9 +18,15 @@ constexpr int64_t kBatch = 24, kHeads = 3, kHeadDim = 4, kWidth = kHeads * kHead
 constexpr int64_t kTokens = 7;
 constexpr double kScale = 0.4;
 
+// The heads of one call: H heads of dh.
+struct Heads {
+  int64_t count = kHeads, dim = kHeadDim;
+  int64_t width() const { return count * dim; }
+};
+
 // Heads of a packed (B, L, C) tensor at columns [offset, offset + E): (B, H, L, dh).
-torch::Tensor heads_of(const torch::Tensor& x, int64_t offset) {
-  return x.narrow(2, offset, kWidth).reshape({x.size(0), x.size(1), kHeads, kHeadDim}).transpose(1, 2);
+torch::Tensor heads_of(const torch::Tensor& x, int64_t offset, Heads h = {}) {
+  return x.narrow(2, offset, h.width()).reshape({x.size(0), x.size(1), h.count, h.dim}).transpose(1, 2);
 }
 
 // The ray mask over n tokens, additive: row 0 (the ray token) sees every column, row i >= 1 sees
@@ -32,31 +38,35 @@ torch::Tensor ray_mask(int64_t n, torch::ScalarType t = torch::kFloat) {
 }
 
 torch::Tensor reference(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
-                        const torch::Tensor& mask) {
-  const auto q = heads_of(q_src, 0), k = heads_of(kv_src, k_off), v = heads_of(kv_src, v_off);
+                        const torch::Tensor& mask, Heads h = {}) {
+  const auto q = heads_of(q_src, 0, h), k = heads_of(kv_src, k_off, h), v = heads_of(kv_src, v_off, h);
   auto s = torch::matmul(q, k.transpose(-2, -1)) * kScale;
   if (mask.defined()) s = s + mask;
   const auto o = torch::matmul(torch::softmax(s, -1), v);  // (B, H, Lq, dh)
-  return o.transpose(1, 2).reshape({kv_src.size(0), q_src.size(1), kWidth});
+  return o.transpose(1, 2).reshape({kv_src.size(0), q_src.size(1), h.width()});
 }
 
 struct Case {
   torch::Tensor q, kv;  // kv undefined = self-attention (q holds Q, K, V)
   torch::Tensor mask;
+  Heads heads = {};
+  CpuVectorForm form = cpu_best_vector_form();
 };
 
 // Values and gradients of the kernel and of the reference for the same upstream gradient.
 void compare(const Case& c, double tol) {
   const bool self = !c.kv.defined();
+  const int64_t e = c.heads.width();
   std::vector<torch::Tensor> got, want;
   for (auto* out : {&got, &want}) {
     auto q = c.q.clone().requires_grad_();
     auto kv = self ? torch::Tensor() : c.kv.clone().requires_grad_();
     torch::Tensor o;
     if (out == &got) {
-      o = self ? packed_self_attention(q, kHeads, c.mask, kScale) : packed_cross_attention(q, kv, kHeads, kScale);
+      o = self ? packed_self_attention(q, c.heads.count, c.mask, kScale, c.form)
+               : packed_cross_attention(q, kv, c.heads.count, kScale, c.form);
     } else {
-      o = self ? reference(q, q, kWidth, 2 * kWidth, c.mask) : reference(q, kv, 0, kWidth, c.mask);
+      o = self ? reference(q, q, e, 2 * e, c.mask, c.heads) : reference(q, kv, 0, e, c.mask, c.heads);
     }
     auto gen = at::detail::createCPUGenerator(3);
     const auto upstream = torch::randn(o.sizes(), gen, o.options());
@@ -108,6 +118,40 @@ TEST(PackedAttention, CrossAttentionMatchesReference) {
   compare({rnd({1, 5, kWidth}, torch::kFloat, 8), rnd({kBatch, kTokens, 2 * kWidth}, torch::kFloat, 9), {}}, 1e-4);
 }
 
+// Heads of whole 16-float vectors, where a CPU with AVX-512 computes each (ray, head) in
+// registers: the presets' shapes (2 heads of 16 over 17 tokens, 8 shared queries) and odd ones (one
+// token, one key, a query count that is not a multiple of the four rows taken at once, 64 tokens
+// = four whole score vectors, 65 = past the vector form, so through the products), in both forms.
+TEST(PackedAttention, WholeVectorHeadsMatchReferenceInEveryForm) {
+  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+    if (!cpu_vector_form_available(form)) continue;
+    SCOPED_TRACE(form == CpuVectorForm::Avx512 ? "avx512" : "scalar");
+    uint64_t seed = 100;
+    for (const Heads h : {Heads{2, 16}, Heads{1, 32}, Heads{3, 48}, Heads{1, 64}}) {
+      for (const int64_t tokens : {1, 2, 5, 17, 33, 64, 65}) {
+        SCOPED_TRACE("heads " + std::to_string(h.count) + " x " + std::to_string(h.dim) + ", tokens " +
+                     std::to_string(tokens));
+        const int64_t e = h.width();
+        const auto mask = ray_mask(tokens);
+        compare({rnd({3, tokens, 3 * e}, torch::kFloat, ++seed), {}, mask, h, form}, 2e-5);
+        compare({rnd({3, tokens, 3 * e}, torch::kFloat, ++seed), {}, {}, h, form}, 2e-5);
+        compare({rnd({1, 9, e}, torch::kFloat, ++seed), rnd({3, tokens, 2 * e}, torch::kFloat, ++seed), {}, h, form},
+                2e-5);
+        compare({rnd({3, 6, e}, torch::kFloat, ++seed), rnd({3, tokens, 2 * e}, torch::kFloat, ++seed), {}, h, form},
+                2e-5);
+      }
+    }
+  }
+}
+
+// The vector form over more rays than one thread takes (the items split between threads).
+TEST(PackedAttention, WholeVectorHeadsSplitAcrossThreads) {
+  const test::IntraOpThreads threads(2);
+  const Heads h{2, 16};
+  compare({rnd({64, 17, 3 * h.width()}, torch::kFloat, 200), {}, ray_mask(17), h}, 2e-5);
+  compare({rnd({1, 9, h.width()}, torch::kFloat, 201), rnd({64, 17, 2 * h.width()}, torch::kFloat, 202), {}, h}, 2e-5);
+}
+
 TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
@@ -116,6 +160,12 @@ TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   const auto want = reference(qkv, qkv, kWidth, 2 * kWidth, mask);
   c10::InferenceMode guard;
   EXPECT_LT((packed_self_attention(qkv, kHeads, mask, kScale) - want).abs().max().item<double>(), 1e-5);
+  // Heads of 16 (the vector form where the CPU runs it).
+  const Heads h{2, 16};
+  const auto wide = rnd({kBatch, 17, 3 * h.width()}, torch::kFloat, 11);
+  const auto wide_mask = ray_mask(17);
+  const auto wide_want = reference(wide, wide, h.width(), 2 * h.width(), wide_mask, h);
+  EXPECT_LT((packed_self_attention(wide, h.count, wide_mask, kScale) - wide_want).abs().max().item<double>(), 1e-5);
 }
 
 TEST(PackedAttention, AvailableOnlyForCpuFloatingPoint) {
