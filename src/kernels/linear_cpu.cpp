@@ -74,7 +74,10 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
       dx = torch::empty({m, k}, x.options());
       small_gemm(false, m, k, n, 1.0f, dy.data_ptr<float>(), n, weight.data_ptr<float>(), k, dx.data_ptr<float>(), k);
     }
-    if (ctx->needs_input_grad(1)) dw = dy.t().mm(x);
+    if (ctx->needs_input_grad(1)) {
+      dw = torch::empty({n, k}, x.options());
+      small_gemm(true, n, k, m, 1.0f, dy.data_ptr<float>(), n, x.data_ptr<float>(), k, dw.data_ptr<float>(), k);
+    }
     if (ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(2)) db = column_sums(dy);
     return {dx, dw, db};
   }

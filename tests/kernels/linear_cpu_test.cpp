@@ -42,6 +42,8 @@ void compare_linear(const LinearCase& c, uint64_t seed) {
 TEST(LinearCpu, MatchesTorchLinear) {
   uint64_t seed = 1;
   for (const LinearCase& c : std::vector<LinearCase>{{2176, 48, 144, true},  // the demo preset's QKV projection
+                                                     {2176, 32, 96, true},   // the capture preset's
+                                                     {2176, 64, 32, true},
                                                      {300, 48, 48, false},
                                                      {37, 60, 48, true},   // an embedding layer's odd input width
                                                      {50, 100, 13, true},  // columns over, reduction > 64
