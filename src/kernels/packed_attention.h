@@ -34,17 +34,4 @@ torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, con
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
                                      CpuVectorForm form = cpu_best_vector_form());
 
-// The same with the first query's attention probabilities beside the result: row0 (B, H, Lk), as
-// differentiable as the result (its gradient joins the scores' in the same backward). The model's
-// ray token is the first query, and a loss on its attention row (the resampler's weights,
-// distortion) otherwise needs Q and K sliced out of the packed tensor, whose gradients are
-// zero-filled tensors of the packed size summed into it.
-struct PackedAttention {
-  torch::Tensor out, row0;
-};
-PackedAttention packed_self_attention_row0(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
-                                           double scale, CpuVectorForm form = cpu_best_vector_form());
-PackedAttention packed_cross_attention_row0(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads,
-                                            double scale, CpuVectorForm form = cpu_best_vector_form());
-
 }  // namespace ablenerf

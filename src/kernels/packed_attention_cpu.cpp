@@ -99,10 +99,6 @@ struct Problem {
   torch::Tensor mask;  // (lq, lk) or undefined
   double scale;
   bool vector_items;  // float items in AVX-512 registers (attention_items below)
-  // The first query's probabilities (items x lk): written by the forward when row0 is set; their
-  // gradient added to the scores' by the backward when row0_grad is set.
-  T* row0 = nullptr;
-  const T* row0_grad = nullptr;
   int64_t items() const { return b * heads; }
 };
 
@@ -316,17 +312,12 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void probability_rows(const float*
   softmax_rows<R, NK>(acc, s, scale, mask, p);
 }
 
-// The scores' gradient of rows [i, i + R) of one item; row0_grad: the first row's probabilities'
-// own gradient (lk floats), added to its dP, or null.
+// The scores' gradient of rows [i, i + R) of one item.
 template <int R, int NK>
 ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_gradient_rows(const float* go, int64_t go_row, const Shape& s,
-                                                                       const float* vt, const float* p, float* ds,
-                                                                       const float* row0_grad) {
+                                                                       const float* vt, const float* p, float* ds) {
   __m512 acc[R][NK];
   score_rows<R, NK>(go, go_row, s, vt, acc);
-  if (row0_grad)
-    for (int v = 0; v < NK; ++v)
-      acc[0][v] = _mm512_add_ps(acc[0][v], _mm512_maskz_loadu_ps(lanes_of(s, v), row0_grad + v * kLanes));
   softmax_backward_rows<R, NK>(acc, s, p, ds);
 }
 
@@ -370,14 +361,10 @@ ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo,
     // dV = P^T dO; dS from dP = dO V^T; dQ = s dS K; dK = s dS^T Q.
     product_rows<M>(s.lk, s.lq, 1.0f, pp, 1, s.lk, g, go.row, dv.at(b, h, s.dh), dv.row);
     transpose_head(pr.v.at(b, h, s.dh), pr.v.row, s, vt);
-    const float* row0_grad = pr.row0_grad ? pr.row0_grad + it * s.lk : nullptr;
     int64_t i = 0;
     for (; i + 4 <= s.lq; i += 4)
-      score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk,
-                                 i == 0 ? row0_grad : nullptr);
-    for (; i < s.lq; ++i)
-      score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk,
-                                 i == 0 ? row0_grad : nullptr);
+      score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
+    for (; i < s.lq; ++i) score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
     product_rows<M>(s.lq, s.lk, scale, ds, s.lk, 1, pr.k.at(b, h, s.dh), pr.k.row, dq.at(b, h, s.dh), dq.row);
     product_rows<M>(s.lk, s.lq, scale, ds, 1, s.lk, pr.q.at(b, h, s.dh), pr.q.row, dk.at(b, h, s.dh), dk.row);
   }
@@ -465,9 +452,6 @@ torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& opti
   parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     auto p = keep.defined() ? keep.slice(0, lo, hi) : torch::empty({hi - lo, pr.lq, pr.lk}, options);
     if (!forward_vector_items(pr, lo, hi, p.template data_ptr<T>(), o)) forward_items(pr, lo, hi, p, o);
-    if (pr.row0)
-      for (int64_t it = lo; it < hi; ++it)
-        std::copy_n(p.template data_ptr<T>() + (it - lo) * pr.lq * pr.lk, pr.lk, pr.row0 + it * pr.lk);
   });
   return out;
 }
@@ -491,9 +475,6 @@ void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::T
             dv.at(b, h, pr.dh), dv.row, scratch);
   }
   // Softmax backward: dS = P * (dP - rowsum(dP * P)), in place; the scale multiplies dQ and dK below.
-  if (pr.row0_grad)
-    for (int64_t it = lo; it < hi; ++it)
-      for (int64_t j = 0; j < pr.lk; ++j) dpp[(it - lo) * plane + j] += pr.row0_grad[it * pr.lk + j];
   softmax_backward_rows(dpp, pp, (hi - lo) * pr.lq, pr.lk);
   const T* dsp = dpp;
   for (int64_t it = lo; it < hi; ++it) {
@@ -539,20 +520,16 @@ Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, boo
 class PackedAttentionFunction : public torch::autograd::Function<PackedAttentionFunction> {
  public:
   // kv_src empty = self-attention (K and V inside q_src).
-  // Outputs: the result, and with want_row0 the first query's probabilities (B, H, Lk), else an
-  // empty tensor.
-  static torch::autograd::variable_list forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
-                                                const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
-                                                int64_t width, double scale, int64_t form, bool want_row0) {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
+                               const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads, int64_t width,
+                               double scale, int64_t form) {
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
-    auto row0 = torch::empty(want_row0 ? std::vector<int64_t>{kv.size(0), heads, kv.size(1)} : std::vector<int64_t>{0},
-                             q_src.options());
     torch::Tensor out;
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
-      auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, static_cast<CpuVectorForm>(form));
-      if (want_row0) pr.row0 = row0.data_ptr<scalar_t>();
+      const auto pr =
+          make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, static_cast<CpuVectorForm>(form));
       out = forward_all(pr, q_src.options(), p);
     });
     ctx->save_for_backward({q_src, kv_src, mask, p});
@@ -560,7 +537,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     ctx->saved_data["width"] = width;
     ctx->saved_data["scale"] = scale;
     ctx->saved_data["form"] = form;
-    return {out, row0};
+    return out;
   }
 
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
@@ -573,17 +550,13 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     const int64_t b = kv.size(0);
-    const auto go =
-        grads[0].defined() ? grads[0].contiguous() : torch::zeros({b, q_src.size(1), width}, q_src.options());
-    const auto row0_grad =
-        grads.size() > 1 && grads[1].defined() && grads[1].numel() > 0 ? grads[1].contiguous() : torch::Tensor();
+    const auto go = grads[0].contiguous();
     // Self: one (B, L, 3E) gradient. Cross: dQ per ray (summed afterwards when the queries are
     // shared by the batch) and one (B, Lk, 2E) gradient for K and V.
     auto d_kv = torch::empty({b, kv.size(1), kv.size(2)}, kv.options());
     auto d_q = self ? d_kv : torch::empty({b, q_src.size(1), width}, q_src.options());
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention_backward", [&] {
-      auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, form);
-      if (row0_grad.defined()) pr.row0_grad = row0_grad.data_ptr<scalar_t>();
+      const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, form);
       const Operand<const scalar_t> g{go.data_ptr<scalar_t>(), go.size(1) * go.size(2), go.size(2)};
       const auto out_operand = [](torch::Tensor& x, int64_t offset) {
         return Operand<scalar_t>{x.data_ptr<scalar_t>() + offset, x.size(1) * x.size(2), x.size(2)};
@@ -598,28 +571,15 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
       });
     });
     if (self)
-      return {d_kv,
-              torch::Tensor(),
-              torch::Tensor(),
-              torch::Tensor(),
-              torch::Tensor(),
-              torch::Tensor(),
-              torch::Tensor(),
+      return {d_kv,           torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(),
               torch::Tensor()};
     if (q_src.size(0) == 1 && b != 1) d_q = d_q.sum(0, /*keepdim=*/true);
-    return {d_q,
-            d_kv,
-            torch::Tensor(),
-            torch::Tensor(),
-            torch::Tensor(),
-            torch::Tensor(),
-            torch::Tensor(),
-            torch::Tensor()};
+    return {d_q, d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
   }
 };
 
-PackedAttention run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
-                    int64_t width, double scale, CpuVectorForm form, bool want_row0) {
+torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
+                  int64_t width, double scale, CpuVectorForm form) {
   RECORD_FUNCTION("ablenerf::packed_attention", std::vector<c10::IValue>());
   const bool self = !kv_src.defined();
   TORCH_CHECK(width % heads == 0, "packed attention: width ", width, " is not divisible by ", heads, " heads");
@@ -630,21 +590,17 @@ PackedAttention run(const torch::Tensor& q_src, const torch::Tensor& kv_src, con
   TORCH_CHECK(!m.defined() || m.numel() == 0 || (m.dim() == 2 && m.size(0) == q.size(1) && m.size(1) == lk),
               "packed attention: the mask must be (", q.size(1), ", ", lk, "), got ", m.sizes());
   const bool needs_graph = torch::GradMode::is_enabled() && (q.requires_grad() || (kv.defined() && kv.requires_grad()));
-  if (needs_graph) {
-    const auto outs = PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
-                                                     m.defined() ? m : torch::empty({0}, q.options()), heads, width,
-                                                     scale, static_cast<int64_t>(form), want_row0);
-    return {outs[0], want_row0 ? outs[1] : torch::Tensor()};
-  }
-  const auto& kvt = self ? q : kv;
-  PackedAttention r;
-  if (want_row0) r.row0 = torch::empty({kvt.size(0), heads, kvt.size(1)}, q.options());
+  if (needs_graph)
+    return PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
+                                          m.defined() ? m : torch::empty({0}, q.options()), heads, width, scale,
+                                          static_cast<int64_t>(form));
+  torch::Tensor out;
   AT_DISPATCH_FLOATING_TYPES(q.scalar_type(), "packed_attention_inference", [&] {
-    auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale, form);
-    if (want_row0) pr.row0 = r.row0.data_ptr<scalar_t>();
-    r.out = forward_all(pr, q.options(), torch::Tensor());
+    const auto& kvt = self ? q : kv;
+    const auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale, form);
+    out = forward_all(pr, q.options(), torch::Tensor());
   });
-  return r;
+  return out;
 }
 
 }  // namespace
@@ -656,36 +612,18 @@ bool packed_attention_available(const torch::Tensor& x) {
   return false;
 }
 
-PackedAttention packed_self_attention_row0(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
-                                           double scale, CpuVectorForm form) {
-  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, true);
-}
-
 torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
                                     CpuVectorForm form) {
   TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, false).out;
-}
-
-namespace {
-void check_cross(const torch::Tensor& q, const torch::Tensor& kv) {
-  TORCH_CHECK(
-      q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
-      "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ", kv.sizes());
-}
-}  // namespace
-
-PackedAttention packed_cross_attention_row0(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads,
-                                            double scale, CpuVectorForm form) {
-  check_cross(q, kv);
-  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form, true);
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form);
 }
 
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
                                      CpuVectorForm form) {
-  check_cross(q, kv);
-  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form, false).out;
+  TORCH_CHECK(
+      q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
+      "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ", kv.sizes());
+  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form);
 }
 
 }  // namespace ablenerf

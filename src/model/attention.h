@@ -17,13 +17,12 @@ namespace ablenerf {
 struct RayQueryProbe {
   torch::Tensor q0;  // (B,H,dh)
   torch::Tensor k;   // (B,H,L,dh)
-  // Or, from a kernel that computes it anyway, the row itself: (B,H,L) softmax probabilities of
-  // the ray token over every token; detached from the CUDA kernel (kernels/ray_attention.h), in
-  // the graph when keep_graph from the CPU one (kernels/packed_attention.h).
+  // Or, from a kernel that computes it anyway (kernels/ray_attention.h), the row itself:
+  // (B,H,L) fp32 softmax probabilities of the ray token over every token, detached.
   torch::Tensor row0;
-  // Set by the caller: keep q0 and k, or the CPU kernel's row0, attached to the graph (q0 and k are
-  // filled even where the CUDA kernel returns a detached row0), so that a loss on the attention
-  // row reaches the weights (train.distortion_weight).
+  // Set by the caller: keep q0 and k attached to the graph (and fill them even where a kernel
+  // returns row0), so that a loss on the attention row reaches the weights
+  // (train.distortion_weight).
   bool keep_graph = false;
 };
 

@@ -152,50 +152,6 @@ TEST(PackedAttention, WholeVectorHeadsSplitAcrossThreads) {
   compare({rnd({1, 9, h.width()}, torch::kFloat, 201), rnd({64, 17, 2 * h.width()}, torch::kFloat, 202), {}, h}, 2e-5);
 }
 
-// The first query's probabilities beside the result: their values the reference's softmax row,
-// and a loss on both (the result and the row) differentiated as the reference's, in every form,
-// for self-attention under the ray mask and for the ray token's cross-attention (one query).
-TEST(PackedAttention, FirstRowAndItsGradientMatchReference) {
-  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
-    if (!cpu_vector_form_available(form)) continue;
-    for (const Heads h : {Heads{2, 16}, Heads{kHeads, kHeadDim}}) {
-      SCOPED_TRACE(std::string(form == CpuVectorForm::Avx512 ? "avx512" : "scalar") + ", heads of " +
-                   std::to_string(h.dim));
-      const int64_t e = h.width(), tokens = 17, rays = 5;
-      for (const bool self : {true, false}) {
-        const auto q0 = rnd({rays, self ? tokens : 1, self ? 3 * e : e}, torch::kFloat, 300 + h.dim);
-        const auto kv0 = rnd({rays, tokens, 2 * e}, torch::kFloat, 301 + h.dim);
-        const auto mask = self ? ray_mask(tokens) : torch::Tensor();
-        std::vector<torch::Tensor> got, want;
-        for (auto* out : {&got, &want}) {
-          auto q = q0.clone().requires_grad_(), kv = kv0.clone().requires_grad_();
-          torch::Tensor o, row;
-          if (out == &got) {
-            const auto r = self ? packed_self_attention_row0(q, h.count, mask, kScale, form)
-                                : packed_cross_attention_row0(q, kv, h.count, kScale, form);
-            o = r.out;
-            row = r.row0;
-          } else {
-            const auto qh = heads_of(q, 0, h), kh = heads_of(self ? q : kv, self ? e : 0, h);
-            auto scores = torch::matmul(qh, kh.transpose(-2, -1)) * kScale;
-            if (mask.defined()) scores = scores + mask;
-            row = torch::softmax(scores, -1).select(2, 0);  // (B, H, Lk)
-            o = self ? reference(q, q, e, 2 * e, mask, h) : reference(q, kv, 0, e, mask, h);
-          }
-          auto gen = at::detail::createCPUGenerator(9);
-          const auto up_out = torch::randn(o.sizes(), gen), up_row = torch::randn(row.sizes(), gen);
-          ((o * up_out).sum() + 3.0 * (row * up_row).sum()).backward();
-          *out = {o.detach(), row.detach(), q.grad()};
-          if (!self) out->push_back(kv.grad());
-        }
-        ASSERT_EQ(got[1].sizes(), (std::vector<int64_t>{rays, h.count, tokens}));
-        for (size_t i = 0; i < got.size(); ++i)
-          EXPECT_LT((got[i] - want[i]).abs().max().item<double>(), 2e-5) << (self ? "self" : "cross") << " " << i;
-      }
-    }
-  }
-}
-
 TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
