@@ -26,8 +26,8 @@ namespace ablenerf {
 bool packed_attention_available(const torch::Tensor& x);
 
 // mask: additive (Lq, Lk), broadcast over rays and heads, or undefined. Differentiable. `form`:
-// with Avx512 (on a CPU that runs it, in float32, heads of 16, 32, 48 or 64 and at most 64 queries
-// and keys) each (ray, head) is computed whole in vector registers, scores to result, the
+// with Avx512 (on a CPU that runs it, in float32, heads of at most 64 and at most 64 queries and
+// keys) each (ray, head) is computed whole, its scores and softmax in vector registers, the
 // backward likewise; otherwise, and always with Scalar, the products described above.
 torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
                                     CpuVectorForm form = cpu_best_vector_form());

@@ -155,17 +155,17 @@ void softmax_backward_rows(T* dp, const T* p, int64_t rows, int64_t lk) {
   }
 }
 
-// The float items in AVX-512 registers (CpuVectorForm::Avx512), where every head is one to four
-// 16-float vectors and a ray has at most 64 queries and 64 keys: one (ray, head) at a time, K (or
-// V) transposed once into a small buffer, each row of scores (up to four vectors) accumulated in
-// registers, masked, exponentiated (Sleef) and normalised there, and written once as the
-// probabilities the backward keeps; the products by a row of probabilities or gradients broadcast
-// one scalar against whole rows of V, dO, K or Q, four rows of the result at a time. The same sums
-// as the loops above in another order: float rounding apart, the same values.
+// The float items in AVX-512 registers (CpuVectorForm::Avx512), where a head has at most 64
+// floats and a ray at most 64 queries and 64 keys: one (ray, head) at a time, K (or V) transposed
+// once into a small buffer, each row of scores (up to four vectors) accumulated in registers,
+// masked, exponentiated (Sleef) and normalised there, and written once as the probabilities the
+// backward keeps; the products by a row of probabilities or gradients (P V, P^T dO, dS K, dS^T Q)
+// through small_gemm. The same sums as the loops above in another order: float rounding apart,
+// the same values.
 constexpr int64_t kItemMaxTokens = 64, kItemMaxVectors = 4, kLanes = 16;
 
 bool vector_items_fit(int64_t dh, int64_t lq, int64_t lk) {
-  return dh % kLanes == 0 && dh <= kItemMaxVectors * kLanes && lq >= 1 && lq <= kItemMaxTokens && lk >= 1 &&
+  return dh >= 1 && dh <= kItemMaxVectors * kLanes && lq >= 1 && lq <= kItemMaxTokens && lk >= 1 &&
          lk <= kItemMaxTokens;
 }
 
@@ -184,15 +184,15 @@ bool vector_items_available(CpuVectorForm form, c10::ScalarType type) {
 namespace attention_items {
 
 // One item's sizes: lq x lk scores in rows of nk vectors (ldt = 16 nk floats, the last vector's
-// `last` lanes valid), heads of m vectors.
+// `last` lanes valid), heads of dh floats.
 struct Shape {
-  int64_t lq, lk, dh, nk, m, ldt;
+  int64_t lq, lk, dh, nk, ldt;
   __mmask16 last;
 };
 
 Shape shape_of(int64_t lq, int64_t lk, int64_t dh) {
   const int64_t nk = (lk + kLanes - 1) / kLanes, rem = lk - (nk - 1) * kLanes;
-  return {lq, lk, dh, nk, dh / kLanes, nk * kLanes, static_cast<__mmask16>((1u << rem) - 1u)};
+  return {lq, lk, dh, nk, nk * kLanes, static_cast<__mmask16>((1u << rem) - 1u)};
 }
 
 ABLENERF_ALWAYS_INLINE __mmask16 lanes_of(const Shape& s, int v) { return v == s.nk - 1 ? s.last : 0xFFFF; }
@@ -217,43 +217,6 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_rows(const float* a, in
       const __m512 x = _mm512_set1_ps(a[r * lda + d]);
       for (int v = 0; v < NK; ++v) acc[r][v] = _mm512_fmadd_ps(x, tv[v], acc[r][v]);
     }
-  }
-}
-
-// C (R rows of m vectors, row stride ldc) = alpha * op(A) B over k: op(A)(r, p) = a[r * si + p * sp],
-// B's rows k of dh floats (stride ldb).
-template <int R, int M>
-ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void rows_times(int64_t k, float alpha, const float* a, int64_t si,
-                                                              int64_t sp, const float* b, int64_t ldb, float* c,
-                                                              int64_t ldc) {
-  __m512 acc[R][M];
-  for (int r = 0; r < R; ++r)
-    for (int v = 0; v < M; ++v) acc[r][v] = _mm512_setzero_ps();
-  for (int64_t p = 0; p < k; ++p) {
-    __m512 bv[M];
-    for (int v = 0; v < M; ++v) bv[v] = _mm512_loadu_ps(b + p * ldb + v * kLanes);
-    for (int r = 0; r < R; ++r) {
-      const __m512 x = _mm512_set1_ps(a[r * si + p * sp]);
-      for (int v = 0; v < M; ++v) acc[r][v] = _mm512_fmadd_ps(x, bv[v], acc[r][v]);
-    }
-  }
-  const __m512 al = _mm512_set1_ps(alpha);
-  for (int r = 0; r < R; ++r)
-    for (int v = 0; v < M; ++v) _mm512_storeu_ps(c + r * ldc + v * kLanes, _mm512_mul_ps(acc[r][v], al));
-}
-
-// All `rows` rows of C = alpha op(A) B, four at a time.
-template <int M>
-ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void product_rows(int64_t rows, int64_t k, float alpha, const float* a,
-                                                                int64_t si, int64_t sp, const float* b, int64_t ldb,
-                                                                float* c, int64_t ldc) {
-  int64_t i = 0;
-  for (; i + 4 <= rows; i += 4) rows_times<4, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc);
-  switch (rows - i) {
-    case 3: rows_times<3, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
-    case 2: rows_times<2, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
-    case 1: rows_times<1, M>(k, alpha, a + i * si, si, sp, b, ldb, c + i * ldc, ldc); break;
-    default: break;
   }
 }
 
@@ -322,7 +285,7 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_gradient_rows(const flo
 }
 
 // Forward of items [lo, hi): probabilities into p (hi - lo planes of lq x lk), results into out.
-template <int NK, int M>
+template <int NK>
 ABLENERF_TARGET_AVX512 void forward_items(const Problem<float>& pr, int64_t lo, int64_t hi, float* p,
                                           const Operand<float>& out) {
   const Shape s = shape_of(pr.lq, pr.lk, pr.dh);
@@ -341,12 +304,12 @@ ABLENERF_TARGET_AVX512 void forward_items(const Problem<float>& pr, int64_t lo, 
     for (; i < s.lq; ++i)
       probability_rows<1, NK>(q + i * pr.q.row, pr.q.row, s, kt, scale, mask ? mask + i * s.lk : nullptr,
                               pp + i * s.lk);
-    product_rows<M>(s.lq, s.lk, 1.0f, pp, s.lk, 1, pr.v.at(b, h, s.dh), pr.v.row, out.at(b, h, s.dh), out.row);
+    small_gemm(false, s.lq, s.dh, s.lk, 1.0f, pp, s.lk, pr.v.at(b, h, s.dh), pr.v.row, out.at(b, h, s.dh), out.row);
   }
 }
 
 // Gradients of items [lo, hi), as backward_items above.
-template <int NK, int M>
+template <int NK>
 ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
                                            const Operand<const float>& go, const Operand<float>& dq,
                                            const Operand<float>& dk, const Operand<float>& dv) {
@@ -359,34 +322,26 @@ ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo,
     const float* pp = p + (it - lo) * s.lq * s.lk;
     const float* g = go.at(b, h, s.dh);
     // dV = P^T dO; dS from dP = dO V^T; dQ = s dS K; dK = s dS^T Q.
-    product_rows<M>(s.lk, s.lq, 1.0f, pp, 1, s.lk, g, go.row, dv.at(b, h, s.dh), dv.row);
+    small_gemm(true, s.lk, s.dh, s.lq, 1.0f, pp, s.lk, g, go.row, dv.at(b, h, s.dh), dv.row);
     transpose_head(pr.v.at(b, h, s.dh), pr.v.row, s, vt);
     int64_t i = 0;
     for (; i + 4 <= s.lq; i += 4)
       score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
     for (; i < s.lq; ++i) score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
-    product_rows<M>(s.lq, s.lk, scale, ds, s.lk, 1, pr.k.at(b, h, s.dh), pr.k.row, dq.at(b, h, s.dh), dq.row);
-    product_rows<M>(s.lk, s.lq, scale, ds, 1, s.lk, pr.q.at(b, h, s.dh), pr.q.row, dk.at(b, h, s.dh), dk.row);
+    small_gemm(false, s.lq, s.dh, s.lk, scale, ds, s.lk, pr.k.at(b, h, s.dh), pr.k.row, dq.at(b, h, s.dh), dq.row);
+    small_gemm(true, s.lk, s.dh, s.lq, scale, ds, s.lk, pr.q.at(b, h, s.dh), pr.q.row, dk.at(b, h, s.dh), dk.row);
   }
 }
 
-// The instantiation for the problem's score vectors (nk) and head vectors (m), both 1 to 4.
+// The instantiation for the problem's score vectors (nk, 1 to 4).
 template <class F>
 void dispatch(const Problem<float>& pr, F&& f) {
-  const int64_t nk = (pr.lk + kLanes - 1) / kLanes, m = pr.dh / kLanes;
-  switch (nk * 8 + m) {
-#define ABLENERF_ITEMS_CASE(NK, M) \
-  case NK * 8 + M:                 \
-    return f(std::integral_constant<int, NK>(), std::integral_constant<int, M>());
-#define ABLENERF_ITEMS_ROW(NK) \
-  ABLENERF_ITEMS_CASE(NK, 1) ABLENERF_ITEMS_CASE(NK, 2) ABLENERF_ITEMS_CASE(NK, 3) ABLENERF_ITEMS_CASE(NK, 4)
-    ABLENERF_ITEMS_ROW(1)
-    ABLENERF_ITEMS_ROW(2)
-    ABLENERF_ITEMS_ROW(3)
-    ABLENERF_ITEMS_ROW(4)
-#undef ABLENERF_ITEMS_ROW
-#undef ABLENERF_ITEMS_CASE
-    default: TORCH_CHECK(false, "packed attention: no vector form for ", pr.lk, " keys and heads of ", pr.dh);
+  switch ((pr.lk + kLanes - 1) / kLanes) {
+    case 1: return f(std::integral_constant<int, 1>());
+    case 2: return f(std::integral_constant<int, 2>());
+    case 3: return f(std::integral_constant<int, 3>());
+    case 4: return f(std::integral_constant<int, 4>());
+    default: TORCH_CHECK(false, "packed attention: no vector form for ", pr.lk, " keys");
   }
 }
 
@@ -406,18 +361,16 @@ bool backward_vector_items(const Problem<T>&, int64_t, int64_t, const T*, const 
 #ifdef ABLENERF_ATTENTION_ITEMS_AVX512
 bool forward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, float* p, const Operand<float>& out) {
   if (!pr.vector_items) return false;
-  attention_items::dispatch(pr, [&](auto nk, auto m) {
-    attention_items::forward_items<decltype(nk)::value, decltype(m)::value>(pr, lo, hi, p, out);
-  });
+  attention_items::dispatch(pr,
+                            [&](auto nk) { attention_items::forward_items<decltype(nk)::value>(pr, lo, hi, p, out); });
   return true;
 }
 bool backward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
                            const Operand<const float>& go, const Operand<float>& dq, const Operand<float>& dk,
                            const Operand<float>& dv) {
   if (!pr.vector_items) return false;
-  attention_items::dispatch(pr, [&](auto nk, auto m) {
-    attention_items::backward_items<decltype(nk)::value, decltype(m)::value>(pr, lo, hi, p, go, dq, dk, dv);
-  });
+  attention_items::dispatch(
+      pr, [&](auto nk) { attention_items::backward_items<decltype(nk)::value>(pr, lo, hi, p, go, dq, dk, dv); });
   return true;
 }
 #endif

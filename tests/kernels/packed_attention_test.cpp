@@ -118,8 +118,9 @@ TEST(PackedAttention, CrossAttentionMatchesReference) {
   compare({rnd({1, 5, kWidth}, torch::kFloat, 8), rnd({kBatch, kTokens, 2 * kWidth}, torch::kFloat, 9), {}}, 1e-4);
 }
 
-// Heads of whole 16-float vectors, where a CPU with AVX-512 computes each (ray, head) in
-// registers: the presets' shapes (2 heads of 16 over 17 tokens, 8 shared queries) and odd ones (one
+// Heads of at most 64 floats, where a CPU with AVX-512 computes each (ray, head) in registers: the
+// presets' shapes (2 heads of 16 or 24 over 17 tokens, 8 shared queries), heads that are not whole
+// 16-float vectors (7, 24, 40) and odd ones (one
 // token, one key, a query count that is not a multiple of the four rows taken at once, 64 tokens
 // = four whole score vectors, 65 = past the vector form, so through the products), in both forms.
 TEST(PackedAttention, WholeVectorHeadsMatchReferenceInEveryForm) {
@@ -127,7 +128,8 @@ TEST(PackedAttention, WholeVectorHeadsMatchReferenceInEveryForm) {
     if (!cpu_vector_form_available(form)) continue;
     SCOPED_TRACE(form == CpuVectorForm::Avx512 ? "avx512" : "scalar");
     uint64_t seed = 100;
-    for (const Heads h : {Heads{2, 16}, Heads{1, 32}, Heads{3, 48}, Heads{1, 64}}) {
+    for (const Heads h :
+         {Heads{2, 16}, Heads{2, 24}, Heads{1, 7}, Heads{1, 32}, Heads{2, 40}, Heads{3, 48}, Heads{1, 64}}) {
       for (const int64_t tokens : {1, 2, 5, 17, 33, 64, 65}) {
         SCOPED_TRACE("heads " + std::to_string(h.count) + " x " + std::to_string(h.dim) + ", tokens " +
                      std::to_string(tokens));
