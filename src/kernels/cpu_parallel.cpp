@@ -4,6 +4,10 @@
 #include <dlfcn.h>
 
 #include <algorithm>
+#include <atomic>
+#include <cfenv>
+#include <chrono>
+#include <condition_variable>
 #include <cstdlib>
 #include <exception>
 #include <mutex>
@@ -138,6 +142,106 @@ std::string blas_core_override() {
 
 bool flush_subnormals() { return at::globalContext().setFlushDenormal(true); }
 
+namespace {
+
+// The threads that take slices 1, 2, ... of parallel_slices, started on first use and kept for the
+// process. On a 2-core machine a two-slice call that started and joined its thread took 180 us
+// with nothing to do (a training step splits five times); a sleeping thread woken through the
+// kernel costs ~30 us each way, so each side first spins briefly (kSpin) on the other's progress
+// before it sleeps: 1 us a call (docs/benchmarks/history.md, "Kept slice threads"). One caller at a time: a second
+// thread calling parallel_slices while the pool is busy starts threads of its own for that call
+// (slice_threads below). Never destroyed: its threads wait for work until the process exits.
+class SlicePool {
+ public:
+  static SlicePool& instance() {
+    static SlicePool* pool = new SlicePool();
+    return *pool;
+  }
+
+  std::mutex& busy() { return busy_; }
+
+  // Runs job(w) for w in [1, workers) on the pool's threads, job(0) on the caller, and returns when
+  // all have returned. The caller holds busy().
+  void run(int64_t workers, const std::function<void(int64_t)>& job) {
+    {
+      const std::lock_guard<std::mutex> lock(m_);
+      while (static_cast<int64_t>(threads_.size()) < workers - 1) {
+        const int64_t index = static_cast<int64_t>(threads_.size()) + 1;
+        threads_.emplace_back([this, index] { serve(index); });
+        threads_.back().detach();
+      }
+      job_ = &job;
+      job_workers_ = workers;
+      pending_.store(workers - 1);
+      generation_.fetch_add(1);
+    }
+    work_.notify_all();
+    job(0);
+    if (!spin_until([&] { return pending_.load() == 0; })) {
+      std::unique_lock<std::mutex> lock(m_);
+      done_.wait(lock, [&] { return pending_.load() == 0; });
+    }
+  }
+
+ private:
+  static constexpr std::chrono::microseconds kSpin{100};
+
+  SlicePool() = default;
+
+  // Polls ready() for up to kSpin; true once it holds.
+  template <class Ready>
+  static bool spin_until(Ready&& ready) {
+    const auto until = std::chrono::steady_clock::now() + kSpin;
+    while (!ready()) {
+      if (std::chrono::steady_clock::now() > until) return false;
+      std::this_thread::yield();
+    }
+    return true;
+  }
+
+  void serve(int64_t index) {
+    uint64_t seen = 0;
+    for (;;) {
+      if (!spin_until([&] { return generation_.load() != seen; })) {
+        std::unique_lock<std::mutex> lock(m_);
+        work_.wait(lock, [&] { return generation_.load() != seen; });
+      }
+      const std::function<void(int64_t)>* job = nullptr;
+      {
+        const std::lock_guard<std::mutex> lock(m_);
+        seen = generation_.load();
+        if (index < job_workers_) job = job_;
+      }
+      if (job == nullptr) continue;
+      (*job)(index);
+      if (pending_.fetch_sub(1) == 1) {
+        const std::lock_guard<std::mutex> lock(m_);
+        done_.notify_one();
+      }
+    }
+  }
+
+  std::mutex busy_;
+  std::mutex m_;
+  std::condition_variable work_, done_;
+  std::vector<std::thread> threads_;
+  const std::function<void(int64_t)>* job_ = nullptr;
+  int64_t job_workers_ = 0;
+  std::atomic<int64_t> pending_{0};
+  std::atomic<uint64_t> generation_{0};
+};
+
+// job(w) for w in [1, workers) on threads started for this call, job(0) on the caller.
+void slice_threads(int64_t workers, const std::function<void(int64_t)>& job) {
+  std::vector<std::thread> threads;
+  threads.reserve(static_cast<size_t>(workers - 1));
+  for (int64_t w = 1; w < workers; ++w) threads.emplace_back([&job, w] { job(w); });
+  job(0);
+  for (auto& t : threads) t.join();
+}
+
+}  // namespace
+
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t, int64_t, int64_t)>& fn) {
   workers = std::max<int64_t>(1, std::min(workers, n));
   if (workers == 1) {
@@ -145,12 +249,19 @@ void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_
     return;
   }
   SingleThreadedBlas single;
+  // Grad and inference modes are thread-local, and so is the floating-point environment (the
+  // subnormal flush): each slice's thread takes the caller's.
   const bool inference = c10::InferenceMode::is_enabled();
   const bool grad = torch::GradMode::is_enabled();
+  std::fenv_t env;
+  std::fegetenv(&env);
   std::mutex error_mutex;
   std::exception_ptr error;
-  const auto run = [&](int64_t w) {
+  const std::function<void(int64_t)> job = [&](int64_t w) {
     try {
+      if (w > 0) std::fesetenv(&env);
+      c10::InferenceMode inference_guard(inference);
+      torch::AutoGradMode grad_guard(grad);
       const WorkerScope scope;
       fn(w, n * w / workers, n * (w + 1) / workers);
     } catch (...) {
@@ -158,17 +269,13 @@ void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_
       if (!error) error = std::current_exception();
     }
   };
-  std::vector<std::thread> threads;
-  threads.reserve(static_cast<size_t>(workers - 1));
-  for (int64_t w = 1; w < workers; ++w)
-    threads.emplace_back([&, w] {
-      // Grad and inference modes are thread-local: mirror the caller's.
-      c10::InferenceMode inference_guard(inference);
-      torch::AutoGradMode grad_guard(grad);
-      run(w);
-    });
-  run(0);
-  for (auto& t : threads) t.join();
+  SlicePool& pool = SlicePool::instance();
+  std::unique_lock<std::mutex> busy(pool.busy(), std::try_to_lock);
+  if (busy.owns_lock()) {
+    pool.run(workers, job);
+  } else {
+    slice_threads(workers, job);
+  }
   if (error) std::rethrow_exception(error);
 }
 

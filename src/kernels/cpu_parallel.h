@@ -63,7 +63,7 @@ class SerialIntraOp {
 
 // Subnormal floats (magnitudes below 1.2e-38) flushed to zero in CPU arithmetic, as inputs and as
 // results, on the calling thread and every thread it starts afterwards (a new thread inherits its
-// creator's floating-point environment; parallel_slices starts its threads per call). Call it
+// creator's floating-point environment; parallel_slices's slices take their caller's). Call it
 // first thing in a program. Why: a capture-preset run drifts values into that range (the table's
 // weight decay shrinks rows no ray reads, Adam's second moments of rarely touched rows decay with
 // them), every operation on one costs tens of times a normal one, and the training step slowed to a
@@ -86,9 +86,11 @@ std::string blas_core_name();
 std::string blas_core_override();
 
 // Runs fn(w, lo, hi) for the W contiguous slices [lo, hi) of [0, n), one thread each (the calling
-// thread takes slice 0), with single-threaded BLAS for the duration. Each worker inherits the
-// caller's grad mode and inference mode. The first exception thrown by any slice is rethrown
-// after every thread has finished. W == 1 calls fn(0, 0, n) directly, BLAS untouched.
+// thread takes slice 0, the others threads kept from call to call), with single-threaded BLAS for
+// the duration. Each worker takes the caller's grad mode, inference mode and floating-point
+// environment. The first exception thrown by any slice is rethrown after every thread has
+// finished. W == 1 calls fn(0, 0, n) directly, BLAS untouched. Safe to call from several threads
+// at once (one of them gets the kept threads, the others start their own for the call).
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn);
 
 }  // namespace ablenerf

@@ -1,7 +1,8 @@
 // Ray-parallel CPU execution (kernels/cpu_parallel.h): slices cover the range once, errors come
 // back to the caller, nested calls stay serial, thread-local modes are mirrored, and BLAS's and
 // LibTorch's thread counts are single inside and restored after; subnormal floats flush to zero
-// on the caller and in the threads it starts afterwards.
+// on the caller and in the slices' threads, which follow the caller's mode at every call;
+// concurrent callers each get their own range.
 #include <ATen/Context.h>
 #include <dlfcn.h>
 #include <gtest/gtest.h>
@@ -174,6 +175,36 @@ TEST(CpuParallel, SubnormalsFlushOnTheCallerAndInThreadsStartedAfter) {
   EXPECT_EQ(in_slices, (std::vector<int>{1, 1}));
   at::globalContext().setFlushDenormal(false);
   EXPECT_FALSE(product_flushed());
+  // The slices' threads are kept between calls: they take the caller's mode at every call.
+  parallel_slices(2, 2, [&](int64_t w, int64_t, int64_t) { in_slices[static_cast<size_t>(w)] = product_flushed(); });
+  EXPECT_EQ(in_slices, (std::vector<int>{0, 0}));
+}
+
+// Two threads splitting at the same time (a viewer's render beside training): each call covers its
+// own range once, whichever of them gets the kept threads; repeated, so that each path is taken.
+TEST(CpuParallel, ConcurrentCallersEachCoverTheirRange) {
+  constexpr int kCalls = 200;
+  std::vector<std::vector<int64_t>> sums(2, std::vector<int64_t>(kCalls, 0));
+  const auto caller = [&](int c) {
+    for (int i = 0; i < kCalls; ++i) {
+      std::atomic<int64_t> total{0};
+      parallel_slices(100 + i, 2, [&](int64_t, int64_t lo, int64_t hi) {
+        int64_t s = 0;
+        for (int64_t j = lo; j < hi; ++j) s += j;
+        total += s;
+      });
+      sums[static_cast<size_t>(c)][static_cast<size_t>(i)] = total.load();
+    }
+  };
+  std::thread other(caller, 1);
+  caller(0);
+  other.join();
+  for (int c = 0; c < 2; ++c)
+    for (int i = 0; i < kCalls; ++i) {
+      const int64_t n = 100 + i;
+      EXPECT_EQ(sums[static_cast<size_t>(c)][static_cast<size_t>(i)], n * (n - 1) / 2)
+          << "caller " << c << " call " << i;
+    }
 }
 
 }  // namespace
