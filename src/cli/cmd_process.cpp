@@ -38,7 +38,7 @@ void setup(CLI::App& app) {
                      {"camera", r.camera},
                      {"matcher", r.matcher},
                      {"seconds", r.seconds},
-                     {"next", "ablenerf train --data " + o->out + " --config configs/capture.toml --out runs/NAME"}};
+                     {"next", "ablenerf train --data " + o->out + " --preset capture --out runs/NAME"}};
     std::cout << j.dump() << std::endl;
   });
 }

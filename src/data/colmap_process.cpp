@@ -193,6 +193,9 @@ ProcessResult process_capture(const ProcessOptions& o, std::ostream& progress) {
                      "COLMAP placed " + std::to_string(r.registered) + " of " + std::to_string(r.images) +
                          " images: too few; take more photos with more overlap (each part of the scene in several "
                          "photos, moving between shots rather than turning on the spot)");
+  if (r.registered < r.images)
+    progress << "process: note: COLMAP placed " << r.registered << " of " << r.images
+             << " images; the others are not in the capture (photos that overlap more bring them in)" << std::endl;
   const fs::path zero = fs::path(o.out) / "sparse" / "0";
   if (fs::path(best.dir) != zero) {
     const fs::path aside = fs::path(o.out) / "sparse" / "0_smaller";

@@ -243,6 +243,9 @@ TEST(Process, RecoversTheCamerasOfRenderedPhotos) {
   const auto j = nlohmann::json::parse(r.output.substr(r.output.find('{')));
   EXPECT_EQ(j["registered"], n);
   EXPECT_GT(j["points"].get<int>(), 500);
+  // The next command names the capture preset, not a file of the checkout; no note of photos left out.
+  EXPECT_EQ(j["next"], "ablenerf train --data " + t / "cap" + " --preset capture --out runs/NAME");
+  EXPECT_EQ(r.output.find("note: COLMAP placed"), std::string::npos) << r.output;
   // COLMAP's camera centres (C = -R^T t) against the true ones, after the best similarity: the
   // reconstruction is only defined up to one.
   const ColmapModel m = read_colmap_model(t / "cap/sparse/0");
