@@ -148,9 +148,10 @@ namespace {
 // process. On a 2-core machine a two-slice call that started and joined its thread took 180 us
 // with nothing to do (a training step splits five times); a sleeping thread woken through the
 // kernel costs ~30 us each way, so each side first spins briefly (kSpin) on the other's progress
-// before it sleeps: 1 us a call (docs/benchmarks/history.md, "Kept slice threads"). One caller at a time: a second
-// thread calling parallel_slices while the pool is busy starts threads of its own for that call
-// (slice_threads below). Never destroyed: its threads wait for work until the process exits.
+// before it sleeps: 1 us a call (docs/benchmarks/history.md, "Kept slice threads"). One caller at
+// a time: a second thread calling parallel_slices while the pool is busy (or a slice splitting
+// again) starts threads of its own for that call (slice_threads below). Never destroyed: its
+// threads wait for work until the process exits.
 class SlicePool {
  public:
   static SlicePool& instance() {
