@@ -34,4 +34,15 @@ torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, con
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
                                      CpuVectorForm form = cpu_best_vector_form());
 
+// The same, and the first query's probabilities over every key (B, H, Lk), the ray token's row the
+// resampler and the attention's losses read; both differentiable. For cross-attention the queries
+// are per ray here (q's batch is kv's).
+struct PackedAttention {
+  torch::Tensor out, row0;
+};
+PackedAttention packed_self_attention_row0(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
+                                           double scale, CpuVectorForm form = cpu_best_vector_form());
+PackedAttention packed_cross_attention_row0(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads,
+                                            double scale, CpuVectorForm form = cpu_best_vector_form());
+
 }  // namespace ablenerf

@@ -275,12 +275,17 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void probability_rows(const float*
   softmax_rows<R, NK>(acc, s, scale, mask, p);
 }
 
-// The scores' gradient of rows [i, i + R) of one item.
+// The scores' gradient of rows [i, i + R) of one item; `row0`, when given, is a gradient on the
+// first of these rows' probabilities (added to dP before the softmax's backward).
 template <int R, int NK>
 ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void score_gradient_rows(const float* go, int64_t go_row, const Shape& s,
-                                                                       const float* vt, const float* p, float* ds) {
+                                                                       const float* vt, const float* p, float* ds,
+                                                                       const float* row0) {
   __m512 acc[R][NK];
   score_rows<R, NK>(go, go_row, s, vt, acc);
+  if (row0)
+    for (int v = 0; v < NK; ++v)
+      acc[0][v] = _mm512_add_ps(acc[0][v], _mm512_maskz_loadu_ps(lanes_of(s, v), row0 + v * kLanes));
   softmax_backward_rows<R, NK>(acc, s, p, ds);
 }
 
@@ -311,8 +316,9 @@ ABLENERF_TARGET_AVX512 void forward_items(const Problem<float>& pr, int64_t lo, 
 // Gradients of items [lo, hi), as backward_items above.
 template <int NK>
 ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
-                                           const Operand<const float>& go, const Operand<float>& dq,
-                                           const Operand<float>& dk, const Operand<float>& dv) {
+                                           const Operand<const float>& go, const float* g_row0,
+                                           const Operand<float>& dq, const Operand<float>& dk,
+                                           const Operand<float>& dv) {
   const Shape s = shape_of(pr.lq, pr.lk, pr.dh);
   alignas(64) float vt[kItemMaxVectors * kLanes * kItemMaxTokens] = {};
   float ds[kItemMaxTokens * kItemMaxTokens];
@@ -324,10 +330,12 @@ ABLENERF_TARGET_AVX512 void backward_items(const Problem<float>& pr, int64_t lo,
     // dV = P^T dO; dS from dP = dO V^T; dQ = s dS K; dK = s dS^T Q.
     small_gemm(true, s.lk, s.dh, s.lq, 1.0f, pp, s.lk, g, go.row, dv.at(b, h, s.dh), dv.row);
     transpose_head(pr.v.at(b, h, s.dh), pr.v.row, s, vt);
+    const float* row0 = g_row0 ? g_row0 + it * s.lk : nullptr;  // on row 0 only, the first block's first row
     int64_t i = 0;
     for (; i + 4 <= s.lq; i += 4)
-      score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
-    for (; i < s.lq; ++i) score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk);
+      score_gradient_rows<4, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk, i == 0 ? row0 : nullptr);
+    for (; i < s.lq; ++i)
+      score_gradient_rows<1, NK>(g + i * go.row, go.row, s, vt, pp + i * s.lk, ds + i * s.lk, i == 0 ? row0 : nullptr);
     small_gemm(false, s.lq, s.dh, s.lk, scale, ds, s.lk, pr.k.at(b, h, s.dh), pr.k.row, dq.at(b, h, s.dh), dq.row);
     small_gemm(true, s.lk, s.dh, s.lq, scale, ds, s.lk, pr.q.at(b, h, s.dh), pr.q.row, dk.at(b, h, s.dh), dk.row);
   }
@@ -354,8 +362,8 @@ bool forward_vector_items(const Problem<T>&, int64_t, int64_t, T*, const Operand
   return false;
 }
 template <class T>
-bool backward_vector_items(const Problem<T>&, int64_t, int64_t, const T*, const Operand<const T>&, const Operand<T>&,
-                           const Operand<T>&, const Operand<T>&) {
+bool backward_vector_items(const Problem<T>&, int64_t, int64_t, const T*, const Operand<const T>&, const T*,
+                           const Operand<T>&, const Operand<T>&, const Operand<T>&) {
   return false;
 }
 #ifdef ABLENERF_ATTENTION_ITEMS_AVX512
@@ -366,11 +374,12 @@ bool forward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, floa
   return true;
 }
 bool backward_vector_items(const Problem<float>& pr, int64_t lo, int64_t hi, const float* p,
-                           const Operand<const float>& go, const Operand<float>& dq, const Operand<float>& dk,
-                           const Operand<float>& dv) {
+                           const Operand<const float>& go, const float* g_row0, const Operand<float>& dq,
+                           const Operand<float>& dk, const Operand<float>& dv) {
   if (!pr.vector_items) return false;
-  attention_items::dispatch(
-      pr, [&](auto nk) { attention_items::backward_items<decltype(nk)::value>(pr, lo, hi, p, go, dq, dk, dv); });
+  attention_items::dispatch(pr, [&](auto nk) {
+    attention_items::backward_items<decltype(nk)::value>(pr, lo, hi, p, go, g_row0, dq, dk, dv);
+  });
   return true;
 }
 #endif
@@ -396,23 +405,31 @@ void forward_items(const Problem<T>& pr, int64_t lo, int64_t hi, torch::Tensor p
 }
 
 // The forward of every item; `keep` = the (B*H, lq, lk) probabilities to save for backward, or
-// undefined when nothing will be differentiated (then each thread uses a scratch of its own).
+// undefined when nothing will be differentiated (then each thread uses a scratch of its own);
+// `row0`, when defined, the (B, H, lk) first query's probabilities, copied out of them.
 template <class T>
-torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& options, torch::Tensor keep) {
+torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& options, torch::Tensor keep,
+                          const torch::Tensor& row0) {
   auto out = torch::empty({pr.b, pr.lq, pr.heads * pr.dh}, options);
   const Operand<T> o{out.template data_ptr<T>(), pr.lq * pr.heads * pr.dh, pr.heads * pr.dh};
+  T* row0_at = row0.defined() ? row0.template data_ptr<T>() : nullptr;
   const SingleThreadedBlas single;  // also when serial: OpenBLAS's pool costs more than it saves here
   parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     auto p = keep.defined() ? keep.slice(0, lo, hi) : torch::empty({hi - lo, pr.lq, pr.lk}, options);
-    if (!forward_vector_items(pr, lo, hi, p.template data_ptr<T>(), o)) forward_items(pr, lo, hi, p, o);
+    T* pp = p.template data_ptr<T>();
+    if (!forward_vector_items(pr, lo, hi, pp, o)) forward_items(pr, lo, hi, p, o);
+    if (row0_at)
+      for (int64_t it = lo; it < hi; ++it) std::copy_n(pp + (it - lo) * pr.lq * pr.lk, pr.lk, row0_at + it * pr.lk);
   });
   return out;
 }
 
-// Gradients of items [lo, hi): dq, dk, dv operands receive the products (every element written).
+// Gradients of items [lo, hi): dq, dk, dv operands receive the products (every element written);
+// g_row0, when given, is the (B * H, lk) gradient on each item's first row of probabilities.
 template <class T>
 void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::Tensor& p_all,
-                    const Operand<const T>& go, const Operand<T>& dq, const Operand<T>& dk, const Operand<T>& dv) {
+                    const Operand<const T>& go, const T* g_row0, const Operand<T>& dq, const Operand<T>& dk,
+                    const Operand<T>& dv) {
   const auto p = p_all.slice(0, lo, hi);
   auto dp = torch::empty_like(p);
   const int64_t plane = pr.lq * pr.lk;
@@ -427,6 +444,9 @@ void backward_items(const Problem<T>& pr, int64_t lo, int64_t hi, const torch::T
     product(true, false, pr.lk, pr.dh, pr.lq, T(1), pp + (it - lo) * plane, pr.lk, go.at(b, h, pr.dh), go.row,
             dv.at(b, h, pr.dh), dv.row, scratch);
   }
+  if (g_row0)
+    for (int64_t it = lo; it < hi; ++it)
+      for (int64_t j = 0; j < pr.lk; ++j) dpp[(it - lo) * plane + j] += g_row0[it * pr.lk + j];
   // Softmax backward: dS = P * (dP - rowsum(dP * P)), in place; the scale multiplies dQ and dK below.
   softmax_backward_rows(dpp, pp, (hi - lo) * pr.lq, pr.lk);
   const T* dsp = dpp;
@@ -469,28 +489,34 @@ Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, boo
 }
 
 // Autograd node over the packed tensors, so that the gradient lands in the packed layout directly
-// (no per-head copies, no zero-filled slices summed together).
+// (no per-head copies, no zero-filled slices summed together). Its second output is the first
+// query's probabilities (B, H, lk), filled when `with_row0` (an empty tensor otherwise): a gradient
+// on them joins the softmax's backward, so a loss on the ray token's attention row costs no
+// gradient of the packed tensor's size of its own.
 class PackedAttentionFunction : public torch::autograd::Function<PackedAttentionFunction> {
  public:
   // kv_src empty = self-attention (K and V inside q_src).
-  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
-                               const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads, int64_t width,
-                               double scale, int64_t form) {
+  static torch::autograd::variable_list forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& q_src,
+                                                const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
+                                                int64_t width, double scale, int64_t form, bool with_row0) {
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
+    auto row0 =
+        with_row0 ? torch::empty({kv.size(0), heads, kv.size(1)}, q_src.options()) : torch::empty({0}, q_src.options());
     torch::Tensor out;
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
       const auto pr =
           make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, static_cast<CpuVectorForm>(form));
-      out = forward_all(pr, q_src.options(), p);
+      out = forward_all(pr, q_src.options(), p, with_row0 ? row0 : torch::Tensor());
     });
+    ctx->set_materialize_grads(false);
     ctx->save_for_backward({q_src, kv_src, mask, p});
     ctx->saved_data["heads"] = heads;
     ctx->saved_data["width"] = width;
     ctx->saved_data["scale"] = scale;
     ctx->saved_data["form"] = form;
-    return out;
+    return {out, row0};
   }
 
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
@@ -503,14 +529,18 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
     const int64_t b = kv.size(0);
-    const auto go = grads[0].contiguous();
+    const int64_t lq = q_src.size(1);
+    // Undefined gradients (materialisation is off) are zeros: the output's made here, the row's skipped.
+    const auto go = grads[0].defined() ? grads[0].contiguous() : torch::zeros({b, lq, width}, q_src.options());
+    const auto g_row0 = grads[1].defined() && grads[1].numel() > 0 ? grads[1].contiguous() : torch::Tensor();
     // Self: one (B, L, 3E) gradient. Cross: dQ per ray (summed afterwards when the queries are
     // shared by the batch) and one (B, Lk, 2E) gradient for K and V.
     auto d_kv = torch::empty({b, kv.size(1), kv.size(2)}, kv.options());
-    auto d_q = self ? d_kv : torch::empty({b, q_src.size(1), width}, q_src.options());
+    auto d_q = self ? d_kv : torch::empty({b, lq, width}, q_src.options());
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention_backward", [&] {
       const auto pr = make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, form);
       const Operand<const scalar_t> g{go.data_ptr<scalar_t>(), go.size(1) * go.size(2), go.size(2)};
+      const scalar_t* gr = g_row0.defined() ? g_row0.data_ptr<scalar_t>() : nullptr;
       const auto out_operand = [](torch::Tensor& x, int64_t offset) {
         return Operand<scalar_t>{x.data_ptr<scalar_t>() + offset, x.size(1) * x.size(2), x.size(2)};
       };
@@ -519,20 +549,19 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
       const auto dk = out_operand(d_kv, c.k), dv = out_operand(d_kv, c.v);
       const SingleThreadedBlas single;
       parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
-        if (!backward_vector_items(pr, lo, hi, p.data_ptr<scalar_t>() + lo * pr.lq * pr.lk, g, dq, dk, dv))
-          backward_items(pr, lo, hi, p, g, dq, dk, dv);
+        if (!backward_vector_items(pr, lo, hi, p.data_ptr<scalar_t>() + lo * pr.lq * pr.lk, g, gr, dq, dk, dv))
+          backward_items(pr, lo, hi, p, g, gr, dq, dk, dv);
       });
     });
-    if (self)
-      return {d_kv,           torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(),
-              torch::Tensor()};
+    const torch::Tensor none;
+    if (self) return {d_kv, none, none, none, none, none, none, none};
     if (q_src.size(0) == 1 && b != 1) d_q = d_q.sum(0, /*keepdim=*/true);
-    return {d_q, d_kv, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+    return {d_q, d_kv, none, none, none, none, none, none};
   }
 };
 
-torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
-                  int64_t width, double scale, CpuVectorForm form) {
+PackedAttention run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const torch::Tensor& mask, int64_t heads,
+                    int64_t width, double scale, CpuVectorForm form, bool with_row0) {
   RECORD_FUNCTION("ablenerf::packed_attention", std::vector<c10::IValue>());
   const bool self = !kv_src.defined();
   TORCH_CHECK(width % heads == 0, "packed attention: width ", width, " is not divisible by ", heads, " heads");
@@ -543,17 +572,20 @@ torch::Tensor run(const torch::Tensor& q_src, const torch::Tensor& kv_src, const
   TORCH_CHECK(!m.defined() || m.numel() == 0 || (m.dim() == 2 && m.size(0) == q.size(1) && m.size(1) == lk),
               "packed attention: the mask must be (", q.size(1), ", ", lk, "), got ", m.sizes());
   const bool needs_graph = torch::GradMode::is_enabled() && (q.requires_grad() || (kv.defined() && kv.requires_grad()));
-  if (needs_graph)
-    return PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
-                                          m.defined() ? m : torch::empty({0}, q.options()), heads, width, scale,
-                                          static_cast<int64_t>(form));
-  torch::Tensor out;
+  if (needs_graph) {
+    const auto outs = PackedAttentionFunction::apply(q, self ? torch::empty({0}, q.options()) : kv,
+                                                     m.defined() ? m : torch::empty({0}, q.options()), heads, width,
+                                                     scale, static_cast<int64_t>(form), with_row0);
+    return {outs[0], with_row0 ? outs[1] : torch::Tensor()};
+  }
+  PackedAttention r;
   AT_DISPATCH_FLOATING_TYPES(q.scalar_type(), "packed_attention_inference", [&] {
     const auto& kvt = self ? q : kv;
     const auto pr = make_problem<scalar_t>(q, kvt, self, heads, width, m, scale, form);
-    out = forward_all(pr, q.options(), torch::Tensor());
+    if (with_row0) r.row0 = torch::empty({pr.b, heads, lk}, q.options());
+    r.out = forward_all(pr, q.options(), torch::Tensor(), r.row0);
   });
-  return out;
+  return r;
 }
 
 }  // namespace
@@ -568,7 +600,13 @@ bool packed_attention_available(const torch::Tensor& x) {
 torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
                                     CpuVectorForm form) {
   TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form);
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, /*with_row0=*/false).out;
+}
+
+PackedAttention packed_self_attention_row0(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
+                                           double scale, CpuVectorForm form) {
+  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, /*with_row0=*/true);
 }
 
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,
@@ -576,7 +614,15 @@ torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor
   TORCH_CHECK(
       q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && (q.size(0) == 1 || q.size(0) == kv.size(0)),
       "packed_cross_attention: expected q (B or 1, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ", kv.sizes());
-  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form);
+  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form, /*with_row0=*/false).out;
+}
+
+PackedAttention packed_cross_attention_row0(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads,
+                                            double scale, CpuVectorForm form) {
+  TORCH_CHECK(q.dim() == 3 && kv.dim() == 3 && kv.size(2) == 2 * q.size(2) && q.size(0) == kv.size(0),
+              "packed_cross_attention_row0: expected q (B, Lq, E) and kv (B, Lk, 2E), got ", q.sizes(), " and ",
+              kv.sizes());
+  return run(q, kv, torch::Tensor(), heads, q.size(2), scale, form, /*with_row0=*/true);
 }
 
 }  // namespace ablenerf

@@ -75,9 +75,14 @@ torch::Tensor MultiHeadAttentionImpl::forward_self(const torch::Tensor& x, const
     return projected(r.out);
   }
 #endif
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(x)) {
+    if (!probe) return projected(packed_self_attention(packed, heads_, mask, scale()));
+    // The kernel's own row of the ray token, attached to the graph when the probe keeps it.
+    const PackedAttention r = packed_self_attention_row0(packed, heads_, mask, scale());
+    probe->row0 = probe->keep_graph ? r.row0 : r.row0.detach();
+    return projected(r.out);
+  }
   if (probe) fill_probe(packed, b, l, probe);
-  if (kernel_ == AttentionKernel::Fused && packed_attention_available(x))
-    return projected(packed_self_attention(packed, heads_, mask, scale()));
   // (B,L,3,H,dh) -> (3,B,H,L,dh): views, no copy.
   const auto qkv = packed.view({b, l, 3, heads_, dh}).permute({2, 0, 3, 1, 4});
   return projected(attend(qkv[0], qkv[1], qkv[2], mask));
@@ -92,6 +97,12 @@ void MultiHeadAttentionImpl::fill_probe(const torch::Tensor& packed, int64_t b, 
   probe->k = probe->keep_graph ? k : k.detach();
 }
 
+void MultiHeadAttentionImpl::fill_probe_cross(const torch::Tensor& q_heads, const torch::Tensor& kv_heads,
+                                              RayQueryProbe* probe) const {
+  probe->q0 = probe->keep_graph ? q_heads.select(2, 0) : q_heads.select(2, 0).detach();
+  probe->k = probe->keep_graph ? kv_heads[0] : kv_heads[0].detach();
+}
+
 torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, const torch::Tensor& kv_in,
                                                     RayQueryProbe* probe, bool project) {
   const auto projected = [&](const torch::Tensor& heads) { return project ? linear_tokens(out_proj, heads) : heads; };
@@ -102,12 +113,16 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const auto kv = linear_tokens(kv_in, wkv, bkv);  // (B, Lk, 2E)
   const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});
   const auto q_heads = q.view({q_in.size(0), q_in.size(1), heads_, dh}).transpose(1, 2);
-  if (probe) {
-    probe->q0 = probe->keep_graph ? q_heads.select(2, 0) : q_heads.select(2, 0).detach();
-    probe->k = probe->keep_graph ? kv_heads[0] : kv_heads[0].detach();
+  if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in)) {
+    if (!probe || q.size(0) != kv.size(0)) {
+      if (probe) fill_probe_cross(q_heads, kv_heads, probe);
+      return projected(packed_cross_attention(q, kv, heads_, scale()));
+    }
+    const PackedAttention r = packed_cross_attention_row0(q, kv, heads_, scale());
+    probe->row0 = probe->keep_graph ? r.row0 : r.row0.detach();
+    return projected(r.out);
   }
-  if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in))
-    return projected(packed_cross_attention(q, kv, heads_, scale()));
+  if (probe) fill_probe_cross(q_heads, kv_heads, probe);
   return projected(attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor()));
 }
 

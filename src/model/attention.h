@@ -17,12 +17,13 @@ namespace ablenerf {
 struct RayQueryProbe {
   torch::Tensor q0;  // (B,H,dh)
   torch::Tensor k;   // (B,H,L,dh)
-  // Or, from a kernel that computes it anyway (kernels/ray_attention.h), the row itself:
-  // (B,H,L) fp32 softmax probabilities of the ray token over every token, detached.
+  // Or, from a kernel that computes it anyway, the row itself: (B,H,L) softmax probabilities of
+  // the ray token over every token. The CPU kernels (kernels/packed_attention.h) return it attached
+  // to the graph when keep_graph is set, detached otherwise; the CUDA kernel
+  // (kernels/ray_attention.h) only detached, so there q0 and k are filled instead when keep_graph.
   torch::Tensor row0;
-  // Set by the caller: keep q0 and k attached to the graph (and fill them even where a kernel
-  // returns row0), so that a loss on the attention row reaches the weights
-  // (train.distortion_weight).
+  // Set by the caller: keep the row attached to the graph, so that a loss on the attention row
+  // reaches the weights (train.distortion_weight, train.proposal_attention_weight).
   bool keep_graph = false;
 };
 
@@ -51,6 +52,8 @@ class MultiHeadAttentionImpl : public torch::nn::Module {
   double scale() const;  // 1/sqrt(head width)
   // The probe's q0 and k from the packed projections (B,L,3E) of a self-attention.
   void fill_probe(const torch::Tensor& packed, int64_t b, int64_t l, RayQueryProbe* probe) const;
+  // The same from cross-attention's heads: q (Bq,H,Lq,dh) and kv (2,B,H,Lk,dh).
+  void fill_probe_cross(const torch::Tensor& q_heads, const torch::Tensor& kv_heads, RayQueryProbe* probe) const;
   // q: (Bq,H,Lq,dh), k, v: (B,H,Lk,dh) -> (B,Lq,E), the heads concatenated (no output projection).
   torch::Tensor attend(const torch::Tensor& q, const torch::Tensor& k, const torch::Tensor& v,
                        const torch::Tensor& mask);

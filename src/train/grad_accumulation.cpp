@@ -1,5 +1,6 @@
 #include "train/grad_accumulation.h"
 
+#include <algorithm>
 #include <vector>
 
 #include "kernels/cpu_parallel.h"
@@ -90,6 +91,76 @@ LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions
   return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays, distortion_scale);
 }
 
+// Each parameter's gradients from the step's ray slices summed onto its .grad, in slice order. A
+// parameter's first sum goes to a new tensor: the gradients autograd returns may share memory
+// between parameters (an addition hands both operands the same tensor), so none of them becomes a
+// .grad that a later add_ would write through. About 150 small sums a step: one ATen add each cost
+// more in dispatch than in arithmetic, so contiguous ones of the parameter's dtype are summed by a
+// plain loop, the parameters split between the threads by size; the rest through ATen.
+void sum_slice_gradients(const std::vector<torch::Tensor>& params,
+                         const std::vector<std::vector<torch::Tensor>>& grads) {
+  struct Sum {
+    torch::Tensor acc;
+    std::vector<torch::Tensor> parts;  // the defined slices' gradients, in slice order
+    bool onto;                         // acc held a gradient before this step's sum
+  };
+  std::vector<Sum> sums;
+  std::vector<int64_t> ends;  // running element count, to split the loops by size
+  int64_t total = 0;
+  for (size_t i = 0; i < params.size(); ++i) {
+    std::vector<torch::Tensor> parts;
+    for (const auto& g : grads) {
+      if (g[i].defined()) parts.push_back(g[i]);
+    }
+    if (parts.empty()) continue;
+    auto& acc = params[i].mutable_grad();
+    bool plain = true;
+    for (const auto& g : parts)
+      plain = plain && g.is_contiguous() && g.scalar_type() == params[i].scalar_type() && g.is_cpu() &&
+              g.sizes() == params[i].sizes();
+    const bool onto = acc.defined();
+    if (onto) plain = plain && acc.is_contiguous() && acc.scalar_type() == params[i].scalar_type();
+    if (!plain) {
+      for (const auto& g : parts) acc = acc.defined() ? acc.add_(g) : g.clone(torch::MemoryFormat::Contiguous);
+      continue;
+    }
+    if (!onto) acc = torch::empty_like(params[i], torch::MemoryFormat::Contiguous);
+    total += acc.numel();
+    sums.push_back({acc, std::move(parts), onto});
+    ends.push_back(total);
+  }
+  if (sums.empty()) return;
+  // Two halves by elements; a thread for each when there is enough to share.
+  constexpr int64_t kMinElementsPerThread = 1 << 14;
+  const int64_t workers = cpu_workers(total, kMinElementsPerThread);
+  parallel_slices(total, workers, [&](int64_t, int64_t lo, int64_t hi) {
+    // The parameters whose elements end inside [lo, hi) (each whole, to the thread its end falls to).
+    size_t i = static_cast<size_t>(std::upper_bound(ends.begin(), ends.end(), lo) - ends.begin());
+    for (; i < sums.size() && ends[i] <= hi; ++i) {
+      Sum& s = sums[i];
+      AT_DISPATCH_FLOATING_TYPES(s.acc.scalar_type(), "sum_slice_gradients", [&] {
+        scalar_t* out = s.acc.data_ptr<scalar_t>();
+        const int64_t n = s.acc.numel();
+        size_t first = 0;
+        if (!s.onto) {
+          const scalar_t* a = s.parts[0].data_ptr<scalar_t>();
+          if (s.parts.size() == 1) {
+            std::copy_n(a, n, out);
+          } else {
+            const scalar_t* b = s.parts[1].data_ptr<scalar_t>();
+            for (int64_t j = 0; j < n; ++j) out[j] = a[j] + b[j];
+          }
+          first = std::min<size_t>(2, s.parts.size());
+        }
+        for (size_t k = first; k < s.parts.size(); ++k) {
+          const scalar_t* g = s.parts[k].data_ptr<scalar_t>();
+          for (int64_t j = 0; j < n; ++j) out[j] += g[j];
+        }
+      });
+    }
+  });
+}
+
 }  // namespace
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
@@ -143,29 +214,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       });
       torch::NoGradGuard no_grad;
       for (size_t w = 0; w < grads.size(); ++w) add(parts[w]);
-      // In slice order. A parameter's first sum is a new tensor (g0 + g1 + ...): the gradients
-      // autograd returns may share memory between parameters (an addition hands both operands the
-      // same tensor), so none of them becomes a .grad that a later add_ would write through.
-      for (size_t i = 0; i < params.size(); ++i) {
-        auto& acc = params[i].mutable_grad();
-        for (size_t w = 0; w < grads.size(); ++w) {
-          const auto& g = grads[w][i];
-          if (!g.defined()) continue;
-          if (acc.defined()) {
-            acc.add_(g);
-            continue;
-          }
-          // The first two defined slices in one op when there are two; a lone one is copied.
-          size_t next = w + 1;
-          while (next < grads.size() && !grads[next][i].defined()) ++next;
-          if (next < grads.size()) {
-            acc = g + grads[next][i];
-            w = next;
-          } else {
-            acc = g.clone(torch::MemoryFormat::Contiguous);
-          }
-        }
-      }
+      sum_slice_gradients(params, grads);
     }
   } catch (...) {
     for (auto* t : tables) t->table_gradient().discard();

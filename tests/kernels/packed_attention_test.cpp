@@ -2,7 +2,8 @@
 // per-head autograd formula softmax(Q K^T * scale + mask) V: same values and same gradients, in
 // float64 to 1e-10 and in float32 to float tolerance, for self-attention with the causal mask
 // and for cross-attention with per-ray and with shared (batch-1) queries, on rays short enough for
-// the register-blocked products and long enough for BLAS.
+// the register-blocked products and long enough for BLAS; and with the first query's row of
+// probabilities as a second output carrying a gradient of its own.
 #include <gtest/gtest.h>
 
 #include <limits>
@@ -37,13 +38,24 @@ torch::Tensor ray_mask(int64_t n, torch::ScalarType t = torch::kFloat) {
   return torch::zeros({n, n}, t).masked_fill(blocked, -std::numeric_limits<double>::infinity());
 }
 
-torch::Tensor reference(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
-                        const torch::Tensor& mask, Heads h = {}) {
+// The attention's output (B, Lq, E) and its first query's probabilities (B, H, Lk).
+struct Reference {
+  torch::Tensor out, row0;
+};
+
+Reference reference_with_row0(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
+                              const torch::Tensor& mask, Heads h = {}) {
   const auto q = heads_of(q_src, 0, h), k = heads_of(kv_src, k_off, h), v = heads_of(kv_src, v_off, h);
   auto s = torch::matmul(q, k.transpose(-2, -1)) * kScale;
   if (mask.defined()) s = s + mask;
-  const auto o = torch::matmul(torch::softmax(s, -1), v);  // (B, H, Lq, dh)
-  return o.transpose(1, 2).reshape({kv_src.size(0), q_src.size(1), h.width()});
+  const auto p = torch::softmax(s, -1);
+  const auto o = torch::matmul(p, v);  // (B, H, Lq, dh)
+  return {o.transpose(1, 2).reshape({kv_src.size(0), q_src.size(1), h.width()}), p.select(2, 0)};
+}
+
+torch::Tensor reference(const torch::Tensor& q_src, const torch::Tensor& kv_src, int64_t k_off, int64_t v_off,
+                        const torch::Tensor& mask, Heads h = {}) {
+  return reference_with_row0(q_src, kv_src, k_off, v_off, mask, h).out;
 }
 
 struct Case {
@@ -53,31 +65,46 @@ struct Case {
   CpuVectorForm form = cpu_best_vector_form();
 };
 
-// Values and gradients of the kernel and of the reference for the same upstream gradient.
+// Values and gradients of the kernel and of the reference for the same upstream gradient; then
+// again through the kernels that also return the first query's row (per-ray queries only), with an
+// upstream gradient on the row too, as the ray token's attention losses give it.
 void compare(const Case& c, double tol) {
   const bool self = !c.kv.defined();
   const int64_t e = c.heads.width();
-  std::vector<torch::Tensor> got, want;
-  for (auto* out : {&got, &want}) {
-    auto q = c.q.clone().requires_grad_();
-    auto kv = self ? torch::Tensor() : c.kv.clone().requires_grad_();
-    torch::Tensor o;
-    if (out == &got) {
-      o = self ? packed_self_attention(q, c.heads.count, c.mask, kScale, c.form)
-               : packed_cross_attention(q, kv, c.heads.count, kScale, c.form);
-    } else {
-      o = self ? reference(q, q, e, 2 * e, c.mask, c.heads) : reference(q, kv, 0, e, c.mask, c.heads);
+  const bool row_form = self || c.q.size(0) == c.kv.size(0);
+  for (const bool with_row0 : {false, true}) {
+    if (with_row0 && !row_form) continue;
+    SCOPED_TRACE(with_row0 ? "with the first query's row" : "output only");
+    std::vector<torch::Tensor> got, want;
+    for (auto* out : {&got, &want}) {
+      auto q = c.q.clone().requires_grad_();
+      auto kv = self ? torch::Tensor() : c.kv.clone().requires_grad_();
+      Reference o;
+      if (out == &got && with_row0) {
+        const PackedAttention r = self ? packed_self_attention_row0(q, c.heads.count, c.mask, kScale, c.form)
+                                       : packed_cross_attention_row0(q, kv, c.heads.count, kScale, c.form);
+        o = {r.out, r.row0};
+      } else if (out == &got) {
+        o.out = self ? packed_self_attention(q, c.heads.count, c.mask, kScale, c.form)
+                     : packed_cross_attention(q, kv, c.heads.count, kScale, c.form);
+      } else {
+        o = self ? reference_with_row0(q, q, e, 2 * e, c.mask, c.heads)
+                 : reference_with_row0(q, kv, 0, e, c.mask, c.heads);
+      }
+      auto gen = at::detail::createCPUGenerator(3);
+      const auto upstream = torch::randn(o.out.sizes(), gen, o.out.options());
+      auto loss = (o.out * upstream).sum();
+      if (with_row0) loss = loss + (o.row0 * torch::randn(o.row0.sizes(), gen, o.row0.options())).sum();
+      loss.backward();
+      *out = {o.out.detach(), q.grad()};
+      if (with_row0) out->push_back(o.row0.detach());
+      if (!self) out->push_back(kv.grad());
     }
-    auto gen = at::detail::createCPUGenerator(3);
-    const auto upstream = torch::randn(o.sizes(), gen, o.options());
-    (o * upstream).sum().backward();
-    *out = {o.detach(), q.grad()};
-    if (!self) out->push_back(kv.grad());
-  }
-  ASSERT_EQ(got.size(), want.size());
-  for (size_t i = 0; i < got.size(); ++i) {
-    ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
-    EXPECT_LT((got[i] - want[i]).abs().max().item<double>(), tol) << "output/gradient " << i;
+    ASSERT_EQ(got.size(), want.size());
+    for (size_t i = 0; i < got.size(); ++i) {
+      ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
+      EXPECT_LT((got[i] - want[i]).abs().max().item<double>(), tol) << "output/gradient " << i;
+    }
   }
 }
 
@@ -168,6 +195,11 @@ TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   const auto wide_mask = ray_mask(17);
   const auto wide_want = reference(wide, wide, h.width(), 2 * h.width(), wide_mask, h);
   EXPECT_LT((packed_self_attention(wide, h.count, wide_mask, kScale) - wide_want).abs().max().item<double>(), 1e-5);
+  // The first query's row beside it, as the resampler reads it when rendering.
+  const auto r = packed_self_attention_row0(wide, h.count, wide_mask, kScale);
+  const auto row_want = reference_with_row0(wide, wide, h.width(), 2 * h.width(), wide_mask, h).row0;
+  EXPECT_LT((r.out - wide_want).abs().max().item<double>(), 1e-5);
+  EXPECT_LT((r.row0 - row_want).abs().max().item<double>(), 1e-6);
 }
 
 TEST(PackedAttention, AvailableOnlyForCpuFloatingPoint) {

@@ -8,6 +8,7 @@
 #include "model/ab_transformer.h"
 #include "model/attention.h"
 #include "model/compute_config.h"
+#include "model/resampler.h"
 
 namespace ablenerf {
 namespace {
@@ -115,8 +116,7 @@ TEST(Attention, FirstTokenPathEqualsRowZeroOfSelfAttention) {
   const auto first = blk->forward_first(x, &first_probe);
   ASSERT_EQ(first.sizes(), (std::vector<int64_t>{b, 1, kWidth}));
   EXPECT_LT((first.select(1, 0) - full.select(1, 0)).abs().max().item<double>(), 1e-12);
-  EXPECT_LT((first_probe.q0 - full_probe.q0).abs().max().item<double>(), 1e-12);
-  EXPECT_LT((first_probe.k - full_probe.k).abs().max().item<double>(), 1e-12);
+  EXPECT_LT((ray_token_attention(first_probe) - ray_token_attention(full_probe)).abs().max().item<double>(), 1e-12);
   // And it is not row 1 (a test that could not tell the rows apart would pass either way).
   EXPECT_GT((first.select(1, 0) - full.select(1, 1)).abs().max().item<double>(), 1e-3);
 }
@@ -190,6 +190,43 @@ TEST(Attention, PlainEqualsFusedOnTheCpu) {
     }
     EXPECT_LT((outs[0] - outs[1]).abs().max().item<double>(), 1e-10) << "masked " << masked;
     EXPECT_LT((grads[0] - grads[1]).abs().max().item<double>(), 1e-9) << "masked " << masked;
+    EXPECT_GT(grads[0].abs().max().item<double>(), 1e-3);  // not a comparison of zeros
+  }
+}
+
+// The ray token's attention row (what the resampler, depth and the attention's losses read), with
+// the probe keeping the graph: the fused CPU kernel returns the row itself, the plain path its
+// query and keys; the same row and the same gradients of the block's input and parameters, from
+// the full self-attention and from the ray token's row alone (forward_first).
+TEST(Attention, RayTokenRowPlainEqualsFusedWithGradients) {
+  torch::manual_seed(41);
+  TransformerBlock blk(16, 2, 32);
+  blk->to(torch::kDouble);
+  const auto mask = ray_attention_mask(8).to(torch::kDouble);
+  for (const bool first_only : {false, true}) {
+    std::vector<torch::Tensor> rows, grads;
+    for (const AttentionKernel k : {AttentionKernel::Plain, AttentionKernel::Fused}) {
+      blk->attn->set_kernel(k);
+      torch::manual_seed(42);
+      const auto x = torch::randn({3, 9, 16}, torch::kDouble).requires_grad_(true);
+      const auto w = torch::randn({3, 8}, torch::kDouble);
+      RayQueryProbe probe;
+      probe.keep_graph = true;
+      if (first_only) {
+        blk->forward_first(x, &probe);
+      } else {
+        blk->forward_self(x, mask, &probe);
+      }
+      const auto row = ray_token_attention(probe);  // (B, L - 1)
+      std::vector<torch::Tensor> wrt{x, blk->attn->in_proj_weight, blk->attn->in_proj_bias};
+      std::vector<torch::Tensor> flat;
+      for (const auto& g : torch::autograd::grad({(row * w).sum()}, wrt)) flat.push_back(g.reshape({-1}));
+      rows.push_back(row.detach());
+      grads.push_back(torch::cat(flat));
+    }
+    ASSERT_EQ(rows[0].sizes(), (std::vector<int64_t>{3, 8}));
+    EXPECT_LT((rows[0] - rows[1]).abs().max().item<double>(), 1e-12) << "first only " << first_only;
+    EXPECT_LT((grads[0] - grads[1]).abs().max().item<double>(), 1e-10) << "first only " << first_only;
     EXPECT_GT(grads[0].abs().max().item<double>(), 1e-3);  // not a comparison of zeros
   }
 }
