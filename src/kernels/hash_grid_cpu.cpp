@@ -108,6 +108,22 @@ struct Addressing {
         mask(static_cast<uint32_t>(s.table_size - 1)) {}
 };
 
+// A level's rows prefetched in order (into L2) before `points` points read (or add to) them at
+// random, when their corners are at least as many as the rows' cache lines: the whole level then
+// moves into the core's cache at the memory's streaming rate instead of one random miss after
+// another. Rendering at the capture preset (bench, in pairs): 29,900-41,000 -> 40,200-57,300 rays/s;
+// in a training step, where Adam has just swept the table through the caches, within the machine's
+// drift (docs/benchmarks/history.md, "The grid's levels prefetched").
+ABLENERF_ALWAYS_INLINE void warm_level(const float* level_rows, const HashGridShape& s, const Addressing& a,
+                                       int64_t points) {
+  constexpr int64_t kLineFloats = 16;
+  const int64_t rows = a.dense ? int64_t{a.side} * a.side * a.side : s.table_size;
+  const int64_t floats = rows * 2;
+  if (points * 8 < floats / kLineFloats) return;
+  for (int64_t j = 0; j < floats; j += kLineFloats)
+    _mm_prefetch(reinterpret_cast<const char*>(level_rows + j), _MM_HINT_T1);
+}
+
 // Vertex k's rows and trilinear weights for the 16 points (hash_grid_corners' order and products).
 ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void vertex(const Cells& c, int k, const Addressing& a, __m512i& row,
                                                           __m512& weight) {
@@ -153,6 +169,7 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m256i point_stride(int levels) {
 ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows,
                                          const HashGridShape& s, int level, float* out) {
   const Addressing a(s, level);
+  warm_level(level_rows, s, a, hi - lo);
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float weights[8][kLanes];
   int64_t i = lo;
@@ -183,6 +200,7 @@ ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int
 ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, const float* grad_out,
                                           const HashGridShape& s, int level, float* level_rows) {
   const Addressing a(s, level);
+  warm_level(level_rows, s, a, n);
   const __m256i stride = point_stride(s.levels);
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float products[8][2 * kLanes];
