@@ -10,6 +10,7 @@
 #include "cli/common.h"
 #include "model/able_nerf.h"
 #include "util/fs.h"
+#include "data/data_config.h"
 #include "model/model_config.h"
 
 namespace ablenerf::cli {
@@ -21,7 +22,10 @@ struct ImportArgs {
 };
 
 void run_import(const ImportArgs& a) {
-  const Config c = resolve_config(a.cfg);
+  Config c = resolve_config(a.cfg);
+  // A size chosen from the capture when training (data.downscale = 0) has no capture here: the
+  // images' own size, which eval --downscale changes.
+  if (c.get<DataConfig>().downscale == 0) c.get<DataConfig>().downscale = 1;
   AbleNerf model(c.get<ModelConfig>());
   import_release_weights(model, read_weights_dict(a.weights), a.weights);
   ensure_dir(a.out);

@@ -6,8 +6,10 @@
 #include "cli/command.h"
 #include "cli/common.h"
 #include "data/load_options.h"
+#include "data/data_config.h"
 #include "data/dataset.h"
 #include "eval/camera_path.h"
+#include "train/image_size.h"
 
 namespace ablenerf::cli {
 namespace cmd_info {
@@ -74,6 +76,9 @@ void setup(CLI::App& app) {
     }
     if (!data->empty()) {
       Config c = resolve_config(*cfg);
+      // data.downscale = 0: the size training would choose (train/image_size.h), said and used here.
+      if (c.get<DataConfig>().downscale == 0)
+        out["image_size"] = resolve_image_size(c, *data, parse_device("auto")).describe();
       LoadOptions lo = load_options_for(c);
       lo.progress = true;
       out["dataset"] = dataset_summary(Dataset::load(*data, lo));

@@ -1,6 +1,8 @@
 #pragma once
 // The [data] section of the run configuration (util/config_section.h), registered below: how a capture is read
 // (data/dataset.h, data/scene_frame.h), owned by the data module.
+#include <cmath>
+
 #include "util/config_section.h"
 
 namespace ablenerf {
@@ -37,7 +39,14 @@ struct DataConfig {
   static constexpr const char* kName = "data";
   static constexpr int kOrder = 1;
 
-  int downscale = 1;  // integer box-downscale factor
+  // Integer box-downscale factor; 0: chosen from the capture when training (train/image_size.h):
+  // the finest reduction whose training pixels the run draws `auto_passes` times in its budget at
+  // `auto_rays_per_s` (0: the speed measured when training starts), keeping at least
+  // `auto_min_side` pixels on the short side.
+  int downscale = 1;
+  double auto_passes = 4.0;
+  double auto_rays_per_s = 0;
+  int auto_min_side = 64;
   Background background = Background::White;
   // Near/far of Blender scenes (their convention: 2/6). A real capture's bounds come from the
   // capture itself (sparse points, LLFF bounds or the camera layout; data/scene_frame.h) unless
@@ -56,6 +65,9 @@ struct DataConfig {
   template <class F>
   void visit(F&& f) {
     f("downscale", &downscale);
+    f("auto_passes", &auto_passes);
+    f("auto_rays_per_s", &auto_rays_per_s);
+    f("auto_min_side", &auto_min_side);
     f("background", &background);
     f("near", &near);
     f("far", &far);
@@ -66,7 +78,10 @@ struct DataConfig {
   }
 
   void validate(const SectionCheck& need) const {
-    need(downscale >= 1, "downscale", "must be >= 1");
+    need(downscale >= 0, "downscale", "must be >= 1, or 0 to choose from the capture");
+    need(auto_passes > 0 && std::isfinite(auto_passes), "auto_passes", "must be > 0");
+    need(auto_rays_per_s >= 0 && std::isfinite(auto_rays_per_s), "auto_rays_per_s", "must be >= 0 (0: measured)");
+    need(auto_min_side >= 1, "auto_min_side", "must be >= 1");
     need(near >= 0 && far > near, "far", "need 0 <= near < far");
   }
 };

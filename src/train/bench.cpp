@@ -172,6 +172,24 @@ std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& de
 
 }  // namespace
 
+double training_rays_per_s(const Config& cfg, const torch::Device& device) {
+  constexpr int64_t kWarmup = 3, kTimed = 5, kImageSide = 32;
+  Config c = cfg;
+  TrainConfig& tc = c.get<TrainConfig>();
+  tc.time_budget_s = 0;
+  tc.micro_batch = std::min(tc.micro_batch, tc.rays_per_step);
+  TrainOptions to;
+  to.device = device;
+  to.quiet = true;
+  Trainer trainer(c, to);
+  trainer.setup(bench_split(kImageSide, static_cast<uint64_t>(tc.seed)), bench_intrinsics(kImageSide));
+  for (int64_t i = 0; i < kWarmup || (trainer.device_form() && tc.graph && !trainer.graph_captured()); ++i)
+    trainer.step();
+  const Timing t = time_it(device, 0, kTimed, [&] { trainer.step(); });
+  trainer.flush();
+  return static_cast<double>(tc.rays_per_step) / t.wall_median();
+}
+
 BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   BenchMeasurements m;
   m.threads = at::get_num_threads();

@@ -61,6 +61,10 @@ double median(std::vector<double> values);
 // Runs every measurement (warm-up, then `steps` timed repetitions each).
 BenchMeasurements measure(const Config& cfg, const BenchOptions& opts);
 
+// The training speed of `cfg` on `device` in rays per second: the median of a few timed steps of
+// its own trainer (train.rays_per_step rays each) on an in-memory split, after untimed ones.
+double training_rays_per_s(const Config& cfg, const torch::Device& device);
+
 // The JSON report from measurements (pure arithmetic, no timing).
 nlohmann::json bench_report(const Config& cfg, const BenchOptions& opts, const BenchMeasurements& m);
 

@@ -9,6 +9,7 @@
 #include "data/load_options.h"
 #include "model/compute.h"
 #include "train/distributed.h"
+#include "train/image_size.h"
 #include "train/trainer_state.h"
 #include "util/errors.h"
 #include "util/fs.h"
@@ -45,6 +46,19 @@ void Trainer::setup() {
   if (s.run.data_dir.empty()) throw InputError(s.run.path("run.json"), "data", "missing: give --data");
   if (s.leader) s.run.remove_stale_temporaries();
 
+  // The image size, when the config leaves it to the capture (train/image_size.h); recorded in the
+  // run's config below.
+  // A resumed run keeps the size it chose (its config.toml holds it).
+  if (config_.get<DataConfig>().downscale == 0 && opts_.resume && have_ckpt)
+    config_.get<DataConfig>().downscale = s.run.config.get<DataConfig>().downscale;
+  if (config_.get<DataConfig>().downscale == 0) {
+    if (opts_.dist && config_.get<TrainConfig>().time_budget_s > 0 && config_.get<DataConfig>().auto_rays_per_s <= 0)
+      throw InputError(config_.source, "data.downscale",
+                       "0 with data.auto_rays_per_s = 0 (a size from the speed measured in each process) needs one "
+                       "process when the run has a time budget: give --downscale N or data.auto_rays_per_s");
+    const ImageSizeChoice choice = resolve_image_size(config_, s.run.data_dir, opts_.device);
+    if (s.leader && !opts_.quiet) log_info("train: " + choice.describe());
+  }
   // Data: the training split, and a held-out split for the periodic PSNR (val, else test).
   std::vector<std::string> want{"train"};
   // The capture's metadata, read once (its splits decide the held-out one, then it is loaded).

@@ -84,6 +84,32 @@ TEST(Cli, TrainFlagsForConfigKeysAndOldSpellings) {
   EXPECT_NE(bare.output.find("no --preset or --config: the paper's model"), std::string::npos) << bare.output;
 }
 
+// data.downscale = 0: train chooses the size (train/image_size.h) and records it in the run's
+// config; info says the same. Six 48x48 views, 4 steps of 96 rays (384 rays, 4 passes: at most 96
+// pixels): 1/12 is 4x4 x 6 = 96 pixels, 1/8 would be 216.
+TEST(Cli, TrainChoosesTheImageSizeFromTheCapture) {
+  test::TempDir t;
+  ASSERT_EQ(test::run_cli("synth --out " + (t / "data") + " --res 48 --train-views 6 --test-views 1").exit_code, 0);
+  const std::string sets =
+      " --set data.downscale=0 --set data.auto_passes=4 --set data.auto_min_side=4 --set train.time_budget_s=0"
+      " --set train.rays_per_step=96 --set train.micro_batch=96 --set train.steps=4";
+  const auto info = test::run_cli("info --data " + (t / "data") + " --preset demo" + sets);
+  ASSERT_EQ(info.exit_code, 0) << info.output;
+  const auto j = nlohmann::json::parse(info.output.substr(info.output.find('{')));
+  EXPECT_NE(j["image_size"].get<std::string>().find("data.downscale = 12 (auto): 6 training photos at 4x4"),
+            std::string::npos)
+      << info.output;
+  EXPECT_EQ(j["dataset"]["width"], 4);
+  const auto r = test::run_cli("train --data " + (t / "data") + " --preset demo --out " + (t / "run") + sets);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("data.downscale = 12 (auto)"), std::string::npos) << r.output;
+  std::ifstream cfg_file(t / "run/config.toml");
+  const std::string cfg((std::istreambuf_iterator<char>(cfg_file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(cfg.find("downscale = 12"), std::string::npos) << cfg;
+  const auto e = test::run_cli("eval --run " + (t / "run") + " --json");
+  ASSERT_EQ(e.exit_code, 0) << e.output;
+}
+
 TEST(Cli, InfoOnLego) {
   const std::string lego = test::lego_dir();
   if (lego.empty()) GTEST_SKIP() << "lego not present";

@@ -6,6 +6,9 @@
 #include "train/bench.h"
 #include "test_util.h"
 #include "model/model_config.h"
+#include "train/train_config.h"
+
+#include <cmath>
 
 namespace ablenerf {
 namespace {
@@ -190,6 +193,17 @@ TEST(BenchTrace, SelfTimesFromNestedEvents) {
   EXPECT_THROW(trace_summary("not json", 1, 3), std::invalid_argument);
   EXPECT_THROW(trace_summary(R"([{"name": "x", "ph": "X", "ts": "a", "dur": 1}])", 1, 3), std::invalid_argument);
   EXPECT_FALSE(j.contains("stages"));  // no stage scopes in this trace
+}
+
+// The speed the image-size choice measures (train/image_size.h): positive and finite, from steps
+// of the config's own batch. No assertion on its value: timing depends on the machine.
+TEST(BenchRun, TrainingSpeedOfAConfig) {
+  Config cfg = tiny_bench_config();
+  cfg.get<TrainConfig>().rays_per_step = 8;
+  cfg.get<TrainConfig>().micro_batch = 8;
+  const double speed = training_rays_per_s(cfg, torch::kCPU);
+  EXPECT_GT(speed, 0);
+  EXPECT_TRUE(std::isfinite(speed));
 }
 
 TEST(BenchTrace, StagesTakeTheirWholeDurationAndCountTheOpsInside) {

@@ -165,8 +165,9 @@ TEST(Config, SectionsListTheirKeysOnceUnderTheirName) {
   EXPECT_EQ(sections, (std::vector<std::string>{"model", "data", "train", "eval", "compute"}));
   EXPECT_TRUE(keys.count("model.proposal_samples") && keys.count("data.masks") && keys.count("train.graph") &&
               keys.count("eval.ssim") && keys.count("compute.cpu_split"));
-  EXPECT_EQ(input_error([] { Config::parse("[data]\ndownscale = 0\n", "f.toml").validate(); }),
-            "f.toml: data.downscale: must be >= 1");
+  EXPECT_EQ(input_error([] { Config::parse("[data]\ndownscale = -1\n", "f.toml").validate(); }),
+            "f.toml: data.downscale: must be >= 1, or 0 to choose from the capture");
+  EXPECT_EQ(input_error([] { Config::parse("[data]\ndownscale = 0\n", "f.toml").validate(); }), "");
   EXPECT_EQ(input_error([] { Config::parse("[eval]\nchunk = 0\n", "f.toml").validate(); }),
             "f.toml: eval.chunk: must be >= 1");
   EXPECT_EQ(input_error([] { Config::parse("[model]\nheads = 5\n", "f.toml").validate(); }),
