@@ -2,11 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <optional>
 #include <sstream>
 
 #include "data/data_config.h"
 #include "train/bench.h"
 #include "train/train_config.h"
+#include "util/errors.h"
 
 namespace ablenerf {
 
@@ -32,7 +35,8 @@ double planned_rays(const Config& cfg, double rays_per_s) {
   return std::min(by_steps, tc.time_budget_s * rays_per_s);
 }
 
-ImageSizeChoice choose_image_size(const Capture& full, const Config& cfg, double rays_per_s) {
+ImageSizeChoice choose_image_size(const Capture& full, const Config& cfg, double rays_per_s,
+                                  const std::function<bool(int)>& loadable) {
   const DataConfig& dc = cfg.get<DataConfig>();
   ImageSizeChoice c;
   for (const auto& split : full.splits)
@@ -46,10 +50,13 @@ ImageSizeChoice choose_image_size(const Capture& full, const Config& cfg, double
     c.pixels = static_cast<double>(c.frames) * c.width * c.height;
   };
   at(1);
+  bool found = false;  // a loadable reduction seen
   for (const int d : kAutoDownscales) {
-    // Never below the smallest short side (the full size when the photos are smaller than that).
-    if (d > 1 && short_side / d < dc.auto_min_side) break;
+    // Never below the smallest short side (the finest loadable size when the photos are smaller).
+    if (found && short_side / d < dc.auto_min_side) break;
+    if (loadable && !loadable(d)) continue;
     at(d);
+    found = true;
     if (c.pixels * dc.auto_passes <= c.rays) break;
   }
   return c;
@@ -62,11 +69,28 @@ ImageSizeChoice resolve_image_size(Config& cfg, const std::string& data_dir, con
     c.downscale = dc.downscale;
     return c;
   }
-  const Capture full = read_capture(data_dir, {}, 1);
+  // Which reductions the capture can be read at (its metadata only; no image is decoded), and its
+  // full size and photos from the first of them. A capture no reduction reads is read at full
+  // size, for its own error.
+  std::map<int, bool> reads;
+  std::optional<Capture> full;
+  const auto loadable = [&](int d) {
+    if (auto it = reads.find(d); it != reads.end()) return it->second;
+    try {
+      Capture at = read_capture(data_dir, {}, d);
+      if (!full) full = std::move(at);
+      return reads[d] = true;
+    } catch (const InputError&) {
+      return reads[d] = false;
+    }
+  };
+  for (const int d : kAutoDownscales)
+    if (loadable(d)) break;
+  if (!full) full = read_capture(data_dir, {}, 1);
   double speed = 0;
   if (cfg.get<TrainConfig>().time_budget_s > 0)
     speed = dc.auto_rays_per_s > 0 ? dc.auto_rays_per_s : training_rays_per_s(cfg, device);
-  ImageSizeChoice c = choose_image_size(full, cfg, speed);
+  ImageSizeChoice c = choose_image_size(*full, cfg, speed, loadable);
   c.measured = dc.auto_rays_per_s <= 0;
   dc.downscale = c.downscale;
   return c;

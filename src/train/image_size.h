@@ -8,6 +8,7 @@
 // eval, render, view and export read the images at the size the model was trained on.
 #include <torch/torch.h>
 
+#include <functional>
 #include <string>
 
 #include "data/capture.h"
@@ -37,8 +38,11 @@ inline constexpr int kAutoDownscales[] = {1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 
 // at `rays_per_s` ends it first (rays_per_s only matters with a budget).
 double planned_rays(const Config& cfg, double rays_per_s);
 
-// The choice for a capture read at full size (its "train" split's photos), pure arithmetic.
-ImageSizeChoice choose_image_size(const Capture& full, const Config& cfg, double rays_per_s);
+// The choice for a capture (its "train" split's photos, its full size), pure arithmetic; `loadable`,
+// when given, says which reductions the capture can be read at (one that ships only images_8/
+// has no other), and the others are passed over.
+ImageSizeChoice choose_image_size(const Capture& full, const Config& cfg, double rays_per_s,
+                                  const std::function<bool(int)>& loadable = {});
 
 // With data.downscale = 0: the capture at `data_dir` read at full size, the training speed (when
 // the run has a time budget) data.auto_rays_per_s or else measured (a few steps of the config's

@@ -68,5 +68,15 @@ TEST(ImageSize, NeverBelowTheSmallestSide) {
   EXPECT_EQ(choose_image_size(capture_of(100, 80, 20), config_of(0, 1000, 1000), 0).downscale, 1);
 }
 
+// A capture that ships only images_8/ (LLFF's horns: 4032x3024 in its npy, 504x378 on disk) is
+// read at 1/8 whatever the budget asks; one with full-size photos and images_8/ skips nothing.
+TEST(ImageSize, OnlyReductionsTheCaptureCanBeReadAt) {
+  const auto only_8 = [](int d) { return d == 8; };
+  EXPECT_EQ(choose_image_size(capture_of(4032, 3024, 54), config_of(900, 1000000, 256), 7500, only_8).downscale, 8);
+  EXPECT_EQ(choose_image_size(capture_of(4032, 3024, 54), config_of(0, 10, 256), 0, only_8).downscale, 8);
+  // 54 photos of 4032x3024: 1/16 is 252x189 x 54 = 2.57M pixels, too many for 6.75M rays; 1/24 fits.
+  EXPECT_EQ(choose_image_size(capture_of(4032, 3024, 54), config_of(900, 1000000, 256), 7500).downscale, 24);
+}
+
 }  // namespace
 }  // namespace ablenerf
