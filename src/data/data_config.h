@@ -44,7 +44,7 @@ struct DataConfig {
   // `auto_rays_per_s` (0: the speed measured when training starts), keeping at least
   // `auto_min_side` pixels on the short side.
   int downscale = 1;
-  double auto_passes = 4.0;
+  double auto_passes = 3.0;
   double auto_rays_per_s = 0;
   int auto_min_side = 64;
   Background background = Background::White;
