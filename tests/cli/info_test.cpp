@@ -108,6 +108,16 @@ TEST(Cli, TrainChoosesTheImageSizeFromTheCapture) {
   EXPECT_NE(cfg.find("downscale = 12"), std::string::npos) << cfg;
   const auto e = test::run_cli("eval --run " + (t / "run") + " --json");
   ASSERT_EQ(e.exit_code, 0) << e.output;
+  // Resumed with more steps (which alone would choose 1/4), the run keeps its size.
+  const auto more = test::run_cli("train --data " + (t / "data") + " --preset demo --out " + (t / "run") + sets +
+                                  " --set train.steps=40 --set train.ckpt_every=1000 --resume");
+  ASSERT_EQ(more.exit_code, 0) << more.output;
+  EXPECT_EQ(more.output.find("(auto)"), std::string::npos) << more.output;
+  std::ifstream again_file(t / "run/config.toml");
+  const std::string again((std::istreambuf_iterator<char>(again_file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(again.find("downscale = 12"), std::string::npos) << again;
+  const auto fresh = test::run_cli("info --data " + (t / "data") + " --preset demo" + sets + " --set train.steps=40");
+  EXPECT_NE(fresh.output.find("data.downscale = 4 (auto)"), std::string::npos) << fresh.output;
 }
 
 TEST(Cli, InfoOnLego) {
