@@ -597,16 +597,24 @@ bool packed_attention_available(const torch::Tensor& x) {
   return false;
 }
 
+namespace {
+
+PackedAttention self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
+                               CpuVectorForm form, bool with_row0) {
+  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
+  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, with_row0);
+}
+
+}  // namespace
+
 torch::Tensor packed_self_attention(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask, double scale,
                                     CpuVectorForm form) {
-  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, /*with_row0=*/false).out;
+  return self_attention(qkv, heads, mask, scale, form, /*with_row0=*/false).out;
 }
 
 PackedAttention packed_self_attention_row0(const torch::Tensor& qkv, int64_t heads, const torch::Tensor& mask,
                                            double scale, CpuVectorForm form) {
-  TORCH_CHECK(qkv.dim() == 3 && qkv.size(2) % 3 == 0, "packed_self_attention: expected (B, L, 3E), got ", qkv.sizes());
-  return run(qkv, torch::Tensor(), mask, heads, qkv.size(2) / 3, scale, form, /*with_row0=*/true);
+  return self_attention(qkv, heads, mask, scale, form, /*with_row0=*/true);
 }
 
 torch::Tensor packed_cross_attention(const torch::Tensor& q, const torch::Tensor& kv, int64_t heads, double scale,

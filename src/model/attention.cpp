@@ -114,13 +114,14 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
   const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});
   const auto q_heads = q.view({q_in.size(0), q_in.size(1), heads_, dh}).transpose(1, 2);
   if (kernel_ == AttentionKernel::Fused && packed_attention_available(q_in)) {
-    if (!probe || q.size(0) != kv.size(0)) {
-      if (probe) fill_probe_cross(q_heads, kv_heads, probe);
-      return projected(packed_cross_attention(q, kv, heads_, scale()));
+    // The kernel's own row for per-ray queries (the ray token's); shared queries fill q0 and k.
+    if (probe && q.size(0) == kv.size(0)) {
+      const PackedAttention r = packed_cross_attention_row0(q, kv, heads_, scale());
+      probe->row0 = probe->keep_graph ? r.row0 : r.row0.detach();
+      return projected(r.out);
     }
-    const PackedAttention r = packed_cross_attention_row0(q, kv, heads_, scale());
-    probe->row0 = probe->keep_graph ? r.row0 : r.row0.detach();
-    return projected(r.out);
+    if (probe) fill_probe_cross(q_heads, kv_heads, probe);
+    return projected(packed_cross_attention(q, kv, heads_, scale()));
   }
   if (probe) fill_probe_cross(q_heads, kv_heads, probe);
   return projected(attend(q_heads, kv_heads[0], kv_heads[1], torch::Tensor()));

@@ -70,11 +70,13 @@ ImageSizeChoice resolve_image_size(Config& cfg, const std::string& data_dir, con
     return c;
   }
   // Which reductions the capture can be read at (its metadata only; no image is decoded), and its
-  // full size and photos from the first of them. A capture no reduction reads is read at full
-  // size, for its own error.
+  // full size and photos from the first of them. With its full-size photos every reduction reads
+  // (from them, or from a matching images_N/), so only a capture without them is read again per
+  // size. A capture no reduction reads is read at full size, for its own error.
   std::map<int, bool> reads;
   std::optional<Capture> full;
   const auto loadable = [&](int d) {
+    if (auto it = reads.find(1); it != reads.end() && it->second) return true;
     if (auto it = reads.find(d); it != reads.end()) return it->second;
     try {
       Capture at = read_capture(data_dir, {}, d);
