@@ -2,6 +2,7 @@
 
 #include <ATen/Parallel.h>
 
+#include <algorithm>
 #include <stdexcept>
 #include <type_traits>
 
@@ -111,17 +112,51 @@ struct Addressing {
 // A level's rows prefetched in order (into L2) before `points` points read (or add to) them at
 // random, when their corners are at least as many as the rows' cache lines: the whole level then
 // moves into the core's cache at the memory's streaming rate instead of one random miss after
-// another. Rendering at the capture preset (bench, in pairs): 29,900-41,000 -> 40,200-57,300 rays/s;
-// in a training step, where Adam has just swept the table through the caches, within the machine's
-// drift (docs/benchmarks/history.md, "The grid's levels prefetched").
-ABLENERF_ALWAYS_INLINE void warm_level(const float* level_rows, const HashGridShape& s, const Addressing& a,
-                                       int64_t points) {
-  constexpr int64_t kLineFloats = 16;
-  const int64_t rows = a.dense ? int64_t{a.side} * a.side * a.side : s.table_size;
-  const int64_t floats = rows * 2;
-  if (points * 8 < floats / kLineFloats) return;
-  for (int64_t j = 0; j < floats; j += kLineFloats)
-    _mm_prefetch(reinterpret_cast<const char*>(level_rows + j), _MM_HINT_T1);
+// another. Rendering at the capture preset (bench, in pairs): 29,900-41,000 -> 40,200-57,300 rays/s
+// (docs/benchmarks/history.md, "The grid's levels prefetched"). Only a thread's first level waits
+// for its rows this way; each next level streams in while the one before is read (LevelStream).
+class LevelStream {
+ public:
+  static constexpr int64_t kLineFloats = 16;
+
+  LevelStream() = default;
+  // Level `level`'s rows, to be streamed over `batches` batches of points; nothing when the level's
+  // corners are fewer than its lines.
+  LevelStream(const float* level_rows, const HashGridShape& s, int level, int64_t points, int64_t batches) {
+    const Addressing a(s, level);
+    const int64_t rows = a.dense ? int64_t{a.side} * a.side * a.side : s.table_size;
+    const int64_t floats = rows * 2;
+    if (points * 8 < floats / kLineFloats) return;
+    next_ = level_rows;
+    end_ = level_rows + floats;
+    per_batch_ = (floats / kLineFloats + batches) / std::max<int64_t>(batches, 1) + 1;
+  }
+  // The next share of the lines (one batch's).
+  ABLENERF_ALWAYS_INLINE void advance() {
+    for (int64_t k = 0; k < per_batch_ && next_ < end_; ++k, next_ += kLineFloats)
+      _mm_prefetch(reinterpret_cast<const char*>(next_), _MM_HINT_T1);
+  }
+  // Every line not yet asked for.
+  void finish() {
+    for (; next_ < end_; next_ += kLineFloats) _mm_prefetch(reinterpret_cast<const char*>(next_), _MM_HINT_T1);
+  }
+
+ private:
+  const float* next_ = nullptr;
+  const float* end_ = nullptr;
+  int64_t per_batch_ = 0;
+};
+
+// The stream of level `level` + 1 while `level` is read by `points` points in batches of 16, or none
+// after the last level.
+inline LevelStream next_level_stream(const float* table, const HashGridShape& s, int level, int64_t points) {
+  if (level + 1 >= s.levels) return LevelStream();
+  return LevelStream(table + int64_t{level + 1} * s.table_size * 2, s, level + 1, points, points / 16);
+}
+
+// A level's rows prefetched all at once: the first level a thread reads.
+inline void warm_level(const float* table, const HashGridShape& s, int level, int64_t points) {
+  LevelStream(table + int64_t{level} * s.table_size * 2, s, level, points, 1).finish();
 }
 
 // Vertex k's rows and trilinear weights for the 16 points (hash_grid_corners' order and products).
@@ -167,13 +202,13 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m256i point_stride(int levels) {
 // gather per 8 points and vertex, 0.85x the time on an AMD Zen 4 core, whose gathers are
 // microcoded (docs/benchmarks/history.md, "Kept slice threads, plain loads in the grid's gather").
 ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows,
-                                         const HashGridShape& s, int level, float* out) {
+                                         const HashGridShape& s, int level, LevelStream next, float* out) {
   const Addressing a(s, level);
-  warm_level(level_rows, s, a, hi - lo);
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float weights[8][kLanes];
   int64_t i = lo;
   for (; i + kLanes <= hi; i += kLanes) {
+    next.advance();
     const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
     for (int k = 0; k < 8; ++k) {
       __m512i row;
@@ -192,20 +227,21 @@ ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int
       _mm_store_sd(reinterpret_cast<double*>(out + ((i + p) * s.levels + level) * 2), _mm_castps_pd(acc));
     }
   }
+  next.finish();
   forward_level<2>(positions, i, hi, level_rows, s, level, 2, out);  // the last < 16 points
 }
 
 // The rows and products of 16 points' vertices as vectors, then added to the rows point by point,
 // each point's vertices in order: the scalar loop's products and order of sums.
 ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, const float* grad_out,
-                                          const HashGridShape& s, int level, float* level_rows) {
+                                          const HashGridShape& s, int level, LevelStream next, float* level_rows) {
   const Addressing a(s, level);
-  warm_level(level_rows, s, a, n);
   const __m256i stride = point_stride(s.levels);
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float products[8][2 * kLanes];
   int64_t i = 0;
   for (; i + kLanes <= n; i += kLanes) {
+    next.advance();
     const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
     const auto* g = reinterpret_cast<const long long*>(grad_out + (i * s.levels + level) * 2);
     const __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
@@ -226,6 +262,7 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
       }
     }
   }
+  next.finish();
   backward_level<2>(positions + 3 * i, n - i, grad_out + i * s.levels * 2, s, level, 2, level_rows);
 }
 
@@ -256,7 +293,9 @@ void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_
         const float* level_rows = table + l * rows * features;
 #ifdef ABLENERF_HAVE_AVX2_FORM
         if (vector) {
-          hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l, out);
+          if (l == 0) hash_grid_avx512::warm_level(table, s, l, hi - lo);
+          hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l,
+                                         hash_grid_avx512::next_level_stream(table, s, l, hi - lo), out);
           continue;
         }
 #endif
@@ -278,7 +317,11 @@ void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64
         float* level_rows = grad_table + l * rows * features;
 #ifdef ABLENERF_HAVE_AVX2_FORM
         if (vector) {
-          hash_grid_avx512::scatter_level(positions, n, grad_out, s, static_cast<int>(l), level_rows);
+          const int level = static_cast<int>(l);
+          if (l == lo) hash_grid_avx512::warm_level(grad_table, s, level, n);
+          const auto next = l + 1 < hi ? hash_grid_avx512::next_level_stream(grad_table, s, level, n)
+                                       : hash_grid_avx512::LevelStream();
+          hash_grid_avx512::scatter_level(positions, n, grad_out, s, level, next, level_rows);
           continue;
         }
 #endif
