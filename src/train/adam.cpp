@@ -3,6 +3,7 @@
 #include <torch/version.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -17,6 +18,20 @@ namespace ablenerf {
 namespace {
 constexpr double kWeightDecay = 0.0;
 constexpr int64_t kElementsPerTask = 1 << 16;
+
+// Whether x[0, n) are all finite: x * 0 is 0 for a finite x and NaN for an infinite or NaN one, so
+// branch-free sums in 8 independent lanes (kept in vector registers by the compiler) say it.
+bool elements_finite(const float* x, int64_t n) {
+  constexpr int64_t kLanes = 8;
+  float probe[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int64_t k = 0; k < kLanes; ++k) probe[k] += x[i + k] * 0.0f;
+  for (; i < n; ++i) probe[0] += x[i] * 0.0f;
+  for (const float lane : probe)
+    if (lane != 0.0f) return false;
+  return true;
+}
 #if defined(ABLENERF_WITH_CUDA) && TORCH_VERSION_MAJOR >= 2
 constexpr bool kDeviceFormCompiled = true;
 #else
@@ -125,22 +140,28 @@ bool Adam::step_host(double loss) {
 }
 
 bool Adam::gradients_finite_loop(const std::vector<torch::Tensor>& grads) {
+  // The gradients as one run of elements, split between the threads (the grid's tables are a
+  // million entries or more; read by one thread the check took a sixth of the step's Adam).
+  std::vector<const float*> data;
+  std::vector<int64_t> ends;  // running element count
+  int64_t total = 0;
   for (const auto& g : grads) {
-    if (!g.defined()) continue;
-    const float* x = g.data_ptr<float>();
-    const int64_t n = g.numel();
-    // x * 0 is 0 for a finite x and NaN for an infinite or NaN one: branch-free sums per tensor,
-    // in 8 independent lanes so that the compiler can keep them in vector registers.
-    constexpr int64_t kLanes = 8;
-    float probe[kLanes] = {};
-    int64_t i = 0;
-    for (; i + kLanes <= n; i += kLanes)
-      for (int64_t k = 0; k < kLanes; ++k) probe[k] += x[i + k] * 0.0f;
-    for (; i < n; ++i) probe[0] += x[i] * 0.0f;
-    for (const float lane : probe)
-      if (lane != 0.0f) return false;
+    if (!g.defined() || g.numel() == 0) continue;
+    data.push_back(g.data_ptr<float>());
+    total += g.numel();
+    ends.push_back(total);
   }
-  return true;
+  std::atomic<bool> finite{true};
+  parallel_slices(total, cpu_workers(total, kElementsPerTask), [&](int64_t, int64_t lo, int64_t hi) {
+    size_t k = static_cast<size_t>(std::upper_bound(ends.begin(), ends.end(), lo) - ends.begin());
+    for (int64_t at = lo; at < hi && finite.load(std::memory_order_relaxed); ++k) {
+      const int64_t start = k == 0 ? 0 : ends[k - 1];
+      const int64_t stop = std::min(ends[k], hi);
+      if (!elements_finite(data[k] + (at - start), stop - at)) finite.store(false, std::memory_order_relaxed);
+      at = stop;
+    }
+  });
+  return finite.load();
 }
 
 // torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element

@@ -145,8 +145,10 @@ TEST(Adam, NonFiniteGradientOrLossSkipsTheStep) {
     ASSERT_TRUE(adam.step_host(1.0));  // a first finite step creates the state
     const auto before = clone_params(ps);
     // Inside the checks' 8-wide lanes (parameter 2, 24 values) and in their tails (parameter 1,
-    // 5 values; parameter 0, 35 values).
-    for (const auto& [param, index] : std::vector<std::pair<size_t, int64_t>>{{2, 5}, {1, 3}, {0, 34}}) {
+    // 5 values; parameter 0, 35 values); in the table, whose 300,000 values the check splits
+    // between the threads (its first, middle and last value).
+    for (const auto& [param, index] :
+         std::vector<std::pair<size_t, int64_t>>{{2, 5}, {1, 3}, {0, 34}, {4, 0}, {4, 150000}, {4, 299999}}) {
       set_grads(ps, 2);
       ps[param].mutable_grad().view(-1)[index] = bad;
       EXPECT_FALSE(adam.step_host(1.0)) << "parameter " << param << " value " << index;
