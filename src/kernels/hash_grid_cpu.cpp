@@ -129,6 +129,8 @@ class LevelStream {
     if (points * 8 < floats / kLineFloats) return;
     next_ = level_rows;
     end_ = level_rows + floats;
+    // A little over the even share, so that the level is in before the last batches (an even
+    // ceiling share measured 6% slower training at the capture preset).
     per_batch_ = (floats / kLineFloats + batches) / std::max<int64_t>(batches, 1) + 1;
   }
   // The next share of the lines (one batch's).

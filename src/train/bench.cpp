@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <set>
 #include <sstream>
 #include <string>
@@ -170,6 +171,24 @@ std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& de
   return trace.str();
 }
 
+// A quiet trainer of `cfg` set up on the in-memory split of `image_side` pixels (bench_split).
+std::unique_ptr<Trainer> bench_trainer(const Config& cfg, const torch::Device& device, int64_t image_side,
+                                       uint64_t seed) {
+  TrainOptions to;
+  to.device = device;
+  to.quiet = true;
+  auto trainer = std::make_unique<Trainer>(cfg, to);
+  trainer->setup(bench_split(image_side, seed), bench_intrinsics(image_side));
+  return trainer;
+}
+
+// Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
+// `cfg`: the trainer's config.
+void warm_up(Trainer& trainer, const Config& cfg, int64_t steps) {
+  const bool graph = trainer.device_form() && cfg.get<TrainConfig>().graph;
+  for (int64_t i = 0; i < steps || (graph && !trainer.graph_captured()); ++i) trainer.step();
+}
+
 }  // namespace
 
 double training_rays_per_s(const Config& cfg, const torch::Device& device) {
@@ -178,15 +197,10 @@ double training_rays_per_s(const Config& cfg, const torch::Device& device) {
   TrainConfig& tc = c.get<TrainConfig>();
   tc.time_budget_s = 0;
   tc.micro_batch = std::min(tc.micro_batch, tc.rays_per_step);
-  TrainOptions to;
-  to.device = device;
-  to.quiet = true;
-  Trainer trainer(c, to);
-  trainer.setup(bench_split(kImageSide, static_cast<uint64_t>(tc.seed)), bench_intrinsics(kImageSide));
-  for (int64_t i = 0; i < kWarmup || (trainer.device_form() && tc.graph && !trainer.graph_captured()); ++i)
-    trainer.step();
-  const Timing t = time_it(device, 0, kTimed, [&] { trainer.step(); });
-  trainer.flush();
+  const auto trainer = bench_trainer(c, device, kImageSide, static_cast<uint64_t>(tc.seed));
+  warm_up(*trainer, c, kWarmup);
+  const Timing t = time_it(device, 0, kTimed, [&] { trainer->step(); });
+  trainer->flush();
   return static_cast<double>(tc.rays_per_step) / t.wall_median();
 }
 
@@ -203,11 +217,8 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   c.get<TrainConfig>().micro_batch = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
   c.get<TrainConfig>().seed = static_cast<int64_t>(o.seed);
   c.get<TrainConfig>().time_budget_s = 0;
-  TrainOptions to;
-  to.device = d;
-  to.quiet = true;
-  Trainer trainer(c, to);
-  trainer.setup(bench_split(o.image_side, o.seed), bench_intrinsics(o.image_side));
+  const auto owned = bench_trainer(c, d, o.image_side, o.seed);
+  Trainer& trainer = *owned;
   AbleNerf& model = trainer.model();
   m.parameters = model->parameter_count();
 #ifdef ABLENERF_CUDA_MEMORY_STATS
@@ -215,9 +226,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   if (d.is_cuda()) c10::cuda::CUDACachingAllocator::resetPeakStats(d.index() < 0 ? 0 : d.index());
 #endif
   m.device_step = trainer.device_form();
-  // Untimed steps first; with a CUDA graph, until it is captured (the capture itself is not timed).
-  for (int64_t i = 0; i < o.warmup || (m.device_step && c.get<TrainConfig>().graph && !trainer.graph_captured()); ++i)
-    trainer.step();
+  warm_up(trainer, c, o.warmup);
   m.graph = trainer.graph_captured();
   m.train = time_it(d, 0, o.steps, [&] { trainer.step(); });
   trainer.flush();
