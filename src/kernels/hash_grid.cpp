@@ -61,14 +61,18 @@ HashGridShape shape_of(const torch::Tensor& table, const std::vector<int64_t>& r
 // nothing else needs a gradient).
 class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
  public:
+  // `scales`: a contiguous CPU tensor (n, levels) that takes no gradient, or undefined; kept in the
+  // node's data rather than as an input, having no gradient.
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& positions,
                                const torch::Tensor& table, const std::vector<int64_t>& res, TableGradient* sink,
-                               int64_t slot) {
+                               int64_t slot, const torch::Tensor* scales_in) {
+    const torch::Tensor& scales = *scales_in;
     const HashGridShape s = shape_of(table, res);
     const int64_t n = positions.size(0);
     auto out = torch::empty({n, s.levels, s.features}, table.options());
     if (positions.is_cpu()) {
-      hash_grid_forward_cpu(positions.data_ptr<float>(), n, table.data_ptr<float>(), s, out.data_ptr<float>());
+      hash_grid_forward_cpu(positions.data_ptr<float>(), n, table.data_ptr<float>(), s, scale_data(scales),
+                            out.data_ptr<float>());
     } else {
 #ifdef ABLENERF_CUDA_KERNELS
       const c10::cuda::CUDAGuard device(positions.device());
@@ -79,6 +83,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
 #endif
     }
     ctx->save_for_backward({positions, table});
+    if (scales.defined()) ctx->saved_data["scales"] = scales;
     ctx->saved_data["res"] = res;
     // The sink outlives the graph: it belongs to the module that owns the table.
     ctx->saved_data["sink"] = static_cast<int64_t>(reinterpret_cast<intptr_t>(sink));
@@ -90,6 +95,9 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
                                                  torch::autograd::variable_list grads) {
     const auto saved = ctx->get_saved_variables();
     const auto &positions = saved[0], &table = saved[1];
+    const torch::Tensor scale_tensor =
+        ctx->saved_data.count("scales") != 0 ? ctx->saved_data["scales"].toTensor() : torch::Tensor();
+    const float* scales = scale_data(scale_tensor);
     const HashGridShape s = shape_of(table, ctx->saved_data["res"].toIntVector());
     const auto g = grads[0].to(torch::kFloat).contiguous();
     const int64_t n = positions.size(0);
@@ -101,13 +109,14 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     if (ctx->needs_input_grad(1) && sink == nullptr) grad_table = torch::zeros_like(table);
     if (positions.is_cpu()) {
       if (sink != nullptr && ctx->needs_input_grad(1))
-        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s,
+        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, scales,
                                sink->slot(table, static_cast<int>(ctx->saved_data["slot"].toInt())));
       if (grad_table.defined())
-        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, grad_table.data_ptr<float>());
+        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, scales,
+                               grad_table.data_ptr<float>());
       if (grad_positions.defined())
         hash_grid_backward_positions_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), table.data_ptr<float>(),
-                                         s, grad_positions.data_ptr<float>());
+                                         s, scales, grad_positions.data_ptr<float>());
     } else {
 #ifdef ABLENERF_CUDA_KERNELS
       const c10::cuda::CUDAGuard device(positions.device());
@@ -121,7 +130,12 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
                                                            stream));
 #endif
     }
-    return {grad_positions, grad_table, torch::Tensor(), torch::Tensor(), torch::Tensor()};
+    return {grad_positions, grad_table, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
+  }
+
+ private:
+  static const float* scale_data(const torch::Tensor& scales) {
+    return scales.defined() ? scales.data_ptr<float>() : nullptr;
   }
 };
 
@@ -147,14 +161,27 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 }
 
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
-                               TableGradient* gradient) {
+                               TableGradient* gradient, const torch::Tensor& scales) {
   RECORD_FUNCTION("ablenerf::hash_grid", std::vector<c10::IValue>());
   check_inputs(positions, table, shape);
+  if (scales.defined()) {
+    namespace check = kernel_checks;
+    TORCH_CHECK(scales.dim() == 2 && scales.size(0) == positions.size(0) && scales.size(1) == shape.levels, kOp,
+                ": scales must be (", positions.size(0), ", ", shape.levels, "), got ", scales.sizes());
+    check::dtype(kOp, "scales", scales, torch::kFloat);
+    TORCH_CHECK(scales.device() == positions.device(), kOp, ": scales must be on ", positions.device(),
+                " like positions, got ", scales.device());
+  }
   const int slot = TableGradient::current_slot();
   const bool to_slot =
       gradient != nullptr && slot >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled();
-  return HashGridFunction::apply(positions, table, resolutions(shape), to_slot ? gradient : nullptr,
-                                 int64_t{to_slot ? slot : -1});
+  // The CPU loops multiply by the scales themselves; scales that take a gradient, and the CUDA
+  // kernels, get a separate product.
+  const bool fused_scales = scales.defined() && positions.is_cpu() && !scales.requires_grad();
+  const torch::Tensor loop_scales = fused_scales ? scales.contiguous() : torch::Tensor();
+  const auto out = HashGridFunction::apply(positions, table, resolutions(shape), to_slot ? gradient : nullptr,
+                                           int64_t{to_slot ? slot : -1}, &loop_scales);
+  return scales.defined() && !fused_scales ? out * scales.unsqueeze(-1) : out;
 }
 
 torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,

@@ -28,8 +28,11 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 // argument on bad input.
 // With `gradient` (kernels/table_gradient.h), on the CPU, while the calling thread has a slot open
 // and the table requires a gradient: the table's gradient goes to that slot instead of autograd.
+// With `scales` (N, levels) float32 on the positions' device: each point's output at each level
+// times its scale, i.e. hash_grid_encode(...) * scales.unsqueeze(-1); on the CPU, for scales that
+// take no gradient, inside the loops (one pass over the output less, forward and backward).
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
-                               TableGradient* gradient = nullptr);
+                               TableGradient* gradient = nullptr, const torch::Tensor& scales = {});
 
 // The same in plain LibTorch ops (index_select and products; autograd gives the table's and the
 // positions' gradients),

@@ -31,7 +31,7 @@ constexpr int64_t kPointsPerTask = 1024;
 // "Hash-grid loops level by level").
 template <int F>
 void forward_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows, const HashGridShape& s,
-                   int level, int64_t features, float* out) {
+                   int level, int64_t features, const float* scales, float* out) {
   const int64_t nf = F > 0 ? F : features;
   for (int64_t i = lo; i < hi; ++i) {
     float acc[F > 0 ? F : kHashGridMaxFeatures] = {};
@@ -40,18 +40,20 @@ void forward_level(const float* positions, int64_t lo, int64_t hi, const float* 
       for (int64_t f = 0; f < nf; ++f) acc[f] += w * r[f];
     });
     float* o = out + (i * s.levels + level) * nf;
-    for (int64_t f = 0; f < nf; ++f) o[f] = acc[f];
+    const float scale = scales != nullptr ? scales[i * s.levels + level] : 1.f;
+    for (int64_t f = 0; f < nf; ++f) o[f] = acc[f] * scale;
   }
 }
 
 // The scatter of one level's output gradient over all n points, in point order.
 template <int F>
 void backward_level(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s, int level,
-                    int64_t features, float* level_rows) {
+                    int64_t features, const float* scales, float* level_rows) {
   const int64_t nf = F > 0 ? F : features;
   for (int64_t i = 0; i < n; ++i) {
     float g[F > 0 ? F : kHashGridMaxFeatures];
-    for (int64_t f = 0; f < nf; ++f) g[f] = grad_out[(i * s.levels + level) * nf + f];
+    const float scale = scales != nullptr ? scales[i * s.levels + level] : 1.f;
+    for (int64_t f = 0; f < nf; ++f) g[f] = grad_out[(i * s.levels + level) * nf + f] * scale;
     hash_grid_corners(s, level, positions + 3 * i, [&](uint32_t row, float w) {
       float* r = level_rows + int64_t{row} * nf;
       for (int64_t f = 0; f < nf; ++f) r[f] += w * g[f];
@@ -204,7 +206,8 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m256i point_stride(int levels) {
 // gather per 8 points and vertex, 0.85x the time on an AMD Zen 4 core, whose gathers are
 // microcoded (docs/benchmarks/history.md, "Kept slice threads, plain loads in the grid's gather").
 ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int64_t hi, const float* level_rows,
-                                         const HashGridShape& s, int level, LevelStream next, float* out) {
+                                         const HashGridShape& s, int level, LevelStream next, const float* scales,
+                                         float* out) {
   const Addressing a(s, level);
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float weights[8][kLanes];
@@ -226,19 +229,23 @@ ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int
             _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(level_rows + int64_t{rows[k][p]} * 2)));
         acc = _mm_fmadd_ps(_mm_set1_ps(weights[k][p]), r, acc);
       }
+      if (scales != nullptr) acc = _mm_mul_ps(acc, _mm_set1_ps(scales[(i + p) * s.levels + level]));
       _mm_store_sd(reinterpret_cast<double*>(out + ((i + p) * s.levels + level) * 2), _mm_castps_pd(acc));
     }
   }
   next.finish();
-  forward_level<2>(positions, i, hi, level_rows, s, level, 2, out);  // the last < 16 points
+  forward_level<2>(positions, i, hi, level_rows, s, level, 2, scales, out);  // the last < 16 points
 }
 
 // The rows and products of 16 points' vertices as vectors, then added to the rows point by point,
 // each point's vertices in order: the scalar loop's products and order of sums.
 ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, const float* grad_out,
-                                          const HashGridShape& s, int level, LevelStream next, float* level_rows) {
+                                          const HashGridShape& s, int level, LevelStream next, const float* scales,
+                                          float* level_rows) {
   const Addressing a(s, level);
   const __m256i stride = point_stride(s.levels);
+  const __m512i scale_stride = _mm512_mullo_epi32(
+      _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15), _mm512_set1_epi32(s.levels));
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float products[8][2 * kLanes];
   int64_t i = 0;
@@ -246,8 +253,14 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
     next.advance();
     const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
     const auto* g = reinterpret_cast<const long long*>(grad_out + (i * s.levels + level) * 2);
-    const __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
-    const __m512 g_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g + 8 * int64_t{s.levels}, 8));
+    __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
+    __m512 g_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g + 8 * int64_t{s.levels}, 8));
+    if (scales != nullptr) {
+      // The 16 points' scales at this level, `levels` floats apart, each beside its point's two floats.
+      const __m512 sc = _mm512_i32gather_ps(scale_stride, scales + i * s.levels + level, 4);
+      g_low = _mm512_mul_ps(g_low, pairs_low(sc));
+      g_high = _mm512_mul_ps(g_high, pairs_high(sc));
+    }
     for (int k = 0; k < 8; ++k) {
       __m512i row;
       __m512 w;
@@ -265,7 +278,8 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
     }
   }
   next.finish();
-  backward_level<2>(positions + 3 * i, n - i, grad_out + i * s.levels * 2, s, level, 2, level_rows);
+  backward_level<2>(positions + 3 * i, n - i, grad_out + i * s.levels * 2, s, level, 2,
+                    scales != nullptr ? scales + i * s.levels : nullptr, level_rows);
 }
 
 }  // namespace hash_grid_avx512
@@ -284,7 +298,7 @@ bool vector_loops(CpuVectorForm form, int64_t features) {
 }  // namespace
 
 void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
-                              const HashGridShape& s, float* out) {
+                              const HashGridShape& s, const float* scales, float* out) {
   if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
   const bool vector = vector_loops(form, features);
@@ -297,18 +311,18 @@ void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_
         if (vector) {
           if (l == 0) hash_grid_avx512::warm_level(table, s, l, hi - lo);
           hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l,
-                                         hash_grid_avx512::next_level_stream(table, s, l, hi - lo), out);
+                                         hash_grid_avx512::next_level_stream(table, s, l, hi - lo), scales, out);
           continue;
         }
 #endif
-        forward_level<F>(positions, lo, hi, level_rows, s, l, features, out);
+        forward_level<F>(positions, lo, hi, level_rows, s, l, features, scales, out);
       }
     });
   });
 }
 
 void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
-                               const HashGridShape& s, float* grad_table) {
+                               const HashGridShape& s, const float* scales, float* grad_table) {
   if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
   const bool vector = vector_loops(form, features);
@@ -323,38 +337,40 @@ void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64
           if (l == lo) hash_grid_avx512::warm_level(grad_table, s, level, n);
           const auto next = l + 1 < hi ? hash_grid_avx512::next_level_stream(grad_table, s, level, n)
                                        : hash_grid_avx512::LevelStream();
-          hash_grid_avx512::scatter_level(positions, n, grad_out, s, level, next, level_rows);
+          hash_grid_avx512::scatter_level(positions, n, grad_out, s, level, next, scales, level_rows);
           continue;
         }
 #endif
-        backward_level<F>(positions, n, grad_out, s, static_cast<int>(l), features, level_rows);
+        backward_level<F>(positions, n, grad_out, s, static_cast<int>(l), features, scales, level_rows);
       }
     });
   });
 }
 
-void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out) {
-  hash_grid_forward_cpu_in(cpu_best_vector_form(), positions, n, table, s, out);
+void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s,
+                           const float* scales, float* out) {
+  hash_grid_forward_cpu_in(cpu_best_vector_form(), positions, n, table, s, scales, out);
 }
 
 void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
-                            float* grad_table) {
-  hash_grid_backward_cpu_in(cpu_best_vector_form(), positions, n, grad_out, s, grad_table);
+                            const float* scales, float* grad_table) {
+  hash_grid_backward_cpu_in(cpu_best_vector_form(), positions, n, grad_out, s, scales, grad_table);
 }
 
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
-                                      const HashGridShape& s, float* grad_positions) {
+                                      const HashGridShape& s, const float* scales, float* grad_positions) {
   const int64_t levels = s.levels, features = s.features, rows = s.table_size;
   at::parallel_for(0, n, kPointsPerTask, [&](int64_t lo, int64_t hi) {
     for (int64_t i = lo; i < hi; ++i) {
       float acc[3] = {0.f, 0.f, 0.f};
       for (int l = 0; l < levels; ++l) {
         const float* g = grad_out + (i * levels + l) * features;
+        const float scale = scales != nullptr ? scales[i * levels + l] : 1.f;
         const float* level_rows = table + l * rows * features;
         hash_grid_corners_with_gradient(s, l, positions + 3 * i, [&](uint32_t row, float, const float* dw) {
           const float* r = level_rows + int64_t{row} * features;
           float dot = 0.f;
-          for (int64_t f = 0; f < features; ++f) dot += g[f] * r[f];
+          for (int64_t f = 0; f < features; ++f) dot += g[f] * scale * r[f];
           for (int d = 0; d < 3; ++d) acc[d] += dot * dw[d];
         });
       }

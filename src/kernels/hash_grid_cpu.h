@@ -12,22 +12,27 @@ namespace ablenerf {
 // without OpenMP, and there ATen's header runs them on the calling thread: the CPU's two cores come
 // from the ray split instead, each slice's thread running its own lookups (kernels/cpu_parallel.h).
 //
+// `scales` (n, levels), where not null, multiplies each point's output at each level (the grid front
+// end's anti-aliasing weights, model/grid_embedding.h) and so the gradients that flow back through
+// it: the same products, in the same order, as a separate multiply of the output and of its gradient.
+//
 // out (n, levels, features) = the interpolated rows of table (levels, table_size, features) at
-// positions (n, 3).
-void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s, float* out);
+// positions (n, 3), times scales.
+void hash_grid_forward_cpu(const float* positions, int64_t n, const float* table, const HashGridShape& s,
+                           const float* scales, float* out);
 
 // grad_table (levels, table_size, features) += the scatter of grad_out (n, levels, features) into
 // the rows each point read, with its trilinear weights. Level by level, points in order (split by
 // level where it runs in parallel): no two threads touch one row, and the sums come out the same on
 // every run.
 void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad_out, const HashGridShape& s,
-                            float* grad_table);
+                            const float* scales, float* grad_table);
 
 // grad_positions (n, 3) = the gradient of sum(grad_out * out) with respect to the positions: at
 // every level, each vertex row's dot product with grad_out times its weight's derivative
 // (hash_grid_corners_with_gradient). Points split across threads; each writes only its own row.
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
-                                      const HashGridShape& s, float* grad_positions);
+                                      const HashGridShape& s, const float* scales, float* grad_positions);
 
 // The instruction forms of the table's gather and scatter: AVX-512 (16 points at a time: their cells,
 // rows and trilinear weights computed as vectors, the rows read with vector gathers; for 2 floats
@@ -35,8 +40,8 @@ void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const f
 // agree up to the rounding of a fused multiply-add in the forward; the scatter adds the same
 // products in the same order (each point's 8 vertices in turn), so its sums are the same bits.
 void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
-                              const HashGridShape& s, float* out);
+                              const HashGridShape& s, const float* scales, float* out);
 void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
-                               const HashGridShape& s, float* grad_table);
+                               const HashGridShape& s, const float* scales, float* grad_table);
 
 }  // namespace ablenerf

@@ -10,19 +10,33 @@ namespace ablenerf {
 
 namespace {
 
-// y (M, N) = x (M, K) W^T (+ b), everything contiguous.
-torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+// y (M, N) = x (M, K) W^T (+ b), then max(y, 0) with `relu`, everything contiguous.
+torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias,
+                              bool relu) {
   const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
   const auto wt = weight.t().contiguous();  // (K, N): B of the product
   auto y = torch::empty({m, n}, x.options());
   small_gemm(false, m, n, k, 1.0f, x.data_ptr<float>(), k, wt.data_ptr<float>(), n, y.data_ptr<float>(), n);
+  float* out = y.data_ptr<float>();
   if (bias.defined()) {
     const float* b = bias.data_ptr<float>();
-    float* out = y.data_ptr<float>();
     for (int64_t i = 0; i < m; ++i)
       for (int64_t j = 0; j < n; ++j) out[i * n + j] += b[j];
   }
+  // ReLU as ATen's: NaN stays NaN (a comparison that is false for NaN keeps the value).
+  if (relu)
+    for (int64_t i = 0; i < m * n; ++i) out[i] = out[i] < 0.0f ? 0.0f : out[i];
   return y;
+}
+
+// dy where y > 0, else 0 (ATen's threshold_backward for ReLU), into a new tensor.
+torch::Tensor relu_gradient(const torch::Tensor& dy, const torch::Tensor& y) {
+  auto out = torch::empty_like(y);
+  const float *g = dy.data_ptr<float>(), *v = y.data_ptr<float>();
+  float* o = out.data_ptr<float>();
+  const int64_t count = y.numel();
+  for (int64_t i = 0; i < count; ++i) o[i] = v[i] > 0.0f ? g[i] : 0.0f;
+  return out;
 }
 
 // Column sums of dy (M, N), contiguous: the bias gradient. Rows are added into a block's partial sums
@@ -56,18 +70,21 @@ torch::Tensor column_sums(const torch::Tensor& dy) {
 class LinearFunction : public torch::autograd::Function<LinearFunction> {
  public:
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
-                               const torch::Tensor& weight, const torch::Tensor& bias) {
+                               const torch::Tensor& weight, const torch::Tensor& bias, bool relu) {
     const bool has_bias = bias.numel() > 0;
-    ctx->save_for_backward({x, weight});
+    auto y = forward_product(x, weight, has_bias ? bias : torch::Tensor(), relu);
+    // With the ReLU, its output says where the gradient passes.
+    ctx->save_for_backward(relu ? torch::autograd::variable_list{x, weight, y}
+                                : torch::autograd::variable_list{x, weight});
     ctx->saved_data["bias"] = has_bias;
-    return forward_product(x, weight, has_bias ? bias : torch::Tensor());
+    return y;
   }
 
   static torch::autograd::variable_list backward(torch::autograd::AutogradContext* ctx,
                                                  torch::autograd::variable_list grads) {
     const auto saved = ctx->get_saved_variables();
     const auto &x = saved[0], &weight = saved[1];
-    const auto dy = grads[0].contiguous();
+    const auto dy = saved.size() > 2 ? relu_gradient(grads[0].contiguous(), saved[2]) : grads[0].contiguous();
     const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
     torch::Tensor dx, dw, db;
     if (ctx->needs_input_grad(0)) {
@@ -79,7 +96,7 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
       small_gemm(true, n, k, m, 1.0f, dy.data_ptr<float>(), n, x.data_ptr<float>(), k, dw.data_ptr<float>(), k);
     }
     if (ctx->saved_data["bias"].toBool() && ctx->needs_input_grad(2)) db = column_sums(dy);
-    return {dx, dw, db};
+    return {dx, dw, db, torch::Tensor()};
   }
 };
 
@@ -91,7 +108,7 @@ bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight) {
          x.size(0) > 0 && weight.size(0) > 0 && x.size(1) > 0;
 }
 
-torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias, bool relu) {
   RECORD_FUNCTION("ablenerf::linear_cpu", std::vector<c10::IValue>());
   TORCH_CHECK(linear_cpu_available(x, weight), "linear_cpu: expected CPU float32 x (M, K) and weight (N, K), got ",
               x.sizes(), " ", x.scalar_type(), " and ", weight.sizes(), " ", weight.scalar_type());
@@ -102,8 +119,8 @@ torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, co
   const auto bc = bias.defined() ? bias.contiguous() : torch::Tensor();
   const bool needs_graph = torch::GradMode::is_enabled() &&
                            (xc.requires_grad() || wc.requires_grad() || (bc.defined() && bc.requires_grad()));
-  if (!needs_graph) return forward_product(xc, wc, bc);
-  return LinearFunction::apply(xc, wc, bc.defined() ? bc : torch::empty({0}, x.options()));
+  if (!needs_graph) return forward_product(xc, wc, bc, relu);
+  return LinearFunction::apply(xc, wc, bc.defined() ? bc : torch::empty({0}, x.options()), relu);
 }
 
 }  // namespace ablenerf

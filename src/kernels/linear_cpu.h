@@ -18,7 +18,10 @@ namespace ablenerf {
 // True when linear_cpu runs on these: CPU float32 x (M, K) and weight (N, K).
 bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight);
 
-// x (M, K), weight (N, K), bias (N) or undefined -> (M, N). Differentiable in all three.
-torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias);
+// x (M, K), weight (N, K), bias (N) or undefined -> (M, N). Differentiable in all three. With
+// `relu`, max(y, 0) in the same node: applied to each row after its bias, and in the backward the
+// output gradient kept where y > 0 (torch::relu's forward and backward, one node and one pass less).
+torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias,
+                         bool relu = false);
 
 }  // namespace ablenerf

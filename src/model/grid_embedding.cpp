@@ -76,8 +76,7 @@ torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch:
     const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
     weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;
   }
-  const auto features =
-      hash_grid_encode(unit, table_, shape_, table_gradient_.get()) * weights.unsqueeze(-1);  // (N,L,F)
+  const auto features = hash_grid_encode(unit, table_, shape_, table_gradient_.get(), weights);  // (N,L,F)
   lead.push_back(width());
   return features.reshape(lead);
 }

@@ -14,4 +14,8 @@ torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor&
 // in-projection and its row slices).
 torch::Tensor linear_tokens(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias);
 
+// torch::relu(linear_tokens(layer, x)): on the CPU in float32 one node (kernels/linear_cpu.h).
+// The MLPs' hidden layers (the volume embedding, the proposal field).
+torch::Tensor linear_relu_tokens(const torch::nn::Linear& layer, const torch::Tensor& x);
+
 }  // namespace ablenerf

@@ -41,7 +41,7 @@ ProposalImpl::ProposalImpl(const ModelConfig& cfg, GridCube cube) : samples_(cfg
 
 torch::Tensor ProposalImpl::density(const Gaussians& g) {
   const auto features = grid_(g.mean, g.cov);
-  const auto hidden = torch::relu(linear_tokens(hidden_, features.to(hidden_->weight.dtype())));
+  const auto hidden = linear_relu_tokens(hidden_, features.to(hidden_->weight.dtype()));
   const auto logit = linear_tokens(out_, hidden).squeeze(-1);
   // No density outside the grid's cube: there the grid reads zeros and the field would give every
   // point one learned constant, a fog in front of a bounded scene's objects (docs/MODEL.md, "Proposal

@@ -14,10 +14,9 @@ VolumeEmbeddingImpl::VolumeEmbeddingImpl(int64_t in_features, int64_t width) {
 
 torch::Tensor VolumeEmbeddingImpl::forward(const torch::Tensor& x) {
   auto h = x;
-  for (size_t i = 0; i < layers_.size(); ++i) {
-    h = linear_tokens(layers_[i], h);
-    if (i + 1 < layers_.size()) h = torch::relu(h);
-  }
+  // The hidden layers with their ReLU as one node each (model/linear_tokens.h), the last without.
+  for (size_t i = 0; i < layers_.size(); ++i)
+    h = i + 1 < layers_.size() ? linear_relu_tokens(layers_[i], h) : linear_tokens(layers_[i], h);
   return h;
 }
 

@@ -149,8 +149,10 @@ TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
       for (const auto form : forms) {
         auto out = torch::full({n, s.levels, s.features}, std::nanf(""));
         auto grad = torch::zeros_like(table);
-        hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, out.data_ptr<float>());
-        hash_grid_backward_cpu_in(form, p.data_ptr<float>(), n, g.data_ptr<float>(), s, grad.data_ptr<float>());
+        hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, nullptr,
+                                 out.data_ptr<float>());
+        hash_grid_backward_cpu_in(form, p.data_ptr<float>(), n, g.data_ptr<float>(), s, nullptr,
+                                  grad.data_ptr<float>());
         EXPECT_LT(test::max_abs(out - want), 1e-5) << features << " " << n;
         EXPECT_LT(test::max_abs(grad - t.grad()), 1e-4) << features << " " << n;
         outs.push_back(out);
@@ -164,6 +166,57 @@ TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
     }
   }
   EXPECT_GE(checked, 15);
+}
+
+// Per-point, per-level scales (the front end's anti-aliasing weights) inside the loops: in every
+// form, the output and the table's gradient the same bits as the loops without scales followed by
+// a separate product of the output and of its gradient (what hash_grid_encode does for scales that
+// take a gradient), and, through hash_grid_encode, the positions' gradient too; point counts with a
+// 16-point tail, and zero scales (a point outside the cube).
+TEST(HashGrid, ScalesInsideTheLoopsAreTheSeparateProductsBits) {
+  const HashGridShape s = mixed_shape();
+  for (const auto form : {CpuVectorForm::Avx512, CpuVectorForm::Scalar}) {
+    if (!cpu_vector_form_available(form)) continue;
+    for (const int64_t n : {7, 37}) {
+      const auto p = points(n - 4, 100 + n);
+      auto scales = torch::rand({n, s.levels}, at::detail::createCPUGenerator(101 + n));
+      scales[3].zero_();
+      const auto table = table_for(s, 102);
+      const auto g = test::seeded_randn({n, s.levels, s.features}, 103 + n).to(torch::kFloat);
+      auto plain = torch::empty({n, s.levels, s.features}), fused = torch::empty_like(plain);
+      hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, nullptr,
+                               plain.data_ptr<float>());
+      hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, scales.data_ptr<float>(),
+                               fused.data_ptr<float>());
+      EXPECT_TRUE(torch::equal(fused, plain * scales.unsqueeze(-1))) << n;
+      auto grad_plain = torch::zeros_like(table), grad_fused = torch::zeros_like(table);
+      const auto g_scaled = (g * scales.unsqueeze(-1)).contiguous();
+      hash_grid_backward_cpu_in(form, p.data_ptr<float>(), n, g_scaled.data_ptr<float>(), s, nullptr,
+                                grad_plain.data_ptr<float>());
+      hash_grid_backward_cpu_in(form, p.data_ptr<float>(), n, g.data_ptr<float>(), s, scales.data_ptr<float>(),
+                                grad_fused.data_ptr<float>());
+      EXPECT_TRUE(torch::equal(grad_fused, grad_plain)) << n;
+      EXPECT_GT(test::max_abs(grad_fused), 0.1);
+    }
+  }
+  // Through the wrapper: the fused scales against scales that take a gradient (a separate product),
+  // values, the table's and the positions' gradients.
+  const int64_t n = 300;
+  const auto p = (torch::rand({n, 3}, at::detail::createCPUGenerator(110)) * 0.9 + 0.05).contiguous();
+  const auto scales = torch::rand({n, s.levels}, at::detail::createCPUGenerator(111));
+  const auto g = test::seeded_randn({n, s.levels, s.features}, 112).to(torch::kFloat);
+  auto t1 = table_for(s, 113).requires_grad_(), t2 = t1.detach().clone().requires_grad_();
+  auto p1 = p.clone().requires_grad_(), p2 = p.clone().requires_grad_();
+  auto sc2 = scales.clone().requires_grad_();
+  const auto a = hash_grid_encode(p1, t1, s, nullptr, scales), b = hash_grid_encode(p2, t2, s, nullptr, sc2);
+  EXPECT_TRUE(torch::equal(a, b));
+  a.backward(g);
+  b.backward(g);
+  EXPECT_TRUE(torch::equal(t1.grad(), t2.grad()));
+  EXPECT_TRUE(torch::equal(p1.grad(), p2.grad()));
+  EXPECT_GT(test::max_abs(p1.grad()), 0.1);
+  test::expect_error_naming([&] { hash_grid_encode(p, t1, s, nullptr, scales.slice(1, 0, 2)); }, "scales");
+  test::expect_error_naming([&] { hash_grid_encode(p, t1, s, nullptr, scales.to(torch::kDouble)); }, "scales");
 }
 
 // A NaN coordinate counts as 0 in every form (hash_grid_cell), not as a stray row.
@@ -180,8 +233,8 @@ TEST(HashGrid, EveryInstructionFormReadsANaNCoordinateAsZero) {
   for (const auto form : {CpuVectorForm::Avx512, CpuVectorForm::Scalar}) {
     if (!cpu_vector_form_available(form)) continue;
     auto a = torch::empty({32, s.levels, s.features}), b = torch::empty({32, s.levels, s.features});
-    hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, a.data_ptr<float>());
-    hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, b.data_ptr<float>());
+    hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, a.data_ptr<float>());
+    hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, b.data_ptr<float>());
     EXPECT_TRUE(torch::equal(a, b));
   }
 }

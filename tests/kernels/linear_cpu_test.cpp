@@ -13,6 +13,7 @@ namespace {
 struct LinearCase {
   int64_t m, k, n;
   bool bias;
+  bool relu = false;
 };
 
 // Values and gradients of linear_cpu and torch::linear for one upstream gradient; float32 inputs,
@@ -26,7 +27,9 @@ void compare_linear(const LinearCase& c, uint64_t seed) {
   for (auto* out : {&got, &want}) {
     auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
     const auto bias = c.bias ? b : torch::Tensor();
-    const auto y = out == &got ? linear_cpu(x, w, bias) : torch::linear(x, w, bias);
+    const auto y = out == &got ? linear_cpu(x, w, bias, c.relu)
+                   : c.relu    ? torch::relu(torch::linear(x, w, bias))
+                               : torch::linear(x, w, bias);
     (y * up).sum().backward();
     *out = {y.detach(), x.grad(), w.grad()};
     if (c.bias) out->push_back(b.grad());
@@ -49,6 +52,24 @@ TEST(LinearCpu, MatchesTorchLinear) {
                                                      {50, 100, 13, true},  // columns over, reduction > 64
                                                      {5, 7, 3, true}})
     compare_linear(c, seed += 4);
+}
+
+// With the ReLU in the node (the MLPs' hidden layers): against torch::relu of torch::linear, values
+// and gradients, about half the outputs cut; and the cut ones pass no gradient back.
+TEST(LinearCpu, WithReluMatchesTorchReluOfLinear) {
+  uint64_t seed = 40;
+  for (const LinearCase& c : std::vector<LinearCase>{{2176, 44, 32, true, true},  // the volume embedding's first
+                                                     {512, 20, 64, true, true},   // the proposal field's hidden
+                                                     {17, 5, 3, false, true}})
+    compare_linear(c, seed += 4);
+  // One output row cut entirely: x's gradient there is zero, the weight's gets nothing from it.
+  auto x = torch::tensor({{1.f, 2.f}, {-1.f, -2.f}}).requires_grad_();
+  auto w = torch::tensor({{1.f, 1.f}, {2.f, 0.5f}}).requires_grad_();
+  const auto y = linear_cpu(x, w, torch::Tensor(), /*relu=*/true);
+  EXPECT_TRUE(torch::equal(y.detach(), torch::tensor({{3.f, 3.f}, {0.f, 0.f}})));
+  y.sum().backward();
+  EXPECT_TRUE(torch::equal(x.grad(), torch::tensor({{3.f, 1.5f}, {0.f, 0.f}})));
+  EXPECT_TRUE(torch::equal(w.grad(), torch::tensor({{1.f, 2.f}, {1.f, 2.f}})));
 }
 
 TEST(LinearCpu, GradientsOnlyWhereRequired) {
