@@ -7,7 +7,8 @@
 # CMakeLists.txt) and the targets, no LibTorch.
 # Environment:
 #   ABLENERF_FUZZ_BUILD  build folder (default build-fuzz)
-#   ABLENERF_JOBS        build parallelism (default 1)
+#   ABLENERF_JOBS        build parallelism (default: the number of cores)
+#   ABLENERF_FUZZ_PARALLEL  targets fuzzed at once (default: the number of cores)
 #   ABLENERF_FUZZ_MERGE=1  afterwards, merge what the run found into fuzz/corpus/NAME (minimised)
 # New inputs go to BUILD/fuzz-corpus/NAME, crashes to BUILD/fuzz-artifacts/. Exit status 1 when a
 # target crashed, leaked or a sanitizer reported an error.
@@ -32,7 +33,7 @@ mkdir -p "$build"
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
   -DABLENERF_FUZZ_ONLY=ON >"$build/fuzz-configure.log" 2>&1 ||
   { cat "$build/fuzz-configure.log" >&2; exit 1; }
-cmake --build "$build" -j "${ABLENERF_JOBS:-1}" --target "${targets[@]/#/fuzz_}" >"$build/fuzz-build.log" 2>&1 ||
+cmake --build "$build" -j "${ABLENERF_JOBS:-$(nproc)}" --target "${targets[@]/#/fuzz_}" >"$build/fuzz-build.log" 2>&1 ||
   { tail -30 "$build/fuzz-build.log" >&2; exit 1; }
 echo "fuzz: build ${build} took $((SECONDS - start)) s"
 
@@ -40,23 +41,35 @@ echo "fuzz: build ${build} took $((SECONDS - start)) s"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 
-status=0
-for t in "${targets[@]}"; do
-  found="$build/fuzz-corpus/$t"
+# One target's run, its summary to stdout when it ends: exit status 1 on a finding.
+fuzz_one() {
+  local t=$1 found="$build/fuzz-corpus/$1" t_start=$SECONDS
   mkdir -p "$found" "$build/fuzz-artifacts"
-  echo "fuzz: $t for ${secs}s (seeds fuzz/corpus/$t, new inputs $found)"
-  t_start=$SECONDS
   if ! "$build/fuzz_$t" -max_total_time="$secs" -max_len=4096 -timeout=10 -rss_limit_mb=4096 -print_final_stats=1 \
       -artifact_prefix="$build/fuzz-artifacts/$t-" "$found" "fuzz/corpus/$t" >"$build/fuzz-$t.log" 2>&1; then
     echo "fuzz: $t FAILED (log: $build/fuzz-$t.log, inputs: $build/fuzz-artifacts/)" >&2
     grep -E "^fuzz_|ERROR|runtime error|SUMMARY|Test unit written" "$build/fuzz-$t.log" | head -10 >&2
-    status=1
-  else
-    grep -E "stat::number_of_executed_units|cov: " "$build/fuzz-$t.log" | tail -2
+    return 1
   fi
-  echo "fuzz: $t took $((SECONDS - t_start)) s"
+  echo "fuzz: $t ran ${secs}s from fuzz/corpus/$t (new inputs $found, took $((SECONDS - t_start)) s):" \
+    "$(grep -E "stat::number_of_executed_units" "$build/fuzz-$t.log" | tail -1 | tr -s ' ')"
   if [ "${ABLENERF_FUZZ_MERGE:-0}" = 1 ]; then
     "$build/fuzz_$t" -merge=1 -max_len=4096 "fuzz/corpus/$t" "$found" >"$build/fuzz-$t-merge.log" 2>&1
   fi
+}
+
+# The targets run side by side, ABLENERF_FUZZ_PARALLEL at a time (default: one per core), each for
+# the whole of its seconds: the same fuzzing per target as one after another, in less wall time.
+parallel=${ABLENERF_FUZZ_PARALLEL:-$(nproc)}
+status=0
+pids=()
+for t in "${targets[@]}"; do
+  if [ ${#pids[@]} -ge "$parallel" ]; then
+    wait "${pids[0]}" || status=1
+    pids=("${pids[@]:1}")
+  fi
+  fuzz_one "$t" &
+  pids+=($!)
 done
+for p in "${pids[@]}"; do wait "$p" || status=1; done
 exit $status

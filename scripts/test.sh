@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The test command: installs what is missing, checks the C++ format (scripts/format.sh --check),
 # builds, runs every test with ctest, runs the
-# README's command blocks (scripts/check_readme.sh, ~2 minutes), then a 60-second libFuzzer smoke
-# run (30 s per target) when clang and its fuzzer runtime are present.
+# README's command blocks (scripts/check_readme.sh, under a minute), then a libFuzzer smoke run (30 s
+# per target, the targets side by side: scripts/fuzz.sh) when clang and its fuzzer runtime are present.
 # Builds into build-cuda where a PyTorch with working CUDA is present, else build (scripts/setup.sh).
 # Environment: ABLENERF_FUZZ_SECONDS (per target, default 30; 0 skips the smoke run);
 # ABLENERF_README_CHECK=0 skips the README check.

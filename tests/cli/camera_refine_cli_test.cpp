@@ -2,10 +2,10 @@
 // known amount (2 degrees about a random axis, a shift of 2% of the distance) and records the truth;
 // the demo preset with train.camera_refine learns the scene and the corrections; `export --cameras`
 // writes the refined cameras; their reprojection error on the objects against the truth must be
-// under half of the perturbed cameras'. Measured with these settings (2026-11-26, 2-core machine): 1.57
-// degrees perturbed, 0.38 refined (0.24 of it; the corrections at the run's learning rate: 0.63);
-// after aligning each set of cameras to the truth (`metrics --cameras`) and with the rig's gauge
-// projected out of the corrections, 0.19 of it (2026-11-27; 0.21 with the corrections' mean out).
+// under half of the perturbed cameras'. Measured with these settings (1500 steps of 128 rays,
+// 2026-12-03, 2-core machine): 1.57 degrees perturbed, 0.35 refined (0.22 of it); after aligning each
+// set of cameras to the truth (`metrics --cameras`), 0.19 of it, as with 256 rays a step (0.24 and
+// 0.19 there, 2026-11-27), in 60% of the time.
 // Held-out cameras turned by 2 degrees are found again by `eval --align-cameras`. Without refinement
 // the export is refused with one line.
 #include <gtest/gtest.h>
@@ -65,7 +65,8 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const std::string common = " --data " + (t / "data") + " --config " + test::source_dir() +
                              "/configs/demo.toml --set train.steps=1500 --set train.time_budget_s=0"
-                             " --set train.eval_every=0 --set train.ckpt_every=0 --quiet";
+                             " --set train.rays_per_step=128 --set train.micro_batch=128 --set train.eval_every=0"
+                             " --set train.ckpt_every=0 --quiet";
   r = test::run_cli("train" + common + " --set train.camera_refine=true --out " + (t / "run"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   r = test::run_cli("export --run " + (t / "run") + " --cameras " + (t / "poses.json"));
@@ -84,6 +85,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
     EXPECT_GT(refined[i].at("refined_rotation_deg").get<double>(), 0.0);
   }
   EXPECT_GT(before, 1.0);  // the perturbation is there
+  std::cout << "perturbed " << before << " deg, refined " << after << " deg" << std::endl;
   EXPECT_LT(after, 0.5 * before) << "perturbed " << before << " deg, refined " << after << " deg";
   // `metrics --cameras` after aligning each rig to the truth (BARF's protocol: the motion common to all
   // cameras is one no photo reveals): measured 0.19 of the given poses' error, under the fifth the
@@ -91,6 +93,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   // (0.191), so a floor of this scene and perturbation, not of training time (docs/benchmarks/history.md,
   // "Camera refinement's floor"). Another CPU's rounding moves it: 0.223 on an AMD EPYC (Zen 4) with
   // the same binary and seed. The bound, a quarter, leaves room for that; unrefined cameras score 1.
+  // At 800 steps of 256 rays the ratio was 0.225: the steps, not the rays, reach the floor.
   const auto aligned_error = [&](const std::string& file) {
     const auto m = test::run_cli("metrics --cameras " + file + " --truth " + (t / "data"));
     EXPECT_EQ(m.exit_code, 0) << m.output;
@@ -98,6 +101,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   };
   const double given_aligned = aligned_error(t / "data/transforms_train.json");
   const double refined_aligned = aligned_error(t / "poses.json");
+  std::cout << "aligned: given " << given_aligned << ", refined " << refined_aligned << std::endl;
   EXPECT_LT(refined_aligned, 0.25 * given_aligned) << "given " << given_aligned << ", refined " << refined_aligned;
 
   // Held-out cameras aligned before scoring: a copy of the capture whose test cameras are turned by
@@ -126,6 +130,7 @@ TEST(CameraRefineCli, RefinedCamerasReprojectWithinHalfThePerturbedError) {
   EXPECT_EQ(aligned.at("protocol"), "aligned cameras");
   const double p0 = as_is["mean"]["psnr"].get<double>(), p1 = turned["mean"]["psnr"].get<double>(),
                p2 = aligned["mean"]["psnr"].get<double>();
+  std::cout << "psnr as is " << p0 << ", turned " << p1 << ", aligned " << p2 << std::endl;
   EXPECT_LT(p1, p0 - 3.0) << "as is " << p0 << ", turned " << p1;
   EXPECT_GT(p2, p0 - 1.0) << "as is " << p0 << ", turned and aligned " << p2;
   for (const auto& im : aligned.at("images")) EXPECT_NEAR(im.at("aligned_rotation_deg").get<double>(), 2.0, 1.0);
@@ -169,6 +174,8 @@ TEST(CameraRefineCli, RefinedFocalLengthFindsTheCapturesCamera) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const json m = json::parse(read_file(t / "run/eval/test/metrics.json"));
   const double k = m.at("refined_focal_scale").get<double>();
+  std::cout << "focal scale " << k << ", error " << std::abs(k * given_over_true - 1.0) / (given_over_true - 1.0)
+            << " of the given" << std::endl;
   EXPECT_LT(std::abs(k * given_over_true - 1.0), 0.8 * (given_over_true - 1.0)) << "focal scale " << k;
   EXPECT_LT(k, 1.0);  // toward the truth
   // `export --cameras` writes the refined focal length.
