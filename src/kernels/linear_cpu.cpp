@@ -18,14 +18,21 @@ torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weigh
   auto y = torch::empty({m, n}, x.options());
   small_gemm(false, m, n, k, 1.0f, x.data_ptr<float>(), k, wt.data_ptr<float>(), n, y.data_ptr<float>(), n);
   float* out = y.data_ptr<float>();
+  // ReLU as ATen's: NaN stays NaN (a comparison that is false for NaN keeps the value); in the bias's
+  // pass when there is a bias.
+  const auto cut = [](float v) { return v < 0.0f ? 0.0f : v; };
   if (bias.defined()) {
     const float* b = bias.data_ptr<float>();
-    for (int64_t i = 0; i < m; ++i)
-      for (int64_t j = 0; j < n; ++j) out[i * n + j] += b[j];
+    if (relu) {
+      for (int64_t i = 0; i < m; ++i)
+        for (int64_t j = 0; j < n; ++j) out[i * n + j] = cut(out[i * n + j] + b[j]);
+    } else {
+      for (int64_t i = 0; i < m; ++i)
+        for (int64_t j = 0; j < n; ++j) out[i * n + j] += b[j];
+    }
+  } else if (relu) {
+    for (int64_t i = 0; i < m * n; ++i) out[i] = cut(out[i]);
   }
-  // ReLU as ATen's: NaN stays NaN (a comparison that is false for NaN keeps the value).
-  if (relu)
-    for (int64_t i = 0; i < m * n; ++i) out[i] = out[i] < 0.0f ? 0.0f : out[i];
   return y;
 }
 

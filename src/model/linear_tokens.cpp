@@ -4,23 +4,32 @@
 
 namespace ablenerf {
 
-torch::Tensor linear_tokens(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+namespace {
+
+// x (..., in) -> (..., out) as one 2-D product, max(y, 0) after the bias with `relu`.
+torch::Tensor tokens_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias,
+                             bool relu) {
   auto sizes = x.sizes().vec();
   const auto flat = x.reshape({-1, sizes.back()});
-  // CPU float32: one node of register-blocked products (kernels/linear_cpu.h); elsewhere ATen's.
-  auto y = linear_cpu_available(flat, weight) ? linear_cpu(flat, weight, bias)
-           : bias.defined()                   ? torch::addmm(bias, flat, weight.t())
-                                              : flat.mm(weight.t());
+  torch::Tensor y;
+  if (linear_cpu_available(flat, weight)) {
+    y = linear_cpu(flat, weight, bias, relu);  // CPU float32: one node (kernels/linear_cpu.h)
+  } else {
+    y = bias.defined() ? torch::addmm(bias, flat, weight.t()) : flat.mm(weight.t());
+    if (relu) y = torch::relu(y);
+  }
   sizes.back() = weight.size(0);
   return y.view(sizes);
 }
 
+}  // namespace
+
+torch::Tensor linear_tokens(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias) {
+  return tokens_product(x, weight, bias, /*relu=*/false);
+}
+
 torch::Tensor linear_relu_tokens(const torch::nn::Linear& layer, const torch::Tensor& x) {
-  auto sizes = x.sizes().vec();
-  const auto flat = x.reshape({-1, sizes.back()});
-  if (!linear_cpu_available(flat, layer->weight)) return torch::relu(linear_tokens(layer, x));
-  sizes.back() = layer->weight.size(0);
-  return linear_cpu(flat, layer->weight, layer->bias, /*relu=*/true).view(sizes);
+  return tokens_product(x, layer->weight, layer->bias, /*relu=*/true);
 }
 
 torch::Tensor linear_tokens(const torch::nn::Linear& layer, const torch::Tensor& x, bool with_bias) {
