@@ -20,6 +20,7 @@
 
 #include "eval/camera_path.h"
 #include "kernels/cpu_parallel.h"
+#include "kernels/small_gemm.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
 #include "train/trainer.h"
@@ -191,6 +192,43 @@ void warm_up(Trainer& trainer, const Config& cfg, int64_t steps) {
 
 }  // namespace
 
+std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, int64_t tokens) {
+  // Enough calls per timing to read the clock well (~2 ms), the median of seven timings.
+  constexpr double kFlopPerTiming = 2e8;
+  constexpr int kTimings = 7;
+  const int64_t e = width, f = width * ff_ratio, m = tokens;
+  std::vector<ProductTiming> list = {{"qkv projection", m, 3 * e, e, false},
+                                     {"output projection", m, e, e, false},
+                                     {"feed-forward in", m, f, e, false},
+                                     {"feed-forward out", m, e, f, false},
+                                     {"qkv input gradient", m, e, 3 * e, false},
+                                     {"qkv weight gradient", 3 * e, e, m, true},
+                                     {"feed-forward in weight gradient", f, e, m, true}};
+  for (auto& p : list) {
+    const int64_t a_size = p.m * p.k, b_size = p.k * p.n;
+    const auto a = torch::rand({a_size}), b = torch::rand({b_size});
+    auto c = torch::empty({p.m * p.n});
+    const int64_t lda = p.trans_a ? p.m : p.k;
+    const double flop = kFlopPerMac * static_cast<double>(p.m * p.n * p.k);
+    const int64_t calls = std::max<int64_t>(1, static_cast<int64_t>(kFlopPerTiming / flop));
+    const auto run = [&] {
+      for (int64_t i = 0; i < calls; ++i)
+        small_gemm(p.trans_a, p.m, p.n, p.k, 1.0f, a.data_ptr<float>(), lda, b.data_ptr<float>(), p.n,
+                   c.data_ptr<float>(), p.n);
+    };
+    run();  // warm
+    std::vector<double> seconds;
+    for (int t = 0; t < kTimings; ++t) {
+      const auto w0 = std::chrono::steady_clock::now();
+      run();
+      seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count() /
+                        static_cast<double>(calls));
+    }
+    p.seconds = median(seconds);
+  }
+  return list;
+}
+
 double training_rays_per_s(const Config& cfg, const torch::Device& device) {
   constexpr int64_t kWarmup = 3, kTimed = 5, kImageSide = 32;
   Config c = cfg;
@@ -251,6 +289,12 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     const auto b = torch::randn({o.matmul_size, o.matmul_size}, opts);
     auto c = torch::empty({o.matmul_size, o.matmul_size}, opts);
     m.matmul = time_it(d, 1, o.matmul_reps, [&] { torch::mm_out(c, a, b); });
+  }
+
+  if (d.is_cpu()) {
+    const auto& mc = cfg.get<ModelConfig>();
+    const int64_t slice = (o.train_rays + ray_workers(o.train_rays) - 1) / ray_workers(o.train_rays);
+    m.products = time_token_products(mc.width, mc.ff_ratio, slice * (mc.samples + 1));
   }
 
 #ifdef ABLENERF_CUDA_MEMORY_STATS
@@ -328,6 +372,26 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   render["seconds_per_image"] = pixels / render["rays_per_s"].get<double>();
   render["seconds_per_image_note"] = "extrapolated: pixels / measured render rays/s";
   j["render"] = render;
+  if (!m.products.empty()) {
+    // Against one thread's share of the measured peak (the products run one per thread).
+    const double share = peak / static_cast<double>(std::max<int64_t>(1, m.threads));
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& p : m.products) {
+      const double rate = kFlopPerMac * static_cast<double>(p.m * p.n * p.k) / p.seconds;
+      list.push_back({{"name", p.name},
+                      {"m", p.m},
+                      {"n", p.n},
+                      {"k", p.k},
+                      {"trans_a", p.trans_a},
+                      {"seconds_median", p.seconds},
+                      {"flop_per_s", rate},
+                      {"fraction_of_thread_peak", rate / share}});
+    }
+    j["token_products"] = {{"kernel", "small_gemm, one thread"},
+                           {"thread_peak_flop_per_s", share},
+                           {"note", "the transformer's products at one training slice's shapes, each timed alone"},
+                           {"products", list}};
+  }
   j["peak_memory_bytes"] = m.peak_memory_bytes;
   j["peak_memory_source"] = m.peak_memory_source;
   return j;

@@ -38,8 +38,24 @@ struct Timing {
   double cpu_median() const;
 };
 
+// One token product of the model's transformer timed alone (CPU: kernels/small_gemm.h on one
+// thread, the form a training slice runs): C (m x n) = op(A) (m x k) B (k x n).
+struct ProductTiming {
+  std::string name;
+  int64_t m = 0, n = 0, k = 0;
+  bool trans_a = false;  // a weight's gradient: the reduction runs over the tokens
+  double seconds = 0;    // median of one call
+};
+
+// The transformer's token products at the shapes one ray slice of a training step runs (m = the
+// slice's tokens, rays / workers x (samples + 1)): the projections and feed-forward layers forward
+// and their weight gradients, each timed alone on the calling thread (kernels/small_gemm.h).
+std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, int64_t tokens);
+
 struct BenchMeasurements {
   Timing train, render, matmul;
+  // CPU only: time_token_products at the run's shapes (empty on CUDA).
+  std::vector<ProductTiming> products;
   int64_t peak_memory_bytes = -1;  // -1 = unknown
   std::string peak_memory_source;
   int64_t threads = 1;  // intra-op threads used

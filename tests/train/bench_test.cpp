@@ -124,6 +124,31 @@ TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
   EXPECT_DOUBLE_EQ(j["render"]["seconds_per_image"].get<double>(), 1.0);
   EXPECT_EQ(j["peak_memory_bytes"].get<int64_t>(), 123);
   EXPECT_DOUBLE_EQ(j["flops_per_ray"]["forward"].get<double>(), 4984.0);
+  EXPECT_FALSE(j.contains("token_products"));  // none measured
+
+  // A token product of 10 x 20 x 30 (12,000 FLOP) in 1e-5 s: 1.2e9 FLOP/s, against one thread's
+  // share of the 1e9 FLOP/s peak with 2 threads: 2.4 of it.
+  m.threads = 2;
+  m.products = {{"qkv projection", 10, 20, 30, false, 1e-5}};
+  const auto with = bench_report(cfg, o, m);
+  EXPECT_DOUBLE_EQ(with["token_products"]["thread_peak_flop_per_s"].get<double>(), 5e8);
+  const auto& p = with["token_products"]["products"].at(0);
+  EXPECT_EQ(p["name"], "qkv projection");
+  EXPECT_DOUBLE_EQ(p["flop_per_s"].get<double>(), 1.2e9);
+  EXPECT_DOUBLE_EQ(p["fraction_of_thread_peak"].get<double>(), 2.4);
+}
+
+// The products are the transformer's at the given width, feed-forward ratio and tokens, and
+// time_token_products computes what it times (no assertion on the time beyond being positive).
+TEST(BenchRun, TokenProductsHaveTheModelsShapes) {
+  const auto list = time_token_products(/*width=*/4, /*ff_ratio=*/2, /*tokens=*/30);
+  ASSERT_EQ(list.size(), 7u);
+  EXPECT_EQ(list[0].name, "qkv projection");
+  EXPECT_EQ(std::vector<int64_t>({list[0].m, list[0].n, list[0].k}), std::vector<int64_t>({30, 12, 4}));
+  EXPECT_EQ(std::vector<int64_t>({list[3].m, list[3].n, list[3].k}), std::vector<int64_t>({30, 4, 8}));
+  EXPECT_TRUE(list[5].trans_a);  // the qkv weight's gradient: 12 x 4, reduced over the 30 tokens
+  EXPECT_EQ(std::vector<int64_t>({list[5].m, list[5].n, list[5].k}), std::vector<int64_t>({12, 4, 30}));
+  for (const auto& p : list) EXPECT_GT(p.seconds, 0) << p.name;
 }
 
 // A run of the hand-counted model small enough for a test: 4 rays, 2 timed steps.
@@ -160,6 +185,10 @@ TEST(BenchRun, TinyRunReportsEveryField) {
       EXPECT_TRUE(j[part].contains(key)) << part << "." << key;
   EXPECT_TRUE(j["render"].contains("seconds_per_image"));
   EXPECT_EQ(j["render"]["rays"].get<double>(), 4.0);  // render chunk defaults to the train batch
+  // On the CPU the token products at one slice's shapes: 4 rays on one or two threads, 3 tokens a ray.
+  ASSERT_EQ(m.products.size(), 7u);
+  EXPECT_TRUE(m.products[0].m == 12 || m.products[0].m == 6) << m.products[0].m;
+  EXPECT_EQ(j["token_products"]["products"].size(), 7u);
 }
 
 TEST(BenchTrace, SelfTimesFromNestedEvents) {
