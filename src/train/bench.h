@@ -2,7 +2,9 @@
 // `ablenerf bench`: model throughput on one device. Measures a full training step (forward,
 // backward, Adam) and an inference forward at a fixed ray batch, the device's own sgemm peak in
 // the same run, and reports rays/s, achieved FLOP/s (from an analytic count of the matrix
-// products), the fraction of the measured peak and peak memory as one JSON object.
+// products), the fraction of the measured peak and peak memory as one JSON object; on the CPU also
+// the transformer's token products timed alone (time_token_products), against one thread's share of
+// that peak: how far the products are from the machine's limit, apart from the rest of the step.
 #include <torch/torch.h>
 
 #include <nlohmann/json.hpp>
