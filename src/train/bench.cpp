@@ -216,15 +216,7 @@ std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, 
         small_gemm(p.trans_a, p.m, p.n, p.k, 1.0f, a.data_ptr<float>(), lda, b.data_ptr<float>(), p.n,
                    c.data_ptr<float>(), p.n);
     };
-    run();  // warm
-    std::vector<double> seconds;
-    for (int t = 0; t < kTimings; ++t) {
-      const auto w0 = std::chrono::steady_clock::now();
-      run();
-      seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count() /
-                        static_cast<double>(calls));
-    }
-    p.seconds = median(seconds);
+    p.seconds = time_it(torch::kCPU, /*warmup=*/1, kTimings, run).wall_median() / static_cast<double>(calls);
   }
   return list;
 }
@@ -293,7 +285,8 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
 
   if (d.is_cpu()) {
     const auto& mc = cfg.get<ModelConfig>();
-    const int64_t slice = (o.train_rays + ray_workers(o.train_rays) - 1) / ray_workers(o.train_rays);
+    const int64_t workers = ray_workers(o.train_rays);
+    const int64_t slice = (o.train_rays + workers - 1) / workers;
     m.products = time_token_products(mc.width, mc.ff_ratio, slice * (mc.samples + 1));
   }
 
