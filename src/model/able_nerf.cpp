@@ -172,7 +172,7 @@ torch::Tensor AbleNerfImpl::effective_le(const ForwardOptions& opts) const {
 AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in,
                                           ABTransformer& ab, RayColourHead& ray_head, LETransformer* le_tf,
                                           LEColourHead* le_head, const torch::Tensor& le, const torch::Tensor& view,
-                                          const torch::Tensor& view_code, bool colour, bool weights_grad) {
+                                          const torch::Tensor& view_code, bool colour, const ForwardOptions& opts) {
   const int64_t b = t.size(0);
   const auto features = staged("ablenerf.embedding", [&] {
     const Gaussians g = frustums(t, rays);
@@ -186,10 +186,12 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
     // the grid's features beside a coarse IPE that says where the sample is
     return torch::cat({grid_(g.mean, g.cov), ipe(cfg_.grid_ipe_degrees)}, -1);
   });
-  const auto volumes = staged("ablenerf.volume_embedding", [&] { return volume_embedding_(features); });
+  auto volumes = staged("ablenerf.volume_embedding", [&] { return volume_embedding_(features); });
+  if (opts.near_gradient_distance > 0 && volumes.requires_grad())
+    volumes = near_gradient_scaled(volumes, t, opts.near_gradient_distance);
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
-  probe.keep_graph = weights_grad;
+  probe.keep_graph = opts.weights_grad;
   // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).
   const auto y =
       staged("ablenerf.ab_transformer", [&] { return ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour); });
@@ -216,6 +218,18 @@ Gaussians AbleNerfImpl::frustums(const torch::Tensor& t, const Rays& rays) const
     return {g.mean, g.cov};
   }
   return unbounded_ ? contract_intervals(t, rays) : cast_intervals(t, rays);
+}
+
+torch::Tensor near_gradient_scaled(torch::Tensor tokens, const torch::Tensor& fence_posts, double distance) {
+  const int64_t s = fence_posts.size(1) - 1;
+  TORCH_CHECK(tokens.dim() == 3 && fence_posts.dim() == 2 && fence_posts.size(0) == tokens.size(0) &&
+                  s == tokens.size(1) && distance > 0,
+              "near_gradient_scaled: tokens (B, S, width), fence-posts (B, S + 1) and a distance > 0 expected, got ",
+              tokens.sizes(), ", ", fence_posts.sizes(), " and ", distance);
+  const auto mid = 0.5 * (fence_posts.slice(1, 0, s) + fence_posts.slice(1, 1, s + 1)).detach();
+  const auto scale = (mid / distance).square().clamp_max(1.0).unsqueeze(-1).to(tokens.scalar_type());
+  tokens.register_hook([scale](const torch::Tensor& g) { return g * scale; });
+  return tokens;
 }
 
 ForwardOptions ForwardOptions::slice(int64_t lo, int64_t hi) const {
@@ -292,14 +306,14 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   }
   const auto t_c = depths(s_c);
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
-                          opts.coarse_colour, opts.weights_grad);
+                          opts.coarse_colour, opts);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
   const auto s_f =
       resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
   const auto t_f = depths(s_f);
   // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view, view_code,
-                          /*colour=*/true, opts.weights_grad);
+                          /*colour=*/true, opts);
 
   // Outputs in fp32 whatever the precision of the products (no-ops in fp32).
   const auto fp32 = [](const torch::Tensor& x) { return x.defined() ? x.to(torch::kFloat) : x; };

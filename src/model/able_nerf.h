@@ -36,6 +36,9 @@ struct ForwardOptions {
   // Keep the attention weights (coarse_weights, fine_weights) attached to the graph, for a loss on
   // them (train.distortion_weight); otherwise they are computed without gradient.
   bool weights_grad = false;
+  // Scale each sample token's gradient by min(1, (t / near_gradient_distance)^2), t its depth
+  // (train.near_gradient_distance); 0 = off. The outputs are unchanged.
+  double near_gradient_distance = 0.0;
   // Source of the LE noise and of the stratified jitter (optional). The LE noise is drawn once
   // per forward call; without a generator it comes from a fixed seed, so every chunk of an
   // image sees the same perturbed LE.
@@ -53,6 +56,11 @@ struct ForwardOptions {
   // shared).
   ForwardOptions slice(int64_t lo, int64_t hi) const;
 };
+
+// The sample tokens (B, S, width) as they are, their gradient multiplied by min(1, (t / distance)^2)
+// with t the middle of each sample's interval (fence_posts (B, S + 1), depths): "Floaters No More"
+// (Philip and Deschaintre 2023), ForwardOptions::near_gradient_distance. `tokens` must require grad.
+torch::Tensor near_gradient_scaled(torch::Tensor tokens, const torch::Tensor& fence_posts, double distance);
 
 struct ModelOutput {
   torch::Tensor rgb_coarse, rgb_fine;  // (B,3) sRGB in [0,1]; rgb_coarse undefined without coarse_colour
@@ -139,7 +147,7 @@ class AbleNerfImpl : public torch::nn::Module {
   // colour = false: only the ray token and the attention weights (no colour, no LE branch).
   Pass run_pass(const torch::Tensor& t, const Rays& rays, const torch::Tensor& ray_in, ABTransformer& ab,
                 RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
-                const torch::Tensor& view, const torch::Tensor& view_code, bool colour, bool weights_grad);
+                const torch::Tensor& view, const torch::Tensor& view_code, bool colour, const ForwardOptions& opts);
   ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
   // The interval Gaussians of fence-posts t (B,N+1) (depths): contracted for unbounded scenes.
   Gaussians frustums(const torch::Tensor& t, const Rays& rays) const;

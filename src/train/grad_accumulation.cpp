@@ -192,6 +192,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       // before the split, so that a step does not depend on how many threads share it.
       ForwardOptions opts = model->with_jitter(mb.size(), {});
       opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
+      opts.near_gradient_distance = tc.near_gradient_distance;
       const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
       if (workers == 1) {
         const TableGradientScope slot(0);

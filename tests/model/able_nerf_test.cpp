@@ -101,6 +101,46 @@ TEST(AbleNerf, FineLossTrainsTheCoarseStackThroughTheRayToken) {
                named["ray_head_coarse.linear.weight"].grad().abs().sum().item<double>() > 0);
 }
 
+TEST(AbleNerf, NearGradientScalingMultipliesEachSampleTokensGradientBySquaredDepth) {
+  // The closed form: d/dx sum(w * f(x)) = w * min(1, (t_mid / d)^2) per sample, the values unchanged.
+  torch::manual_seed(3);
+  const auto x = torch::randn({2, 3, 4}, torch::dtype(torch::kDouble).requires_grad(true));
+  const auto t = torch::tensor({{0.0, 0.2, 0.6, 3.0}, {1.0, 1.5, 2.5, 4.5}}, torch::kDouble);
+  const auto w = torch::randn({2, 3, 4}, torch::kDouble);
+  const auto y = near_gradient_scaled(x * 1.0, t, 2.0);
+  EXPECT_TRUE(torch::equal(y, x));
+  (y * w).sum().backward();
+  // Middles 0.1, 0.4, 1.8 and 1.25, 2, 3.5 over d = 2: (0.05)^2, (0.2)^2, (0.9)^2, (0.625)^2, then 1, 1.
+  const auto factor = torch::tensor({{0.0025, 0.04, 0.81}, {0.390625, 1.0, 1.0}}, torch::kDouble).unsqueeze(-1);
+  EXPECT_TRUE(torch::allclose(x.grad(), w * factor, 1e-12, 1e-14));
+  EXPECT_THROW(near_gradient_scaled(x * 1.0, t.slice(1, 0, 3), 2.0), c10::Error);
+}
+
+TEST(AbleNerf, NearGradientScalingLeavesTheOutputsAndEveryPathBesideTheSampleTokens) {
+  const auto grads = [](double distance) {
+    torch::manual_seed(4);
+    AbleNerf model(tiny());
+    ForwardOptions opts;
+    opts.near_gradient_distance = distance;
+    const auto out = model->forward(some_rays(6), 2.0, 6.0, opts);
+    (out.rgb_fine.sum() + out.rgb_coarse.sum()).backward();
+    const auto named = model->named_parameters();
+    return std::make_tuple(out.rgb_fine.detach(), named["volume_embedding.linear0.weight"].grad().clone(),
+                           named["ray_head_fine.linear.weight"].grad().clone());
+  };
+  const auto [rgb_off, embed_off, head_off] = grads(0.0);
+  // Samples between the near plane 2 and 6: a distance of 1 scales nothing.
+  const auto [rgb_1, embed_1, head_1] = grads(1.0);
+  EXPECT_TRUE(torch::equal(rgb_1, rgb_off));
+  EXPECT_TRUE(torch::equal(embed_1, embed_off));
+  // A distance of 100 scales every sample by (t / 100)^2 <= 0.0036: the tokens' embedding learns
+  // less, the colour head (no sample token below it) exactly as before.
+  const auto [rgb_100, embed_100, head_100] = grads(100.0);
+  EXPECT_TRUE(torch::equal(rgb_100, rgb_off));
+  EXPECT_TRUE(torch::allclose(head_100, head_off, 1e-6, 1e-7));
+  EXPECT_LT(embed_100.norm().item<double>(), 0.01 * embed_off.norm().item<double>());
+}
+
 TEST(AbleNerf, BranchesRecombineToTheOutput) {
   torch::manual_seed(3);
   AbleNerf model(tiny());
