@@ -4,6 +4,8 @@
 #include <optional>
 #include <vector>
 
+#include "model/frustum.h"
+
 namespace ablenerf {
 namespace {
 // Keeps the mean depth finite for a ray whose volume attention underflows to zero everywhere.
@@ -36,7 +38,7 @@ torch::Tensor depths_at_attention_shares(const torch::Tensor& weights, const tor
 AttentionDepth depth_from_attention(const torch::Tensor& weights, const torch::Tensor& t) {
   TORCH_CHECK(weights.dim() == 2 && t.dim() == 2 && t.size(0) == weights.size(0) && t.size(1) == weights.size(1) + 1,
               "depth_from_attention: expected weights (B,S) and t (B,S+1), got ", weights.sizes(), " and ", t.sizes());
-  const auto mid = 0.5 * (t.slice(1, 0, -1) + t.slice(1, 1));  // (B,S) interval mid-points
+  const auto mid = interval_middles(t);  // (B,S)
   const auto w = weights.to(mid.scalar_type());
   AttentionDepth d;
   d.mean = (w * mid).sum(1) / w.sum(1).clamp_min(kMinAttentionMass);

@@ -221,13 +221,12 @@ Gaussians AbleNerfImpl::frustums(const torch::Tensor& t, const Rays& rays) const
 }
 
 torch::Tensor near_gradient_scaled(torch::Tensor tokens, const torch::Tensor& fence_posts, double distance) {
-  const int64_t s = fence_posts.size(1) - 1;
   TORCH_CHECK(tokens.dim() == 3 && fence_posts.dim() == 2 && fence_posts.size(0) == tokens.size(0) &&
-                  s == tokens.size(1) && distance > 0,
+                  fence_posts.size(1) == tokens.size(1) + 1 && distance > 0,
               "near_gradient_scaled: tokens (B, S, width), fence-posts (B, S + 1) and a distance > 0 expected, got ",
               tokens.sizes(), ", ", fence_posts.sizes(), " and ", distance);
-  const auto mid = 0.5 * (fence_posts.slice(1, 0, s) + fence_posts.slice(1, 1, s + 1)).detach();
-  const auto scale = (mid / distance).square().clamp_max(1.0).unsqueeze(-1).to(tokens.scalar_type());
+  const auto relative = interval_middles(fence_posts.detach()) / distance;
+  const auto scale = relative.square().clamp_max(1.0).unsqueeze(-1).to(tokens.scalar_type());
   tokens.register_hook([scale](const torch::Tensor& g) { return g * scale; });
   return tokens;
 }

@@ -32,4 +32,9 @@ Gaussians cast_intervals(const torch::Tensor& t, const Rays& rays) {
   return lift_gaussian(rays.origins, rays.directions, m);
 }
 
+torch::Tensor interval_middles(const torch::Tensor& fence_posts) {
+  const int64_t n = fence_posts.size(-1) - 1;
+  return 0.5 * (fence_posts.slice(-1, 0, n) + fence_posts.slice(-1, 1, n + 1));
+}
+
 }  // namespace ablenerf

@@ -16,6 +16,9 @@ struct FrustumMoments {
   torch::Tensor r_var;   // r^2 E[t^2] / 4 (per perpendicular axis)
 };
 
+// The middles of the intervals between consecutive fence-posts (..., N+1) -> (..., N).
+torch::Tensor interval_middles(const torch::Tensor& fence_posts);
+
 // t0, t1: (B,S) interval ends; radius: (B,1) cone radius at t = 1 (broadcasts).
 FrustumMoments conical_frustum_moments(const torch::Tensor& t0, const torch::Tensor& t1, const torch::Tensor& radius);
 

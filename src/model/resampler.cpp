@@ -3,6 +3,8 @@
 #include <cmath>
 #include <limits>
 
+#include "model/frustum.h"
+
 namespace ablenerf {
 
 namespace {
@@ -25,7 +27,7 @@ torch::Tensor coarse_fence_posts(int64_t rays, double near, double far, int64_t 
   if (!jitter.defined()) return t;
   TORCH_CHECK(jitter.dim() == 2 && jitter.size(0) == rays && jitter.size(1) == samples + 1,
               "coarse_fence_posts: jitter must be (rays, samples+1)");
-  const auto mids = 0.5 * (t.slice(1, 1) + t.slice(1, 0, samples));
+  const auto mids = interval_middles(t);
   const auto upper = torch::cat({mids, t.slice(1, samples)}, 1);
   const auto lower = torch::cat({t.slice(1, 0, 1), mids}, 1);
   return lower + (upper - lower) * jitter.to(options);

@@ -134,7 +134,7 @@ TEST(AbleNerf, NearGradientScalingLeavesTheOutputsAndEveryPathBesideTheSampleTok
   EXPECT_TRUE(torch::equal(rgb_1, rgb_off));
   EXPECT_TRUE(torch::equal(embed_1, embed_off));
   // A distance of 100 scales every sample by (t / 100)^2 <= 0.0036: the tokens' embedding learns
-  // less, the colour head (no sample token below it) exactly as before.
+  // less, the colour head (no sample token below it) as before.
   const auto [rgb_100, embed_100, head_100] = grads(100.0);
   EXPECT_TRUE(torch::equal(rgb_100, rgb_off));
   EXPECT_TRUE(torch::allclose(head_100, head_off, 1e-6, 1e-7));
