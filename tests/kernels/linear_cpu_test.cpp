@@ -18,7 +18,7 @@ struct LinearCase {
 
 // Values and gradients of linear_cpu and torch::linear for one upstream gradient; float32 inputs,
 // errors relative to the size of the sums (k or m terms of unit scale).
-void compare_linear(const LinearCase& c, uint64_t seed) {
+void compare_linear(const LinearCase& c, uint64_t seed, CpuVectorForm form = cpu_best_vector_form()) {
   const auto x0 = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat);
   const auto w0 = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat);
   const auto b0 = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat);
@@ -27,7 +27,7 @@ void compare_linear(const LinearCase& c, uint64_t seed) {
   for (auto* out : {&got, &want}) {
     auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
     const auto bias = c.bias ? b : torch::Tensor();
-    const auto y = out == &got ? linear_cpu(x, w, bias, c.relu)
+    const auto y = out == &got ? linear_cpu(x, w, bias, c.relu, form)
                    : c.relu    ? torch::relu(torch::linear(x, w, bias))
                                : torch::linear(x, w, bias);
     (y * up).sum().backward();
@@ -70,6 +70,39 @@ TEST(LinearCpu, WithReluMatchesTorchReluOfLinear) {
   y.sum().backward();
   EXPECT_TRUE(torch::equal(x.grad(), torch::tensor({{3.f, 1.5f}, {0.f, 0.f}})));
   EXPECT_TRUE(torch::equal(w.grad(), torch::tensor({{1.f, 2.f}, {1.f, 2.f}})));
+}
+
+// The scalar form of the element-wise passes (bias, ReLU, its gradient, the bias's gradient) against
+// torch::linear as well, and against the form this CPU picks bit for bit: they only add and select.
+TEST(LinearCpu, ScalarFormMatchesTorchAndTheVectorFormToTheBit) {
+  uint64_t seed = 70;
+  const std::vector<LinearCase> cases{{2176, 32, 96, true},        // the capture preset's QKV projection
+                                      {2176, 44, 32, true, true},  // with the ReLU
+                                      {50, 100, 13, true, true},   // columns over the vector length
+                                      {17, 5, 3, false, true},     // ReLU without a bias
+                                      {1, 3, 1, true}};            // one row, one column
+  for (const LinearCase& c : cases) {
+    compare_linear(c, seed += 4, CpuVectorForm::Scalar);
+    const auto x0 = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat);
+    const auto w0 = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat);
+    const auto b0 = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat);
+    const auto up = test::seeded_randn({c.m, c.n}, seed + 3).to(torch::kFloat);
+    std::vector<torch::Tensor> forms[2];
+    for (const CpuVectorForm form : {CpuVectorForm::Scalar, cpu_best_vector_form()}) {
+      auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
+      const auto y = linear_cpu(x, w, c.bias ? b : torch::Tensor(), c.relu, form);
+      (y * up).sum().backward();
+      auto& out = forms[form == CpuVectorForm::Scalar ? 0 : 1];
+      out = {y.detach(), x.grad(), w.grad()};
+      if (c.bias) out.push_back(b.grad());
+    }
+    for (size_t i = 0; i < forms[0].size(); ++i)
+      EXPECT_TRUE(torch::equal(forms[0][i], forms[1][i])) << "output/gradient " << i << " m " << c.m << " n " << c.n;
+  }
+  if (!cpu_vector_form_available(CpuVectorForm::Avx512)) {
+    EXPECT_THROW(linear_cpu(torch::ones({2, 2}), torch::ones({2, 2}), torch::Tensor(), false, CpuVectorForm::Avx512),
+                 c10::Error);
+  }
 }
 
 TEST(LinearCpu, GradientsOnlyWhereRequired) {
