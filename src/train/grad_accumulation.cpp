@@ -163,6 +163,10 @@ void sum_slice_gradients(const std::vector<torch::Tensor>& params,
 
 }  // namespace
 
+double near_gradient_distance_for(const TrainConfig& tc, double near) {
+  return std::max(tc.near_gradient_distance, tc.near_gradient_near_multiple * near);
+}
+
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
                               int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale) {
   TORCH_CHECK(micro > 0, "accumulate_gradients: micro-batch must be positive");
@@ -192,7 +196,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       // before the split, so that a step does not depend on how many threads share it.
       ForwardOptions opts = model->with_jitter(mb.size(), {});
       opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
-      opts.near_gradient_distance = tc.near_gradient_distance;
+      opts.near_gradient_distance = near_gradient_distance_for(tc, near);
       const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
       if (workers == 1) {
         const TableGradientScope slot(0);

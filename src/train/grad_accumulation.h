@@ -65,6 +65,11 @@ struct StepSums {
   torch::Tensor terms;     // (kLossTermCount,) the loss's terms (LossTerm) summed likewise; they add up to loss
 };
 
+// The distance below which sample tokens' gradients are scaled (ForwardOptions::near_gradient_distance)
+// for a scene whose near plane is `near`: the larger of train.near_gradient_distance and
+// train.near_gradient_near_multiple x near; 0 = off.
+double near_gradient_distance_for(const TrainConfig& tc, double near);
+
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add
 // into the parameters' .grad (zero them first), and the grid table's decay (train.grid_decay, its
 // share batch / global_rays) once. `distortion_scale` as ray_loss's. Returns the summed loss terms.

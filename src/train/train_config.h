@@ -60,6 +60,13 @@ struct TrainConfig {
   // an office photographed from inside 2.3 dB, where everything seen is near the cameras, and gained
   // 0.6-1.0 dB on subjects far from them (docs/benchmarks/history.md, "Gradients scaled near the cameras").
   double near_gradient_distance = 0.0;
+  // The same distance relative to the capture: this multiple of the scene's near plane (the nearest
+  // content the sparse points or the capture's bounds put before a camera, model/scene_frame.h), so
+  // that an office's cameras a few tenths from its walls and a building's far behind its trees get
+  // each its own; the larger of the two distances is used (near_gradient_distance_for). 0 = off
+  // (every preset): at 2 the zoo's means moved by under 0.1 dB (docs/benchmarks/history.md, "The
+  // gradient scaling relative to the near plane").
+  double near_gradient_near_multiple = 0.0;
   // Zip-NeRF's normalised weight decay on the grid front end's table (Barron et al. 2023: the sum over
   // levels of each level's mean squared feature), weighted by this. 0 = off.
   double grid_decay = 0.0;
@@ -145,6 +152,7 @@ struct TrainConfig {
     f("distortion_start", &distortion_start);
     f("distortion_forward_facing", &distortion_forward_facing);
     f("near_gradient_distance", &near_gradient_distance);
+    f("near_gradient_near_multiple", &near_gradient_near_multiple);
     f("grid_decay", &grid_decay);
     f("proposal_weight", &proposal_weight);
     f("proposal_attention_weight", &proposal_attention_weight);
@@ -189,6 +197,8 @@ struct TrainConfig {
     need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
     need(distortion_start >= 0 && distortion_start < 1, "distortion_start", "must be in [0, 1)");
     need(near_gradient_distance >= 0 && std::isfinite(near_gradient_distance), "near_gradient_distance",
+         "must be >= 0");
+    need(near_gradient_near_multiple >= 0 && std::isfinite(near_gradient_near_multiple), "near_gradient_near_multiple",
          "must be >= 0");
     need(grid_decay >= 0 && std::isfinite(grid_decay), "grid_decay", "must be >= 0");
     need(proposal_weight >= 0 && std::isfinite(proposal_weight), "proposal_weight", "must be >= 0");

@@ -85,6 +85,44 @@ TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   EXPECT_GT(total, 1e-6);
 }
 
+TEST(GradAccumulation, NearGradientDistanceFollowsTheNearPlane) {
+  // The distance: the larger of the fixed one and the multiple of the near plane, hand-computed.
+  TrainConfig tc;
+  EXPECT_EQ(near_gradient_distance_for(tc, 0.3), 0.0);
+  tc.near_gradient_near_multiple = 2.0;
+  EXPECT_DOUBLE_EQ(near_gradient_distance_for(tc, 0.3), 0.6);
+  tc.near_gradient_distance = 1.0;
+  EXPECT_DOUBLE_EQ(near_gradient_distance_for(tc, 0.3), 1.0);
+  EXPECT_DOUBLE_EQ(near_gradient_distance_for(tc, 0.8), 1.6);
+
+  // The step uses it: a multiple of 1.5 at near 2 gives the gradients of a fixed distance of 3,
+  // which differ from the unscaled ones (samples lie in [2, 6], so the ones before 3 are scaled).
+  torch::manual_seed(8);
+  AbleNerf model(test::two_head_model());
+  model->to(torch::kDouble);
+  model->train();
+  const int64_t n = 24;
+  const RayBatch batch = some_batch(n);
+  const auto step = [&](double distance, double multiple) {
+    TrainConfig c;
+    c.near_gradient_distance = distance;
+    c.near_gradient_near_multiple = multiple;
+    for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+    accumulate_gradients(model, batch, n, c, n, 2.0, 6.0);
+    std::vector<torch::Tensor> g;
+    for (auto& p : model->parameters()) g.push_back(p.grad().defined() ? p.grad().clone() : torch::Tensor());
+    return g;
+  };
+  const auto relative = step(0.0, 1.5), fixed = step(3.0, 0.0), plain = step(0.0, 0.0);
+  double moved = 0;
+  for (size_t i = 0; i < relative.size(); ++i) {
+    if (!relative[i].defined()) continue;
+    EXPECT_TRUE(torch::equal(relative[i], fixed[i])) << "parameter " << i;
+    moved += (relative[i] - plain[i]).abs().max().item<double>();
+  }
+  EXPECT_GT(moved, 1e-9);
+}
+
 TEST(GradAccumulation, JitteredStepDoesNotDependOnTheRaySplit) {
   // model.randomized: the micro-batch's jitter is drawn once, before the split, from the global
   // stream (coarse, then fine), exactly as one forward over the whole batch draws it. Draws made
