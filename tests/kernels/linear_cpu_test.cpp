@@ -16,24 +16,35 @@ struct LinearCase {
   bool relu = false;
 };
 
+// Output and gradients {y, dx, dW (, db)} of `layer` (linear_cpu or a reference) for the case's
+// seeded float32 inputs and one upstream gradient.
+template <class Layer>
+std::vector<torch::Tensor> linear_outputs(const LinearCase& c, uint64_t seed, Layer&& layer) {
+  auto x = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat).requires_grad_();
+  auto w = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat).requires_grad_();
+  auto b = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat).requires_grad_();
+  const auto up = test::seeded_randn({c.m, c.n}, seed + 3).to(torch::kFloat);
+  const auto y = layer(x, w, c.bias ? b : torch::Tensor());
+  (y * up).sum().backward();
+  std::vector<torch::Tensor> out{y.detach(), x.grad(), w.grad()};
+  if (c.bias) out.push_back(b.grad());
+  return out;
+}
+
+std::vector<torch::Tensor> linear_cpu_outputs(const LinearCase& c, uint64_t seed, CpuVectorForm form) {
+  return linear_outputs(c, seed, [&](const torch::Tensor& x, const torch::Tensor& w, const torch::Tensor& b) {
+    return linear_cpu(x, w, b, c.relu, form);
+  });
+}
+
 // Values and gradients of linear_cpu and torch::linear for one upstream gradient; float32 inputs,
 // errors relative to the size of the sums (k or m terms of unit scale).
 void compare_linear(const LinearCase& c, uint64_t seed, CpuVectorForm form = cpu_best_vector_form()) {
-  const auto x0 = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat);
-  const auto w0 = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat);
-  const auto b0 = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat);
-  const auto up = test::seeded_randn({c.m, c.n}, seed + 3).to(torch::kFloat);
-  std::vector<torch::Tensor> got, want;
-  for (auto* out : {&got, &want}) {
-    auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
-    const auto bias = c.bias ? b : torch::Tensor();
-    const auto y = out == &got ? linear_cpu(x, w, bias, c.relu, form)
-                   : c.relu    ? torch::relu(torch::linear(x, w, bias))
-                               : torch::linear(x, w, bias);
-    (y * up).sum().backward();
-    *out = {y.detach(), x.grad(), w.grad()};
-    if (c.bias) out->push_back(b.grad());
-  }
+  const auto got = linear_cpu_outputs(c, seed, form);
+  const auto want =
+      linear_outputs(c, seed, [&](const torch::Tensor& x, const torch::Tensor& w, const torch::Tensor& b) {
+        return c.relu ? torch::relu(torch::linear(x, w, b)) : torch::linear(x, w, b);
+      });
   const double scale[] = {double(c.k), double(c.n), double(c.m), double(c.m)};  // terms per sum
   for (size_t i = 0; i < got.size(); ++i) {
     ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
@@ -83,21 +94,10 @@ TEST(LinearCpu, ScalarFormMatchesTorchAndTheVectorFormToTheBit) {
                                       {1, 3, 1, true}};            // one row, one column
   for (const LinearCase& c : cases) {
     compare_linear(c, seed += 4, CpuVectorForm::Scalar);
-    const auto x0 = test::seeded_randn({c.m, c.k}, seed).to(torch::kFloat);
-    const auto w0 = test::seeded_randn({c.n, c.k}, seed + 1).to(torch::kFloat);
-    const auto b0 = test::seeded_randn({c.n}, seed + 2).to(torch::kFloat);
-    const auto up = test::seeded_randn({c.m, c.n}, seed + 3).to(torch::kFloat);
-    std::vector<torch::Tensor> forms[2];
-    for (const CpuVectorForm form : {CpuVectorForm::Scalar, cpu_best_vector_form()}) {
-      auto x = x0.clone().requires_grad_(), w = w0.clone().requires_grad_(), b = b0.clone().requires_grad_();
-      const auto y = linear_cpu(x, w, c.bias ? b : torch::Tensor(), c.relu, form);
-      (y * up).sum().backward();
-      auto& out = forms[form == CpuVectorForm::Scalar ? 0 : 1];
-      out = {y.detach(), x.grad(), w.grad()};
-      if (c.bias) out.push_back(b.grad());
-    }
-    for (size_t i = 0; i < forms[0].size(); ++i)
-      EXPECT_TRUE(torch::equal(forms[0][i], forms[1][i])) << "output/gradient " << i << " m " << c.m << " n " << c.n;
+    const auto scalar = linear_cpu_outputs(c, seed, CpuVectorForm::Scalar);
+    const auto best = linear_cpu_outputs(c, seed, cpu_best_vector_form());
+    for (size_t i = 0; i < scalar.size(); ++i)
+      EXPECT_TRUE(torch::equal(scalar[i], best[i])) << "output/gradient " << i << " m " << c.m << " n " << c.n;
   }
   if (!cpu_vector_form_available(CpuVectorForm::Avx512)) {
     EXPECT_THROW(linear_cpu(torch::ones({2, 2}), torch::ones({2, 2}), torch::Tensor(), false, CpuVectorForm::Avx512),
