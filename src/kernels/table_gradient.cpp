@@ -27,9 +27,18 @@ struct FinishArgs {
   float* out;
 };
 
-// Entries [lo, hi); returns the sum of w^2 over them.
-double finish_scalar(const FinishArgs& a, int64_t lo, int64_t hi) {
+// What a range of the finishing pass found: the sum of w^2 over it, and whether every entry it
+// wrote is finite (Adam's check of the same gradient then need not read it again).
+struct FinishSums {
+  double squares = 0.0;
+  bool finite = true;
+};
+
+// Entries [lo, hi). The finite test is a running sum of out x 0: 0 while every entry is finite,
+// NaN from the first infinite or NaN one on.
+FinishSums finish_scalar(const FinishArgs& a, int64_t lo, int64_t hi) {
   double sq = 0.0;
+  float probe = 0.0f;
   for (int64_t j = lo; j < hi; ++j) {
     float g = a.g0 != nullptr ? a.g0[j] : 0.0f;
     for (float* s : a.src) {
@@ -37,17 +46,20 @@ double finish_scalar(const FinishArgs& a, int64_t lo, int64_t hi) {
       s[j] = 0.0f;
     }
     a.out[j] = g + a.two_decay * a.w[j];
+    probe += a.out[j] * 0.0f;
     sq += static_cast<double>(a.w[j]) * a.w[j];
   }
-  return sq;
+  return {sq, probe == 0.0f};
 }
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
 // 16 entries at a time, the same float additions in the same order (no fused multiply-add); the
 // squares summed in float64 in 16 lanes (another order of the sum than the scalar loop's).
-ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS double finish_avx512(const FinishArgs& a, int64_t lo, int64_t hi) {
+ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS FinishSums finish_avx512(const FinishArgs& a, int64_t lo,
+                                                                            int64_t hi) {
   const __m512 zero = _mm512_setzero_ps(), two_decay = _mm512_set1_ps(a.two_decay);
   __m512d sq_low = _mm512_setzero_pd(), sq_high = _mm512_setzero_pd();
+  __m512 probe = zero;
   int64_t j = lo;
   for (; j + 16 <= hi; j += 16) {
     __m512 g = a.g0 != nullptr ? _mm512_loadu_ps(a.g0 + j) : zero;
@@ -56,7 +68,9 @@ ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS double finish_avx512(const Fi
       _mm512_storeu_ps(s + j, zero);
     }
     const __m512 w = _mm512_loadu_ps(a.w + j);
-    _mm512_storeu_ps(a.out + j, _mm512_add_ps(g, _mm512_mul_ps(two_decay, w)));
+    const __m512 out = _mm512_add_ps(g, _mm512_mul_ps(two_decay, w));
+    _mm512_storeu_ps(a.out + j, out);
+    probe = _mm512_add_ps(probe, _mm512_mul_ps(out, zero));
     const __m512d w_low = _mm512_cvtps_pd(_mm512_castps512_ps256(w));
     const __m512d w_high = _mm512_cvtps_pd(_mm512_castps512_ps256(_mm512_shuffle_f32x4(w, w, 0xEE)));
     sq_low = _mm512_add_pd(sq_low, _mm512_mul_pd(w_low, w_low));
@@ -66,11 +80,14 @@ ABLENERF_TARGET_AVX512 ABLENERF_SEPARATE_ROUNDINGS double finish_avx512(const Fi
   _mm512_store_pd(lanes, _mm512_add_pd(sq_low, sq_high));
   double sq = 0.0;
   for (const double lane : lanes) sq += lane;
-  return sq + finish_scalar(a, j, hi);
+  const FinishSums tail = finish_scalar(a, j, hi);
+  // A NaN lane compares unequal to zero.
+  const bool finite = _mm512_cmp_ps_mask(probe, zero, _CMP_NEQ_UQ) == 0;
+  return {sq + tail.squares, finite && tail.finite};
 }
 #endif
 
-double finish_in(CpuVectorForm form, const FinishArgs& a, int64_t lo, int64_t hi) {
+FinishSums finish_in(CpuVectorForm form, const FinishArgs& a, int64_t lo, int64_t hi) {
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (form == CpuVectorForm::Avx512) return finish_avx512(a, lo, hi);
 #endif
@@ -114,6 +131,7 @@ void TableGradient::discard() {
 double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorForm form) {
   TORCH_CHECK(cpu_vector_form_available(form), "TableGradient: the AVX-512 form on a CPU without it");
   const std::lock_guard<std::mutex> lock(mutex_);
+  finite_ = false;
   std::vector<float*> src;
   for (size_t k = 0; k < slots_.size(); ++k) {
     if (!written_[k]) continue;
@@ -137,15 +155,19 @@ double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorFo
   const int64_t n = parameter.numel();
   const float two_decay = static_cast<float>(2 * decay);
   const int64_t workers = cpu_workers(n, table_gradient_impl::kEntriesPerWorker);
-  std::vector<double> squares(static_cast<size_t>(workers), 0.0);
+  std::vector<table_gradient_impl::FinishSums> sums(static_cast<size_t>(workers));
   const table_gradient_impl::FinishArgs args{g0, src, w, two_decay, out};
   parallel_slices(n, workers, [&](int64_t t, int64_t lo, int64_t hi) {
-    squares[static_cast<size_t>(t)] = table_gradient_impl::finish_in(form, args, lo, hi);
+    sums[static_cast<size_t>(t)] = table_gradient_impl::finish_in(form, args, lo, hi);
   });
   std::fill(written_.begin(), written_.end(), false);
   parameter.mutable_grad() = grad_;
   double total = 0.0;
-  for (const double s : squares) total += s;
+  finite_ = true;
+  for (const auto& s : sums) {
+    total += s.squares;
+    finite_ = finite_ && s.finite;
+  }
   return decay * total;
 }
 

@@ -40,6 +40,11 @@ class TableGradient {
   // `form` forces the scalar loop (tests); every form writes the same gradient to the bit.
   double finish(torch::Tensor& parameter, double decay, CpuVectorForm form = cpu_best_vector_form());
 
+  // True when the last finish() wrote the parameter's gradient and every entry of it is finite,
+  // found in the same pass (so that the optimiser's check need not read the table's gradient
+  // again: train/adam.h); false after one that wrote nothing, or found an infinite or NaN entry.
+  bool wrote_finite_gradient() const { return finite_; }
+
   // The slots zeroed without a gradient (a step abandoned between its backward and finish()).
   void discard();
 
@@ -51,6 +56,7 @@ class TableGradient {
   std::vector<torch::Tensor> slots_;
   std::vector<bool> written_;
   torch::Tensor grad_;  // the .grad handed out, reused while the parameter keeps its shape
+  bool finite_ = false;
 };
 
 // Lookups on this thread write their table gradients to slot `k` for the scope (restores the

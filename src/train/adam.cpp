@@ -121,13 +121,20 @@ void Adam::clear_grads() {
   for (auto& p : params_) p.mutable_grad() = torch::Tensor();
 }
 
-bool Adam::step_host(double loss) {
+bool Adam::step_host(double loss, const std::vector<torch::Tensor>& checked) {
   if (!std::isfinite(loss)) return false;
   if (host_loops_) {
-    // Each gradient made contiguous once (most already are), for both loops.
-    std::vector<torch::Tensor> grads;
-    for (const auto& p : params_) grads.push_back(p.grad().defined() ? p.grad().contiguous() : torch::Tensor());
-    if (!gradients_finite_loop(grads)) return false;
+    const auto was_checked = [&](const torch::Tensor& p) {
+      return std::any_of(checked.begin(), checked.end(), [&](const torch::Tensor& c) { return c.is_same(p); });
+    };
+    // Each gradient made contiguous once (most already are), for both loops; the finite check
+    // over the ones not checked already.
+    std::vector<torch::Tensor> grads, unchecked;
+    for (const auto& p : params_) {
+      grads.push_back(p.grad().defined() ? p.grad().contiguous() : torch::Tensor());
+      if (!was_checked(p)) unchecked.push_back(grads.back());
+    }
+    if (!gradients_finite_loop(unchecked)) return false;
     update_loop(grads);
     return true;
   }

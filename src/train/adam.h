@@ -43,8 +43,10 @@ class Adam {
   void clear_grads();      // every .grad undefined (the next backward writes fresh buffers)
 
   // Host form: when `loss` and every gradient are finite, updates and returns true; otherwise
-  // returns false without updating (the caller clears the gradients).
-  bool step_host(double loss);
+  // returns false without updating (the caller clears the gradients). `checked`: parameters whose
+  // gradient the caller has already found finite in a pass of its own (a grid table's, in the pass
+  // that gathers it: kernels/table_gradient.h); the check does not read those again.
+  bool step_host(double loss, const std::vector<torch::Tensor>& checked = {});
 
   // Device form: sets found_inf() to 1 when `loss` or a gradient is not finite, else 0, then
   // updates unless it is 1. Capturable.

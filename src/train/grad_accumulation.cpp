@@ -173,7 +173,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
   const auto params = model->parameters();
   // In the parameters' dtype (fp32 in training; float64 in tests).
   const auto zero = torch::zeros({}, params.front().options());
-  StepSums sums{zero, zero.clone(), {}, torch::zeros({kLossTermCount}, zero.options())};
+  StepSums sums{zero, zero.clone(), {}, torch::zeros({kLossTermCount}, zero.options()), {}};
   std::vector<torch::Tensor> ray_se;
   const auto add = [&](const LossTerms& t) {
     sums.loss.add_(t.loss.detach());
@@ -239,6 +239,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       continue;
     }
     const double value = t->table_gradient().finish(param, decay);
+    if (t->table_gradient().wrote_finite_gradient()) sums.finite_tables.push_back(param);
     if (decay > 0) add_decay(kTermGridDecay, torch::scalar_tensor(value, zero.options()));
   }
   // and the photo colour maps', appearance codes' and camera corrections': each weight times the mean

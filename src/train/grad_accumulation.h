@@ -63,6 +63,9 @@ struct StepSums {
   torch::Tensor mse_fine;  // the step's fine-colour MSE (this process's share), likewise
   torch::Tensor ray_se;    // (rays,) LossTerms::ray_se of this process's rays, in batch order
   torch::Tensor terms;     // (kLossTermCount,) the loss's terms (LossTerm) summed likewise; they add up to loss
+  // The grid tables whose gradient the pass that gathered it found finite (Adam::step_host's
+  // `checked`; valid until the gradients change, e.g. by an all-reduce).
+  std::vector<torch::Tensor> finite_tables;
 };
 
 // The distance below which sample tokens' gradients are scaled (ForwardOptions::near_gradient_distance)

@@ -160,7 +160,8 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
     std::copy(stats.begin() + 3, stats.begin() + kRays, r.terms.begin());
     if (guided) ray_se = torch::tensor(std::vector<double>(stats.begin() + kRays, stats.end()), torch::kDouble);
   }
-  r.finite = s.adam->step_host(r.loss);
+  // The tables' finite check made while gathering them holds unless an all-reduce changed them.
+  r.finite = s.adam->step_host(r.loss, opts_.dist ? std::vector<torch::Tensor>() : sums.finite_tables);
   if (guided && r.finite) s.sampler->observe(all, ray_se);
   if (!r.finite) s.adam->clear_grads();
   s.last = r;

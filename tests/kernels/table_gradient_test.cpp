@@ -5,6 +5,7 @@
 // the positions theirs; without a slot (or without gradient mode) nothing goes to the slots.
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <thread>
 
 #include "kernels/hash_grid.h"
@@ -48,6 +49,37 @@ TEST(TableGradient, FinishAddsTheSlotsAndTheDecayInOnePass) {
       }
     }
   }
+}
+
+// finish() says whether the gradient it wrote is finite: an infinity or NaN in any slot, at the
+// first entry, inside the 16-wide vectors and in their tail, is found by every form; a pass that
+// wrote nothing vouches for nothing.
+TEST(TableGradient, FinishFindsAnInfiniteOrNaNEntry) {
+  const int64_t rows = 41;  // 3 x 41 x 2 = 246 entries: 15 vectors and a tail of 6
+  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+    if (!cpu_vector_form_available(form)) continue;
+    const auto param = test::seeded_randn({3, rows, 2}, 1).to(torch::kFloat);
+    for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(),
+                            -std::numeric_limits<float>::infinity(), 0.0f}) {
+      for (const int64_t at : {int64_t(0), int64_t(100), int64_t(245)}) {
+        for (const int k : {0, 1}) {
+          TableGradient tg;
+          for (int j = 0; j < 2; ++j)
+            torch::from_blob(tg.slot(param, j), param.sizes(), torch::kFloat)
+                .copy_(test::seeded_randn({3, rows, 2}, 10 + j).to(torch::kFloat));
+          tg.slot(param, k)[at] = bad;
+          auto p = param.clone().set_requires_grad(true);
+          tg.finish(p, 0.125, form);
+          EXPECT_EQ(tg.wrote_finite_gradient(), bad == 0.0f) << bad << " at " << at << " in slot " << k;
+          EXPECT_EQ(p.grad().isfinite().all().item<bool>(), bad == 0.0f);
+        }
+      }
+    }
+  }
+  TableGradient tg;
+  auto p = torch::ones({2, 8, 2}).set_requires_grad(true);
+  tg.finish(p, 0.0);
+  EXPECT_FALSE(tg.wrote_finite_gradient());
 }
 
 TEST(TableGradient, NothingWrittenAndNoDecayLeavesTheGradientAlone) {

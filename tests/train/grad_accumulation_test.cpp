@@ -338,6 +338,10 @@ TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
     }
     EXPECT_FALSE(front.table_gradient().pending());
     EXPECT_FALSE(proposal.table_gradient().pending());
+    // Both tables' gradients were found finite in the pass that gathered them.
+    ASSERT_EQ(s.finite_tables.size(), 2u);
+    for (const auto& table : {front_table, proposal_table})
+      EXPECT_TRUE(s.finite_tables[0].is_same(table) || s.finite_tables[1].is_same(table));
   }
 }
 
