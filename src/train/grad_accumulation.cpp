@@ -13,13 +13,16 @@ namespace ablenerf {
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
                    const torch::Tensor& distortion_scale) {
   const double inv = 1.0 / (static_cast<double>(kRgbChannels) * static_cast<double>(global_rays));
-  const auto se_c = (out.rgb_coarse - target).pow(2).sum();
   const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
   const auto se_f = ray_se.sum();
   std::array<torch::Tensor, kLossTermCount> parts;
   parts[kTermFine] = se_f * (tc.fine_weight * inv);
-  parts[kTermCoarse] = se_c * (tc.coarse_weight * inv);
-  auto loss = parts[kTermCoarse] + parts[kTermFine];
+  auto loss = parts[kTermFine];
+  // Without a weight the coarse colour is not computed (accumulate_gradients).
+  if (tc.coarse_weight > 0) {
+    parts[kTermCoarse] = (out.rgb_coarse - target).pow(2).sum() * (tc.coarse_weight * inv);
+    loss = parts[kTermCoarse] + loss;
+  }
   if (tc.distortion_weight > 0) {
     parts[kTermDistortion] = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
                              (tc.distortion_weight / static_cast<double>(global_rays));
@@ -195,6 +198,9 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       // The micro-batch's stratified jitter (model.randomized) is drawn here, on this thread and
       // before the split, so that a step does not depend on how many threads share it.
       ForwardOptions opts = model->with_jitter(mb.size(), {});
+      // The coarse pass's colour only where its loss has a weight: without it the coarse pass
+      // still places the fine samples and hands over its ray token, as when rendering.
+      opts.coarse_colour = tc.coarse_weight > 0;
       opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
       opts.near_gradient_distance = near_gradient_distance_for(tc, near);
       const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);

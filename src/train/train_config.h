@@ -31,7 +31,7 @@ struct TrainConfig {
   double adam_beta1 = 0.9;
   double adam_beta2 = 0.999;
   double adam_eps = 1e-8;
-  double coarse_weight = 1.0;
+  double coarse_weight = 1.0;  // 0: the coarse colour is not computed (train/grad_accumulation.h)
   double fine_weight = 1.0;
   // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
   // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):

@@ -48,6 +48,44 @@ void expect_gradients_equal(AbleNerf& model, const std::vector<torch::Tensor>& r
   }
 }
 
+// Without a weight on the coarse colour the step does not compute it: the parameters that only
+// make it (the coarse colour heads, the coarse LE transformer) get no gradient, where the reference
+// (the colour computed and weighted 0) gives them exactly zero, and every other gradient and the
+// loss are the reference's.
+TEST(GradAccumulation, AZeroCoarseWeightSkipsTheCoarseColour) {
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(9);
+  AbleNerf model(test::two_head_model());
+  model->to(torch::kDouble);
+  model->train();
+  TrainConfig tc;
+  tc.coarse_weight = 0.0;
+  const int64_t n = 24;
+  const RayBatch batch = some_batch(n);
+  double ref_loss = 0;
+  const auto ref = reference_gradients(model, batch, tc, &ref_loss);
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+  EXPECT_NEAR(s.loss.item<double>(), ref_loss, 1e-12);
+  EXPECT_EQ(s.terms[kTermCoarse].item<double>(), 0.0);
+  const auto named = model->named_parameters();
+  int skipped = 0;
+  for (size_t i = 0; i < named.size(); ++i) {
+    const auto& p = named[i].value();
+    const std::string& name = named[i].key();
+    if (!p.grad().defined()) {
+      ++skipped;
+      EXPECT_EQ(ref[i].abs().max().item<double>(), 0.0) << name << " has a gradient the skipped colour would give";
+      EXPECT_TRUE(name.rfind("ray_head_coarse.", 0) == 0 || name.rfind("le_head_coarse.", 0) == 0 ||
+                  name.rfind("le_coarse.", 0) == 0 || name.rfind("coarse.", 0) == 0)
+          << name << " got no gradient";
+      continue;
+    }
+    EXPECT_LT((p.grad() - ref[i]).abs().max().item<double>(), 1e-12 * (1 + ref[i].abs().max().item<double>())) << name;
+  }
+  EXPECT_GT(skipped, 0) << "the coarse colour was computed";
+}
+
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
