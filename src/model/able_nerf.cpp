@@ -192,9 +192,10 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
   const auto tokens = torch::cat({ray_in.expand({b, 1, cfg_.width}), volumes}, 1);
   RayQueryProbe probe;
   probe.keep_graph = opts.weights_grad;
-  // Without colour the volume tokens of the last layer are unused (they feed only the LE branch).
-  const auto y =
-      staged("ablenerf.ab_transformer", [&] { return ab->forward(tokens, mask_, &probe, /*ray_token_only=*/!colour); });
+  // Without colour or without the LE branch the volume tokens of the last layer are unused (they
+  // feed only the LE branch).
+  const bool ray_token_only = !colour || le_tf == nullptr;
+  const auto y = staged("ablenerf.ab_transformer", [&] { return ab->forward(tokens, mask_, &probe, ray_token_only); });
   Pass p;
   p.ray_token = y.select(1, 0);
   p.weights = ray_token_attention(probe);
@@ -277,9 +278,9 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     // The photo's appearance code on the view token (model/appearance_code.h).
     if (opts.appearance.defined()) view = view + opts.appearance.to(view.device(), view.scalar_type());
   }
-  LETransformer* le_c = has_le() ? &le_coarse_ : nullptr;
+  LETransformer* le_c = has_le() && opts.coarse_le ? &le_coarse_ : nullptr;
   LETransformer* le_f = has_le() ? &le_fine_ : nullptr;
-  LEColourHead* head_c = has_le() ? &le_head_coarse_ : nullptr;
+  LEColourHead* head_c = has_le() && opts.coarse_le ? &le_head_coarse_ : nullptr;
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
   // Unbounded scenes place and resample their fence-posts in the normalised s in [0, 1]
@@ -328,8 +329,9 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);
-    out.le_colour_coarse =
-        has_le() || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
+    out.le_colour_coarse = (has_le() && opts.coarse_le) || !opts.coarse_colour
+                               ? fp32(c.le_colour)
+                               : torch::zeros_like(out.ray_colour_coarse);
     out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;

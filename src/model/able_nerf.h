@@ -33,6 +33,10 @@ struct ForwardOptions {
   // the fine colour: without it the coarse pass skips its LE branch and its last layer computes
   // the ray token's row alone; every fine output is unchanged.
   bool coarse_colour = true;
+  // The coarse colour with the coarse pass's LE branch (the paper), or false: from its ray token
+  // alone (the LE transformer skipped, the last layer computing the ray token's row alone); the
+  // fine pass is unchanged either way.
+  bool coarse_le = true;
   // Keep the attention weights (coarse_weights, fine_weights) attached to the graph, for a loss on
   // them (train.distortion_weight); otherwise they are computed without gradient.
   bool weights_grad = false;

@@ -32,6 +32,9 @@ struct TrainConfig {
   double adam_beta2 = 0.999;
   double adam_eps = 1e-8;
   double coarse_weight = 1.0;  // 0: the coarse colour is not computed (train/grad_accumulation.h)
+  // The coarse colour with the coarse pass's learnable embeddings (the paper), or false: from its
+  // ray token alone, without the coarse LE transformer (ForwardOptions::coarse_le).
+  bool coarse_le = true;
   double fine_weight = 1.0;
   // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
   // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):
@@ -147,6 +150,7 @@ struct TrainConfig {
     f("adam_beta2", &adam_beta2);
     f("adam_eps", &adam_eps);
     f("coarse_weight", &coarse_weight);
+    f("coarse_le", &coarse_le);
     f("fine_weight", &fine_weight);
     f("distortion_weight", &distortion_weight);
     f("distortion_start", &distortion_start);

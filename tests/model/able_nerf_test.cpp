@@ -245,6 +245,33 @@ TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
   EXPECT_TRUE(full.rgb_coarse.defined());
 }
 
+TEST(AbleNerf, ACoarseColourWithoutItsLEChangesNothingElse) {
+  // train.coarse_le = false: the coarse colour from the coarse ray token alone (its LE branch
+  // skipped, the last coarse layer computing the ray token's row alone); the ray token, both
+  // passes' attention and every fine output are those of the full forward.
+  torch::manual_seed(5);
+  AbleNerf model(tiny());
+  model->to(torch::kDouble);
+  model->eval();
+  const Rays r = some_rays(6);
+  const Rays rays{r.origins.to(torch::kDouble), r.directions.to(torch::kDouble), r.radii.to(torch::kDouble)};
+  torch::NoGradGuard no_grad;
+  ForwardOptions full_opts;
+  full_opts.branches = true;
+  ForwardOptions no_le = full_opts;
+  no_le.coarse_le = false;
+  const auto full = model->forward(rays, 2.0, 6.0, full_opts);
+  const auto cheap = model->forward(rays, 2.0, 6.0, no_le);
+  expect_same(cheap.rgb_fine, full.rgb_fine, 1e-12, "rgb_fine");
+  expect_same(cheap.fine_weights, full.fine_weights, 1e-12, "fine_weights");
+  expect_same(cheap.coarse_weights, full.coarse_weights, 1e-12, "coarse_weights");
+  expect_same(cheap.ray_colour_coarse, full.ray_colour_coarse, 1e-12, "ray_colour_coarse");
+  // The outputs are float32 (ModelOutput): the tone map of the float32 ray colour agrees to rounding.
+  expect_same(cheap.rgb_coarse, tonemap(full.ray_colour_coarse, torch::Tensor()), 1e-6, "rgb_coarse");
+  EXPECT_EQ(cheap.le_colour_coarse.abs().max().item<double>(), 0.0);
+  EXPECT_GT(full.le_colour_coarse.abs().max().item<double>(), 0.0);
+}
+
 TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
   if (!blas_thread_control_available()) GTEST_SKIP() << "no OpenBLAS thread control: always serial";
   const test::IntraOpThreads threads(2);

@@ -86,6 +86,38 @@ TEST(GradAccumulation, AZeroCoarseWeightSkipsTheCoarseColour) {
   EXPECT_GT(skipped, 0) << "the coarse colour was computed";
 }
 
+// train.coarse_le = false: the coarse LE transformer and its colour head get no gradient from a
+// step, the other parameters do, and the loss is the one written out with the coarse colour from
+// the ray token alone.
+TEST(GradAccumulation, ACoarseColourWithoutItsLELeavesTheCoarseLEOut) {
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(10);
+  AbleNerf model(test::two_head_model());
+  model->to(torch::kDouble);
+  model->train();
+  TrainConfig tc;
+  tc.coarse_weight = 0.3;
+  tc.coarse_le = false;
+  const int64_t n = 24;
+  const RayBatch batch = some_batch(n);
+  ForwardOptions opts;
+  opts.coarse_le = false;
+  double want = 0;
+  {
+    torch::NoGradGuard no_grad;
+    const auto out = model->forward(batch.rays, 2.0, 6.0, opts);
+    want = (0.3 * (out.rgb_coarse - batch.target).pow(2).mean() + (out.rgb_fine - batch.target).pow(2).mean())
+               .item<double>();
+  }
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+  EXPECT_NEAR(s.loss.item<double>(), want, 1e-12);
+  for (const auto& item : model->named_parameters()) {
+    const bool coarse_le = item.key().rfind("le_coarse.", 0) == 0 || item.key().rfind("le_head_coarse.", 0) == 0;
+    EXPECT_EQ(item.value().grad().defined(), !coarse_le) << item.key();
+  }
+}
+
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
