@@ -4,9 +4,10 @@
 
 namespace ablenerf {
 
-double distortion_ramp(double start, double fraction) {
+double distortion_ramp(double start, double fraction, double ramp) {
   if (start <= 0) return 1.0;
-  return std::clamp((fraction - start) / kDistortionRamp, 0.0, 1.0);
+  if (ramp <= 0) return fraction >= start ? 1.0 : 0.0;
+  return std::clamp((fraction - start) / ramp, 0.0, 1.0);
 }
 
 torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor& s) {

@@ -13,9 +13,9 @@ torch::Tensor distortion_loss(const torch::Tensor& weights, const torch::Tensor&
 
 // The share of train.distortion_weight a step carries at `fraction` of the schedule when the term
 // begins at `start` (train.distortion_start): 0 before it, rising linearly to 1 over the next
-// kDistortionRamp of the schedule, 1 after; 1 throughout when start is 0.
+// `ramp` of the schedule (train.distortion_ramp), 1 after; 1 throughout when start is 0.
 inline constexpr double kDistortionRamp = 0.1;
-double distortion_ramp(double start, double fraction);
+double distortion_ramp(double start, double fraction, double ramp = kDistortionRamp);
 
 // The ray token's attention over the samples as a distribution: weights (B,S) / their sum. The
 // attention the ray token pays itself (column 0, dropped from the weights) is no place along the

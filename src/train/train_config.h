@@ -41,13 +41,15 @@ struct TrainConfig {
   // pulls each ray's attention onto one compact stretch. 0 = off (the paper).
   double distortion_weight = 0.0;
   // Where in the schedule (its share, as for coarse_pixel_until) the distortion term begins: off
-  // before it, then its weight rises linearly to the full distortion_weight over the next tenth of
-  // the schedule (train/regularisers.h, distortion_ramp). 0 = on from the first step. From the start,
-  // 0.01 gathered the attention of a phone video's rays before they had found its surfaces and left
-  // them there (-6 dB); begun at 0.5 the same weight reads the depth of lego and the demo scene
-  // and costs no image (docs/benchmarks/history.md, "The demo scene at its own size, and the distortion
-  // term begun halfway").
+  // before it, then its weight rises linearly to the full distortion_weight over the next
+  // distortion_ramp of the schedule (train/regularisers.h, distortion_ramp). 0 = on from the first step. From the
+  // start, 0.01 gathered the attention of a phone video's rays before they had found its surfaces and left them there
+  // (-6 dB); begun at 0.5 the same weight reads the depth of lego and the demo scene and costs no image
+  // (docs/benchmarks/history.md, "The demo scene at its own size, and the distortion term begun halfway").
   double distortion_start = 0.0;
+  // The part of the schedule over which the term rises from 0 to its weight after
+  // distortion_start (0 = at once).
+  double distortion_ramp = 0.1;
   // Whether the distortion term trains captures whose cameras all face one way too (the scene
   // frame's faces_one_way: LLFF's layout, contracted or in NDC). false: the trainer sets
   // distortion_weight to 0 for such a capture and says so; the run's config.toml records the 0.
@@ -154,6 +156,7 @@ struct TrainConfig {
     f("fine_weight", &fine_weight);
     f("distortion_weight", &distortion_weight);
     f("distortion_start", &distortion_start);
+    f("distortion_ramp", &distortion_ramp);
     f("distortion_forward_facing", &distortion_forward_facing);
     f("near_gradient_distance", &near_gradient_distance);
     f("near_gradient_near_multiple", &near_gradient_near_multiple);
@@ -200,6 +203,7 @@ struct TrainConfig {
     need(coarse_weight >= 0 && fine_weight >= 0, "fine_weight", "loss weights must be >= 0");
     need(distortion_weight >= 0 && std::isfinite(distortion_weight), "distortion_weight", "must be >= 0");
     need(distortion_start >= 0 && distortion_start < 1, "distortion_start", "must be in [0, 1)");
+    need(distortion_ramp >= 0 && distortion_ramp <= 1, "distortion_ramp", "must be in [0, 1]");
     need(near_gradient_distance >= 0 && std::isfinite(near_gradient_distance), "near_gradient_distance",
          "must be >= 0");
     need(near_gradient_near_multiple >= 0 && std::isfinite(near_gradient_near_multiple), "near_gradient_near_multiple",

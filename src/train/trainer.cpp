@@ -109,7 +109,7 @@ StepReport Trainer::step() {
                                                        tc.camera_refine_c2f_end, s.model->ipe_bands()));
   if (s.distortion_scale.defined()) {
     // Written only when it changes: on a GPU a copy from the host is queued on the step's stream.
-    const double share = distortion_ramp(tc.distortion_start, schedule_fraction());
+    const double share = distortion_ramp(tc.distortion_start, schedule_fraction(), tc.distortion_ramp);
     if (share != s.distortion_share) s.distortion_scale.fill_(share);
     s.distortion_share = share;
   }

@@ -288,6 +288,11 @@ TEST(Regularisers, DistortionRampFollowsTheSchedule) {
   EXPECT_EQ(distortion_ramp(0.5, 0.5 + 2 * kDistortionRamp), 1.0);
   // Begun late, the rise is cut off where the schedule ends.
   EXPECT_NEAR(distortion_ramp(0.95, 1.0), 0.05 / kDistortionRamp, 1e-12);
+  // train.distortion_ramp: a longer rise, or none.
+  EXPECT_NEAR(distortion_ramp(0.5, 0.6, 0.4), 0.25, 1e-12);
+  EXPECT_NEAR(distortion_ramp(0.5, 0.9, 0.4), 1.0, 1e-12);
+  EXPECT_EQ(distortion_ramp(0.5, 0.4999, 0.0), 0.0);
+  EXPECT_EQ(distortion_ramp(0.5, 0.5, 0.0), 1.0);
 }
 
 TEST(Regularisers, DistortionScaleScalesOnlyTheDistortionTerm) {
