@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include <tuple>
+#include <utility>
 
 #include "model/able_nerf.h"
 #include "model/compute.h"
@@ -217,10 +218,9 @@ void expect_same(const torch::Tensor& a, const torch::Tensor& b, double tol, con
   EXPECT_LT((a - b).abs().max().item<double>(), tol) << what;
 }
 
-TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
-  // Without the coarse colour the last coarse layer computes the ray token's row alone and the
-  // coarse LE branch is skipped; everything a render uses must be unchanged (float64: exact up to
-  // summation order).
+// The tiny model in float64 on six rays, forward with the branch colours and default options, then
+// with `changed` (its branches set too): the pair (full, changed).
+std::pair<ModelOutput, ModelOutput> full_and_changed_forward(ForwardOptions changed) {
   torch::manual_seed(5);
   AbleNerf model(tiny());
   model->to(torch::kDouble);
@@ -230,16 +230,29 @@ TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
   torch::NoGradGuard no_grad;
   ForwardOptions full_opts;
   full_opts.branches = true;
-  ForwardOptions render_opts = full_opts;
+  changed.branches = true;
+  return {model->forward(rays, 2.0, 6.0, full_opts), model->forward(rays, 2.0, 6.0, changed)};
+}
+
+// Everything a render reads (both passes' attention, the fine colour and its branches, the fine
+// depths) is the same in both outputs (float64: exact up to summation order).
+void expect_fine_outputs_same(const ModelOutput& a, const ModelOutput& b) {
+  expect_same(a.rgb_fine, b.rgb_fine, 1e-12, "rgb_fine");
+  expect_same(a.fine_weights, b.fine_weights, 1e-12, "fine_weights");
+  expect_same(a.coarse_weights, b.coarse_weights, 1e-12, "coarse_weights");
+  expect_same(a.fine_t, b.fine_t, 1e-12, "fine_t");
+  expect_same(a.ray_colour_fine, b.ray_colour_fine, 1e-12, "ray_colour_fine");
+  expect_same(a.le_colour_fine, b.le_colour_fine, 1e-12, "le_colour_fine");
+}
+
+TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
+  // Without the coarse colour the last coarse layer computes the ray token's row alone and the
+  // coarse LE branch is skipped; everything a render uses must be unchanged (float64: exact up to
+  // summation order).
+  ForwardOptions render_opts;
   render_opts.coarse_colour = false;
-  const auto full = model->forward(rays, 2.0, 6.0, full_opts);
-  const auto render = model->forward(rays, 2.0, 6.0, render_opts);
-  expect_same(render.rgb_fine, full.rgb_fine, 1e-12, "rgb_fine");
-  expect_same(render.fine_weights, full.fine_weights, 1e-12, "fine_weights");
-  expect_same(render.coarse_weights, full.coarse_weights, 1e-12, "coarse_weights");
-  expect_same(render.fine_t, full.fine_t, 1e-12, "fine_t");
-  expect_same(render.ray_colour_fine, full.ray_colour_fine, 1e-12, "ray_colour_fine");
-  expect_same(render.le_colour_fine, full.le_colour_fine, 1e-12, "le_colour_fine");
+  const auto [full, render] = full_and_changed_forward(render_opts);
+  expect_fine_outputs_same(render, full);
   EXPECT_FALSE(render.rgb_coarse.defined());
   EXPECT_FALSE(render.le_colour_coarse.defined());
   EXPECT_TRUE(full.rgb_coarse.defined());
@@ -249,22 +262,10 @@ TEST(AbleNerf, ACoarseColourWithoutItsLEChangesNothingElse) {
   // train.coarse_le = false: the coarse colour from the coarse ray token alone (its LE branch
   // skipped, the last coarse layer computing the ray token's row alone); the ray token, both
   // passes' attention and every fine output are those of the full forward.
-  torch::manual_seed(5);
-  AbleNerf model(tiny());
-  model->to(torch::kDouble);
-  model->eval();
-  const Rays r = some_rays(6);
-  const Rays rays{r.origins.to(torch::kDouble), r.directions.to(torch::kDouble), r.radii.to(torch::kDouble)};
-  torch::NoGradGuard no_grad;
-  ForwardOptions full_opts;
-  full_opts.branches = true;
-  ForwardOptions no_le = full_opts;
+  ForwardOptions no_le;
   no_le.coarse_le = false;
-  const auto full = model->forward(rays, 2.0, 6.0, full_opts);
-  const auto cheap = model->forward(rays, 2.0, 6.0, no_le);
-  expect_same(cheap.rgb_fine, full.rgb_fine, 1e-12, "rgb_fine");
-  expect_same(cheap.fine_weights, full.fine_weights, 1e-12, "fine_weights");
-  expect_same(cheap.coarse_weights, full.coarse_weights, 1e-12, "coarse_weights");
+  const auto [full, cheap] = full_and_changed_forward(no_le);
+  expect_fine_outputs_same(cheap, full);
   expect_same(cheap.ray_colour_coarse, full.ray_colour_coarse, 1e-12, "ray_colour_coarse");
   // The outputs are float32 (ModelOutput): the tone map of the float32 ray colour agrees to rounding.
   expect_same(cheap.rgb_coarse, tonemap(full.ray_colour_coarse, torch::Tensor()), 1e-6, "rgb_coarse");

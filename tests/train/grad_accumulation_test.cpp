@@ -48,16 +48,22 @@ void expect_gradients_equal(AbleNerf& model, const std::vector<torch::Tensor>& r
   }
 }
 
+// test::two_head_model() in float64, training, its parameters drawn with `seed`.
+AbleNerf double_model(uint64_t seed) {
+  torch::manual_seed(seed);
+  AbleNerf model(test::two_head_model());
+  model->to(torch::kDouble);
+  model->train();
+  return model;
+}
+
 // Without a weight on the coarse colour the step does not compute it: the parameters that only
 // make it (the coarse colour heads, the coarse LE transformer) get no gradient, where the reference
 // (the colour computed and weighted 0) gives them exactly zero, and every other gradient and the
 // loss are the reference's.
 TEST(GradAccumulation, AZeroCoarseWeightSkipsTheCoarseColour) {
   const test::IntraOpThreads threads(2);
-  torch::manual_seed(9);
-  AbleNerf model(test::two_head_model());
-  model->to(torch::kDouble);
-  model->train();
+  AbleNerf model = double_model(9);
   TrainConfig tc;
   tc.coarse_weight = 0.0;
   const int64_t n = 24;
@@ -91,10 +97,7 @@ TEST(GradAccumulation, AZeroCoarseWeightSkipsTheCoarseColour) {
 // the ray token alone.
 TEST(GradAccumulation, ACoarseColourWithoutItsLELeavesTheCoarseLEOut) {
   const test::IntraOpThreads threads(2);
-  torch::manual_seed(10);
-  AbleNerf model(test::two_head_model());
-  model->to(torch::kDouble);
-  model->train();
+  AbleNerf model = double_model(10);
   TrainConfig tc;
   tc.coarse_weight = 0.3;
   tc.coarse_le = false;
