@@ -278,9 +278,10 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     // The photo's appearance code on the view token (model/appearance_code.h).
     if (opts.appearance.defined()) view = view + opts.appearance.to(view.device(), view.scalar_type());
   }
-  LETransformer* le_c = has_le() && opts.coarse_le ? &le_coarse_ : nullptr;
+  const bool coarse_le = has_le() && opts.coarse_le;  // the coarse colour with its LE branch
+  LETransformer* le_c = coarse_le ? &le_coarse_ : nullptr;
   LETransformer* le_f = has_le() ? &le_fine_ : nullptr;
-  LEColourHead* head_c = has_le() && opts.coarse_le ? &le_head_coarse_ : nullptr;
+  LEColourHead* head_c = coarse_le ? &le_head_coarse_ : nullptr;
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
   // Unbounded scenes place and resample their fence-posts in the normalised s in [0, 1]
@@ -329,9 +330,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   if (opts.branches) {
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);
-    out.le_colour_coarse = (has_le() && opts.coarse_le) || !opts.coarse_colour
-                               ? fp32(c.le_colour)
-                               : torch::zeros_like(out.ray_colour_coarse);
+    out.le_colour_coarse =
+        coarse_le || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
     out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;
