@@ -12,7 +12,7 @@
 #   --set KEY=VALUE    passed to every `train` (repeatable): the change being judged
 #   --steps N          train N steps instead of a budget: the same work whatever the machine's speed,
 #                      the image sizes those of the budget that plans as many rays (N = budget x the
-#                      preset's data.auto_rays_per_s / train.rays_per_step: 5273 for the capture
+#                      preset's data.auto_rays_per_s / train.rays_per_step: 6855 for the capture
 #                      preset's 3 minutes); give no BUDGET with it
 # Writes OUT/table.md and OUT/table.json; a capture whose folder is missing is listed as missing. One
 # training at a time: the figures are only comparable with nothing else running.

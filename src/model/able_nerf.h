@@ -37,6 +37,9 @@ struct ForwardOptions {
   // alone (the LE transformer skipped, the last layer computing the ray token's row alone); the
   // fine pass is unchanged either way.
   bool coarse_le = true;
+  // With coarse_le false: the coarse colour's view-dependent part from the coarse LE colour head
+  // applied to the coarse ray token and the view code (no LE transformer), or none.
+  bool coarse_view_head = false;
   // Keep the attention weights (coarse_weights, fine_weights) attached to the graph, for a loss on
   // them (train.distortion_weight); otherwise they are computed without gradient.
   bool weights_grad = false;

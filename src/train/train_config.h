@@ -35,6 +35,9 @@ struct TrainConfig {
   // The coarse colour with the coarse pass's learnable embeddings (the paper), or false: from its
   // ray token alone, without the coarse LE transformer (ForwardOptions::coarse_le).
   bool coarse_le = true;
+  // With coarse_le false: the coarse colour's view-dependent part from the coarse LE colour head on
+  // the coarse ray token and the view direction (ForwardOptions::coarse_view_head), or none.
+  bool coarse_view_head = false;
   double fine_weight = 1.0;
   // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
   // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):
@@ -153,6 +156,7 @@ struct TrainConfig {
     f("adam_eps", &adam_eps);
     f("coarse_weight", &coarse_weight);
     f("coarse_le", &coarse_le);
+    f("coarse_view_head", &coarse_view_head);
     f("fine_weight", &fine_weight);
     f("distortion_weight", &distortion_weight);
     f("distortion_start", &distortion_start);

@@ -273,6 +273,41 @@ TEST(AbleNerf, ACoarseColourWithoutItsLEChangesNothingElse) {
   EXPECT_GT(full.le_colour_coarse.abs().max().item<double>(), 0.0);
 }
 
+TEST(AbleNerf, ACoarseViewHeadReadsTheRayTokenAndChangesNothingElse) {
+  // train.coarse_view_head: without the coarse LE transformer, the coarse LE colour head reads the
+  // coarse ray token and the view code. Every fine output and the coarse ray colour are the full
+  // forward's, the coarse colour is the tone map of its two branches, and the branch is the head's
+  // own: with the head's last layer set to weights 0 and bias b it is 0.5 sigmoid(b) on every ray.
+  ForwardOptions head;
+  head.coarse_le = false;
+  head.coarse_view_head = true;
+  const auto [full, viewed] = full_and_changed_forward(head);
+  expect_fine_outputs_same(viewed, full);
+  expect_same(viewed.ray_colour_coarse, full.ray_colour_coarse, 1e-12, "ray_colour_coarse");
+  expect_same(viewed.rgb_coarse, tonemap(viewed.ray_colour_coarse, viewed.le_colour_coarse), 1e-6, "rgb_coarse");
+  EXPECT_GT(viewed.le_colour_coarse.abs().max().item<double>(), 0.0);
+  EXPECT_GT((viewed.le_colour_coarse - full.le_colour_coarse).abs().max().item<double>(), 1e-6)
+      << "the head read the LE transformer's output, not the ray token";
+
+  torch::manual_seed(5);
+  AbleNerf model(tiny());
+  model->to(torch::kDouble);
+  model->eval();
+  const auto params = model->named_parameters();
+  {
+    torch::NoGradGuard no_grad;
+    params["le_head_coarse.out.weight"].zero_();
+    params["le_head_coarse.out.bias"].copy_(torch::tensor({-1.0, 0.0, 2.0}, torch::kDouble));
+  }
+  const Rays r = some_rays(6);
+  const Rays rays{r.origins.to(torch::kDouble), r.directions.to(torch::kDouble), r.radii.to(torch::kDouble)};
+  head.branches = true;
+  torch::NoGradGuard no_grad;
+  const auto out = model->forward(rays, 2.0, 6.0, head);
+  const auto want = (0.5 * torch::sigmoid(torch::tensor({-1.0, 0.0, 2.0}, torch::kDouble))).expand({6, 3});
+  expect_same(out.le_colour_coarse.to(torch::kDouble), want, 1e-7, "le_colour_coarse");
+}
+
 TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
   if (!blas_thread_control_available()) GTEST_SKIP() << "no OpenBLAS thread control: always serial";
   const test::IntraOpThreads threads(2);

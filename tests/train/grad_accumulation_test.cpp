@@ -121,6 +121,36 @@ TEST(GradAccumulation, ACoarseColourWithoutItsLELeavesTheCoarseLEOut) {
   }
 }
 
+// train.coarse_view_head: the coarse LE transformer gets no gradient, the coarse LE colour head
+// does, and the loss is the one written out with the forward's coarse colour.
+TEST(GradAccumulation, ACoarseViewHeadTrainsTheHeadWithoutTheCoarseLE) {
+  const test::IntraOpThreads threads(2);
+  AbleNerf model = double_model(11);
+  TrainConfig tc;
+  tc.coarse_weight = 0.3;
+  tc.coarse_le = false;
+  tc.coarse_view_head = true;
+  const int64_t n = 24;
+  const RayBatch batch = some_batch(n);
+  ForwardOptions opts;
+  opts.coarse_le = false;
+  opts.coarse_view_head = true;
+  double want = 0;
+  {
+    torch::NoGradGuard no_grad;
+    const auto out = model->forward(batch.rays, 2.0, 6.0, opts);
+    want = (0.3 * (out.rgb_coarse - batch.target).pow(2).mean() + (out.rgb_fine - batch.target).pow(2).mean())
+               .item<double>();
+  }
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums s = accumulate_gradients(model, batch, n, tc, n, 2.0, 6.0);
+  EXPECT_NEAR(s.loss.item<double>(), want, 1e-12);
+  for (const auto& item : model->named_parameters()) {
+    const bool coarse_le = item.key().rfind("le_coarse.", 0) == 0;
+    EXPECT_EQ(item.value().grad().defined(), !coarse_le) << item.key();
+  }
+}
+
 TEST(GradAccumulation, SplitAndMicroBatchedGradientsEqualOneBackward) {
   const test::IntraOpThreads threads(2);  // make the ray split happen on any machine
   torch::manual_seed(8);
