@@ -77,36 +77,56 @@ void proposal(Tally& t, const ModelConfig& c) {
   t.product(p, kProposalHidden, 1, kBackwardBothOperands);
 }
 
+// The LE colour head: a hidden layer over the decoded LE (or the ray token) beside the view code.
+void le_head(Tally& t, const ModelConfig& c) {
+  const double e = c.width, view = static_cast<double>(view_encoding_width(c.view_encoding));
+  t.product(1, e + view, e, kBackwardBothOperands);  // hidden layer
+  t.product(1, e, kRgb, kBackwardBothOperands);      // output
+}
+
 void le_branch(Tally& t, const ModelConfig& c) {
   const double e = c.width, ff = double(c.width) * c.ff_ratio, s = c.samples, n = c.le_count;
-  const double view = static_cast<double>(view_encoding_width(c.view_encoding));
   transformer_block(t, n, s, e, ff, /*self=*/false, /*q_per_ray=*/false);  // LE x volumes
   for (int64_t j = 0; j < c.le_layers; ++j) transformer_block(t, n, n, e, ff, true, true);
   transformer_block(t, 1, n, e, ff, /*self=*/false, /*q_per_ray=*/true);  // view decodes LE
-  t.product(1, e + view, e, kBackwardBothOperands);                       // LE colour head hidden layer
-  t.product(1, e, kRgb, kBackwardBothOperands);                           // LE colour head output
+  le_head(t, c);
+}
+
+// One pass: its volume MLP, its AB transformer, the resampling probe and what it colours with.
+void pass(Tally& t, const ModelConfig& c, int layers, bool colour, bool le_transformer, bool head_on_ray_token) {
+  const double e = c.width, ff = double(c.width) * c.ff_ratio, tokens = double(c.samples) + 1;
+  volume_embedding(t, c);
+  // AB transformer over the ray token plus S volume tokens (the full score matrix is computed: the
+  // causal mask is added, not skipped). Without an LE transformer to feed, the last layer computes
+  // the ray token's row alone: one query against every key.
+  const bool last_row_only = !colour || !le_transformer;
+  for (int i = 0; i < layers; ++i) {
+    if (last_row_only && i + 1 == layers)
+      transformer_block(t, 1, tokens, e, ff, /*self=*/false, /*q_per_ray=*/true);
+    else
+      transformer_block(t, tokens, tokens, e, ff, true, true);
+  }
+  // Resampling probe: the ray token's query against every key, without gradient.
+  t.product(1, e, tokens, 0.0);
+  if (!colour) return;
+  t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
+  if (le_transformer)
+    le_branch(t, c);
+  else if (head_on_ray_token)
+    le_head(t, c);
 }
 
 }  // namespace
 
-FlopCount model_flops_per_ray(const ModelConfig& c) {
+FlopCount model_flops_per_ray(const ModelConfig& c, const CoarseWork& coarse) {
   Tally t;
-  const double e = c.width, ff = double(c.width) * c.ff_ratio, tokens = double(c.samples) + 1;
   const bool le = c.le_count > 0;
   if (le) {
     // View token, shared by both passes; its input (the view encoding) needs no gradient.
-    t.product(1, static_cast<double>(view_encoding_width(c.view_encoding)), e, kBackwardOneOperand);
+    t.product(1, static_cast<double>(view_encoding_width(c.view_encoding)), c.width, kBackwardOneOperand);
   }
-  for (const int layers : {c.coarse_layers, c.fine_layers}) {
-    volume_embedding(t, c);
-    // AB transformer over the ray token plus S volume tokens (the full score matrix is
-    // computed: the causal mask is added, not skipped).
-    for (int i = 0; i < layers; ++i) transformer_block(t, tokens, tokens, e, ff, true, true);
-    // Resampling probe: the ray token's query against every key, without gradient.
-    t.product(1, e, tokens, 0.0);
-    t.product(1, e, kRgb, kBackwardBothOperands);  // ray colour head
-    if (le) le_branch(t, c);
-  }
+  pass(t, c, c.coarse_layers, coarse.colour, le && coarse.le, le && coarse.view_head);
+  pass(t, c, c.fine_layers, /*colour=*/true, le, /*head_on_ray_token=*/false);
   proposal(t, c);
   return t.c;
 }

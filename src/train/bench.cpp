@@ -326,7 +326,12 @@ nlohmann::json timing_json(const Timing& t, double rays, double flops_per_ray, d
 }  // namespace
 
 nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const BenchMeasurements& m) {
-  const FlopCount f = model_flops_per_ray(cfg.get<ModelConfig>());
+  // Each timing counts what its forward computes: training the coarse colour its config asks for,
+  // rendering none (the renderer's forward).
+  const TrainConfig& tc = cfg.get<TrainConfig>();
+  const FlopCount f =
+      model_flops_per_ray(cfg.get<ModelConfig>(), {tc.coarse_weight > 0, tc.coarse_le, tc.coarse_view_head});
+  const FlopCount f_render = model_flops_per_ray(cfg.get<ModelConfig>(), {/*colour=*/false});
   const double n = static_cast<double>(o.matmul_size);
   const double matmul_flops = kFlopPerMac * n * n * n;
   const double peak = matmul_flops / m.matmul.wall_median();
@@ -342,7 +347,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["openblas_core"] = blas_core_name();  // the kernels OpenBLAS runs (kernels/cpu_parallel.h)
   j["parameters"] = m.parameters;
   j["repetitions"] = {{"warmup", o.warmup}, {"timed", o.steps}, {"statistic", "median"}};
-  j["flops_per_ray"] = {{"forward", f.forward},
+  j["flops_per_ray"] = {{"forward", f_render.forward},
                         {"train", f.train()},
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
   j["precision"] = name_of(cfg.get<ComputeConfig>().precision);
@@ -359,7 +364,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["train"] = timing_json(m.train, static_cast<double>(o.train_rays), f.train(), peak);
   j["train"]["includes"] = "Trainer::step: ray draw + forward + backward + Adam step";
   j["train"]["micro_batch"] = o.micro_batch > 0 ? std::min(o.micro_batch, o.train_rays) : o.train_rays;
-  auto render = timing_json(m.render, render_rays, f.forward, peak);
+  auto render = timing_json(m.render, render_rays, f_render.forward, peak);
   render["includes"] = "inference forward (InferenceMode), one chunk per repetition";
   render["image_side"] = o.image_side;
   render["seconds_per_image"] = pixels / render["rays_per_s"].get<double>();

@@ -51,11 +51,34 @@ TEST(BenchFlops, TinyConfigMatchesHandCount) {
   EXPECT_DOUBLE_EQ(f.train(), 14448.0);
 }
 
+// The last AB layer of a pass that feeds no LE transformer computes the ray token's row alone: one
+// query against the L = 3 keys: Q 2*1*4*4 = 32, K/V 2*3*4*8 = 192, scores 2*1*4*3 = 24, values 24,
+// out 32, FF 2*1*4*8 + 2*1*8*4 = 128 -> 432 (the full block: 912).
+constexpr double kRayRowBlock = 432;
+
 TEST(BenchFlops, NoLeDropsTheLeBranch) {
   ModelConfig m = hand_config();
   m.le_count = 0;
-  // Per pass without LE: 288 + 912 + 24 + 24 = 1248; no view token.
-  EXPECT_DOUBLE_EQ(model_flops_per_ray(m).forward, 2 * 1248.0);
+  // Per pass without LE: 288 + 432 + 24 + 24 = 768; no view token.
+  EXPECT_DOUBLE_EQ(model_flops_per_ray(m).forward, 2 * (288 + kRayRowBlock + 24 + 24));
+}
+
+// What the coarse pass skips (CoarseWork): rendering computes no coarse colour (its last layer the
+// ray token's row, no colour heads, no LE branch); training without the coarse LE transformer keeps
+// the ray colour head, and with the view head the LE colour head on the ray token (272).
+TEST(BenchFlops, CoarseWorkCountsWhatTheCoarsePassComputes) {
+  const ModelConfig m = hand_config();
+  const double full_pass = 2384, view_token = 216;
+  const double row_pass = 288 + kRayRowBlock + 24;  // volume MLP, the last layer's row, the probe
+  EXPECT_DOUBLE_EQ(model_flops_per_ray(m, {/*colour=*/false}).forward, view_token + row_pass + full_pass);
+  EXPECT_DOUBLE_EQ(model_flops_per_ray(m, {true, /*le=*/false, /*view_head=*/false}).forward,
+                   view_token + row_pass + 24 + full_pass);
+  EXPECT_DOUBLE_EQ(model_flops_per_ray(m, {true, false, /*view_head=*/true}).forward,
+                   view_token + row_pass + 24 + 272 + full_pass);
+  // Backward of the rendering count: 2 x forward less the constant-input products (view token 216,
+  // first volume layer 96 per pass) and the probes (48 per pass).
+  const FlopCount r = model_flops_per_ray(m, {false});
+  EXPECT_DOUBLE_EQ(r.backward, 2 * r.forward - 216 - 2 * 96 - 2 * 48);
 }
 
 // The grid front end: the volume MLP's input is the grid's L x F features beside the IPE bands, and
@@ -68,9 +91,9 @@ TEST(BenchFlops, GridAndProposalAddTheirProducts) {
   m.grid_levels = 3;
   m.grid_features = 2;     // G = 6 grid features
   m.grid_ipe_degrees = 1;  // beside P = 6 IPE features: 12 inputs
-  // Per pass: volume MLP 2*2*12*4 + 192 = 384 (forward), the rest as without LE (960).
+  // Per pass: volume MLP 2*2*12*4 + 192 = 384 (forward), the rest as without LE (480).
   const FlopCount g = model_flops_per_ray(m);
-  EXPECT_DOUBLE_EQ(g.forward, 2 * (384 + 960.0));
+  EXPECT_DOUBLE_EQ(g.forward, 2 * (384 + kRayRowBlock + 24 + 24));
   // Backward: 2 x forward less the constant-input products (2*2*12*4 = 192 per pass) and the probes
   // (2 x 24 per pass: no backward), plus the grid features' gradient 2*2*4*6 = 96 per pass.
   EXPECT_DOUBLE_EQ(g.backward, 2 * g.forward - 2 * 192 - 2 * 48 + 2 * 96);
@@ -120,10 +143,11 @@ TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
   EXPECT_DOUBLE_EQ(j["train"]["achieved_flop_per_s"].get<double>(), 14448.0 * 10 / 0.3);
   EXPECT_DOUBLE_EQ(j["train"]["fraction_of_matmul_peak"].get<double>(), 14448.0 * 10 / 0.3 / 1e9);
   EXPECT_DOUBLE_EQ(j["render"]["rays_per_s"].get<double>(), 400.0);
-  EXPECT_DOUBLE_EQ(j["render"]["achieved_flop_per_s"].get<double>(), 4984.0 * 400);
+  // Rendering computes no coarse colour: 216 + 744 + 2384 = 3344 per ray (BenchFlops above).
+  EXPECT_DOUBLE_EQ(j["render"]["achieved_flop_per_s"].get<double>(), 3344.0 * 400);
   EXPECT_DOUBLE_EQ(j["render"]["seconds_per_image"].get<double>(), 1.0);
   EXPECT_EQ(j["peak_memory_bytes"].get<int64_t>(), 123);
-  EXPECT_DOUBLE_EQ(j["flops_per_ray"]["forward"].get<double>(), 4984.0);
+  EXPECT_DOUBLE_EQ(j["flops_per_ray"]["forward"].get<double>(), 3344.0);
   EXPECT_FALSE(j.contains("token_products"));  // none measured
 
   // A token product of 10 x 20 x 30 (12,000 FLOP) in 1e-5 s: 1.2e9 FLOP/s, against one thread's
