@@ -117,6 +117,23 @@ TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement)
   expect_graph_equals_eager(c, data.path());
 }
 
+// The capture preset's step as configs/capture.toml trains it, through the captured step: the coarse
+// colour through the view head without the coarse LE transformer (train.coarse_view_head), the
+// proposal's attention loss, and mip-NeRF 360's distortion term switched on halfway through the 12
+// steps (its weight a device value the replays read), all on the grid in the contracted scene.
+TEST(TrainerGpu, GraphEqualsEagerWithTheCapturePresetsViewHeadAndDistortion) {
+  if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
+  test::TempDir data;
+  write_lens_capture(data.path());
+  const Config c = test::config_with(
+      test::tiny_config(),
+      {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
+       "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16", "train.grid_decay=0.3",
+       "train.coarse_le=false", "train.coarse_view_head=true", "train.proposal_attention_weight=0.01",
+       "train.distortion_weight=0.01", "train.distortion_start=0.5", "train.ray_sampling=\"error\""});
+  expect_graph_equals_eager(c, data.path());
+}
+
 // Coarse pixels first (docs/MODEL.md): the gather mixes full and reduced pixels with tensor ops and
 // the error map takes a coarse pixel's error at its block's first pixel, all inside the captured
 // step, while the share of coarse rays falls from step to step (the batch's shape stays fixed).
