@@ -82,7 +82,7 @@ RenderResult render_image(AbleNerf& model, const torch::Tensor& c2w, const Intri
     const auto idx = torch::arange(begin, end, long_opts);
     const Rays rays = rays_for_pixels(pose.expand({end - begin, 3, 4}), idx.remainder(w), idx.div(w, "floor"), k);
     ForwardOptions o = opts;
-    o.coarse_colour = false;  // an image needs only the fine colour
+    o.coarse.colour = false;  // an image needs only the fine colour
     std::optional<torch::Generator> gen;
     if (opts.generator) {
       gen = opts.generator->clone();

@@ -205,7 +205,7 @@ AbleNerfImpl::Pass AbleNerfImpl::run_pass(const torch::Tensor& t, const Rays& ra
     const auto decoded = staged("ablenerf.le_transformer", [&] { return (*le_tf)(le, y.slice(1, 1), view); });
     p.le_colour = staged("ablenerf.le_head", [&] { return (*le_head)(decoded, view_code); });
   } else if (le_head) {
-    // The view-dependent part without the LE: the head reads the ray token (coarse_view_head).
+    // The view-dependent part without the LE: the head reads the ray token (CoarseWork::view_head).
     p.le_colour = staged("ablenerf.le_head", [&] { return (*le_head)(p.ray_token, view_code); });
   }
   p.rgb = tonemap(p.ray_colour, p.le_colour);
@@ -281,10 +281,10 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     // The photo's appearance code on the view token (model/appearance_code.h).
     if (opts.appearance.defined()) view = view + opts.appearance.to(view.device(), view.scalar_type());
   }
-  const bool coarse_le = has_le() && opts.coarse_le;  // the coarse colour with its LE branch
+  const bool coarse_le = has_le() && opts.coarse.le;  // the coarse colour with its LE branch
   LETransformer* le_c = coarse_le ? &le_coarse_ : nullptr;
   LETransformer* le_f = has_le() ? &le_fine_ : nullptr;
-  LEColourHead* head_c = coarse_le || (has_le() && opts.coarse_view_head) ? &le_head_coarse_ : nullptr;
+  LEColourHead* head_c = coarse_le || (has_le() && opts.coarse.view_head) ? &le_head_coarse_ : nullptr;
   LEColourHead* head_f = has_le() ? &le_head_fine_ : nullptr;
 
   // Unbounded scenes place and resample their fence-posts in the normalised s in [0, 1]
@@ -310,7 +310,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   }
   const auto t_c = depths(s_c);
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
-                          opts.coarse_colour, opts);
+                          opts.coarse.colour, opts);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
   const auto s_f =
       resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
@@ -334,7 +334,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     out.ray_colour_coarse = fp32(c.ray_colour);
     out.ray_colour_fine = fp32(f.ray_colour);
     out.le_colour_coarse =
-        c.le_colour.defined() || !opts.coarse_colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
+        c.le_colour.defined() || !opts.coarse.colour ? fp32(c.le_colour) : torch::zeros_like(out.ray_colour_coarse);
     out.le_colour_fine = has_le() ? fp32(f.le_colour) : torch::zeros_like(out.ray_colour_fine);
   }
   return out;

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "data/rays.h"
+#include "model/coarse_work.h"
 #include "model/compute.h"
 #include "model/ab_transformer.h"
 #include "model/appearance_code.h"
@@ -29,17 +30,7 @@ struct ForwardOptions {
   bool branches = false;  // also return the two branch colours before tone mapping
   double le_noise = 0.0;  // std of Gaussian noise added to the LE (0 = none)
   bool le_zero = false;   // zero the LE
-  // Compute the coarse pass's colour (rgb_coarse and its branch colours). Rendering needs only
-  // the fine colour: without it the coarse pass skips its LE branch and its last layer computes
-  // the ray token's row alone; every fine output is unchanged.
-  bool coarse_colour = true;
-  // The coarse colour with the coarse pass's LE branch (the paper), or false: from its ray token
-  // alone (the LE transformer skipped, the last layer computing the ray token's row alone); the
-  // fine pass is unchanged either way.
-  bool coarse_le = true;
-  // With coarse_le false: the coarse colour's view-dependent part from the coarse LE colour head
-  // applied to the coarse ray token and the view code (no LE transformer), or none.
-  bool coarse_view_head = false;
+  CoarseWork coarse;      // what the coarse pass computes beside its attention (model/coarse_work.h)
   // Keep the attention weights (coarse_weights, fine_weights) attached to the graph, for a loss on
   // them (train.distortion_weight); otherwise they are computed without gradient.
   bool weights_grad = false;
@@ -70,7 +61,7 @@ struct ForwardOptions {
 torch::Tensor near_gradient_scaled(torch::Tensor tokens, const torch::Tensor& fence_posts, double distance);
 
 struct ModelOutput {
-  torch::Tensor rgb_coarse, rgb_fine;  // (B,3) sRGB in [0,1]; rgb_coarse undefined without coarse_colour
+  torch::Tensor rgb_coarse, rgb_fine;  // (B,3) sRGB in [0,1]; rgb_coarse undefined without coarse.colour
   torch::Tensor coarse_weights;        // (B,S) last coarse layer's ray-token attention over volumes
   torch::Tensor fine_weights;          // (B,S) last fine layer's ray-token attention over volumes
   torch::Tensor fine_t;                // (B,S+1) fine fence-posts (interval i = [t_i, t_i+1])

@@ -1,6 +1,7 @@
 #pragma once
 // The analytic FLOP count of the model's matrix products per ray (`ablenerf bench` turns it into
 // achieved FLOP/s and a share of the measured peak; docs/BENCHMARKS.md).
+#include "model/coarse_work.h"
 #include "model/model_config.h"
 
 namespace ablenerf {
@@ -18,14 +19,9 @@ struct FlopCount {
   double backward = 0;  // gradients of a training step (no-grad products excluded)
   double train() const { return forward + backward; }
 };
-// What the coarse pass computes beside its attention and ray token (ForwardOptions::coarse_colour,
-// coarse_le, coarse_view_head). Where it computes no LE transformer, its last layer computes the ray
-// token's row alone, as every pass of a model without LE does.
-struct CoarseWork {
-  bool colour = true;      // the coarse colour at all (false when rendering, or train.coarse_weight = 0)
-  bool le = true;          // ... with the coarse LE transformer (the paper)
-  bool view_head = false;  // ... or, without it, the LE colour head on the ray token
-};
+// The coarse pass's work as the forward does it (model/coarse_work.h). Where it computes no LE
+// transformer, its last layer computes the ray token's row alone, as every pass of a model without
+// LE does.
 FlopCount model_flops_per_ray(const ModelConfig& cfg, const CoarseWork& coarse = {});
 
 }  // namespace ablenerf

@@ -267,7 +267,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     m.render = time_it(d, o.warmup, o.steps, [&] {
       torch::InferenceMode guard;
       ForwardOptions fo;
-      fo.coarse_colour = false;  // as the renderer: an image needs only the fine colour
+      fo.coarse.colour = false;  // as the renderer: an image needs only the fine colour
       const auto out = model->forward(rays, o.near, o.far, fo);
       (void)out;
     });
@@ -329,8 +329,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   // Each timing counts what its forward computes: training the coarse colour its config asks for,
   // rendering none (the renderer's forward).
   const TrainConfig& tc = cfg.get<TrainConfig>();
-  const FlopCount f =
-      model_flops_per_ray(cfg.get<ModelConfig>(), {tc.coarse_weight > 0, tc.coarse_le, tc.coarse_view_head});
+  const FlopCount f = model_flops_per_ray(cfg.get<ModelConfig>(), tc.coarse_work());
   const FlopCount f_render = model_flops_per_ray(cfg.get<ModelConfig>(), {/*colour=*/false});
   const double n = static_cast<double>(o.matmul_size);
   const double matmul_flops = kFlopPerMac * n * n * n;

@@ -200,9 +200,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       ForwardOptions opts = model->with_jitter(mb.size(), {});
       // The coarse pass's colour only where its loss has a weight: without it the coarse pass
       // still places the fine samples and hands over its ray token, as when rendering.
-      opts.coarse_colour = tc.coarse_weight > 0;
-      opts.coarse_le = tc.coarse_le;
-      opts.coarse_view_head = tc.coarse_view_head;
+      opts.coarse = tc.coarse_work();
       opts.weights_grad = tc.distortion_weight > 0 || tc.proposal_attention_weight > 0;
       opts.near_gradient_distance = near_gradient_distance_for(tc, near);
       const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);

@@ -55,7 +55,7 @@ struct LossTerms {
 // `distortion_scale` (a 0-d tensor on the rays' device: train.distortion_start's ramp, which the
 // trainer writes before each step so that a captured CUDA graph reads it) when it is defined.
 // With coarse_weight 0 the coarse term is left out and out.rgb_coarse may be undefined: the step
-// (accumulate_gradients) then does not compute the coarse colour (ForwardOptions::coarse_colour).
+// (accumulate_gradients) then does not compute the coarse colour (CoarseWork::colour).
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
                    const torch::Tensor& distortion_scale = {});
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 
+#include "model/coarse_work.h"
 #include "model/photo_colour_map.h"
 #include "util/config_section.h"
 
@@ -33,11 +34,14 @@ struct TrainConfig {
   double adam_eps = 1e-8;
   double coarse_weight = 1.0;  // 0: the coarse colour is not computed (train/grad_accumulation.h)
   // The coarse colour with the coarse pass's learnable embeddings (the paper), or false: from its
-  // ray token alone, without the coarse LE transformer (ForwardOptions::coarse_le).
+  // ray token alone, without the coarse LE transformer (CoarseWork::le).
   bool coarse_le = true;
   // With coarse_le false: the coarse colour's view-dependent part from the coarse LE colour head on
-  // the coarse ray token and the view direction (ForwardOptions::coarse_view_head), or none.
+  // the coarse ray token and the view direction (CoarseWork::view_head), or none.
   bool coarse_view_head = false;
+  // The coarse pass's work these three settings ask of a training forward (the step's forward
+  // options and bench's FLOP count both read it).
+  CoarseWork coarse_work() const { return {coarse_weight > 0, coarse_le, coarse_view_head}; }
   double fine_weight = 1.0;
   // mip-NeRF 360's distortion loss (Barron et al. 2022, section 4) on the fine pass's attention
   // over the samples, as a distribution, in the normalised ray coordinate (train/regularisers.h):

@@ -250,7 +250,7 @@ TEST(AbleNerf, RenderingForwardSkipsOnlyTheCoarseColour) {
   // coarse LE branch is skipped; everything a render uses must be unchanged (float64: exact up to
   // summation order).
   ForwardOptions render_opts;
-  render_opts.coarse_colour = false;
+  render_opts.coarse.colour = false;
   const auto [full, render] = full_and_changed_forward(render_opts);
   expect_fine_outputs_same(render, full);
   EXPECT_FALSE(render.rgb_coarse.defined());
@@ -263,7 +263,7 @@ TEST(AbleNerf, ACoarseColourWithoutItsLEChangesNothingElse) {
   // skipped, the last coarse layer computing the ray token's row alone); the ray token, both
   // passes' attention and every fine output are those of the full forward.
   ForwardOptions no_le;
-  no_le.coarse_le = false;
+  no_le.coarse.le = false;
   const auto [full, cheap] = full_and_changed_forward(no_le);
   expect_fine_outputs_same(cheap, full);
   expect_same(cheap.ray_colour_coarse, full.ray_colour_coarse, 1e-12, "ray_colour_coarse");
@@ -279,8 +279,8 @@ TEST(AbleNerf, ACoarseViewHeadReadsTheRayTokenAndChangesNothingElse) {
   // forward's, the coarse colour is the tone map of its two branches, and the branch is the head's
   // own: with the head's last layer set to weights 0 and bias b it is 0.5 sigmoid(b) on every ray.
   ForwardOptions head;
-  head.coarse_le = false;
-  head.coarse_view_head = true;
+  head.coarse.le = false;
+  head.coarse.view_head = true;
   const auto [full, viewed] = full_and_changed_forward(head);
   expect_fine_outputs_same(viewed, full);
   expect_same(viewed.ray_colour_coarse, full.ray_colour_coarse, 1e-12, "ray_colour_coarse");

@@ -102,8 +102,8 @@ void expect_coarse_variant_step(AbleNerf& model, TrainConfig tc, const std::vect
   const int64_t n = 24;
   const RayBatch batch = some_batch(n);
   ForwardOptions opts;
-  opts.coarse_le = tc.coarse_le;
-  opts.coarse_view_head = tc.coarse_view_head;
+  opts.coarse.le = tc.coarse_le;
+  opts.coarse.view_head = tc.coarse_view_head;
   double want = 0;
   {
     torch::NoGradGuard no_grad;
