@@ -24,6 +24,8 @@
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
 #   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS)
 #   profile    bench --trace at 1024-ray steps: the GPU's kernels by time per step (Kineto), trace in $OUT
+#   attribute  the same step eagerly (train.graph=false) under the profiler: GPU time by the host op
+#              that launched it (scripts/gpu_attribute.py; a graph's replay names no source)
 #   view       the web viewer on the GPU: launch to first answer, render + PNG times at 32-800 pixels
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -171,6 +173,16 @@ print(f"gpu: {g['events_per_step']:.0f} kernels/copies per step, busy {g['busy_m
 for k in g["top"]:
     print(f"  {k['ms_per_step']:8.3f} ms {100*k['share']:5.1f}% x{k['calls_per_step']:.0f}  {k['kernel'][:110]}")
 PY
+}
+
+# Which host op each kernel's time comes from: the eager step (a CUDA graph's replay hides the ops
+# that launched its kernels), 3 steps under the profiler, grouped by scripts/gpu_attribute.py.
+stage_attribute() {
+  $bin bench --config configs/blender.toml --device cuda --rays 1024 --micro-batch 1024 --render-rays 16384 \
+    --steps 3 --warmup 2 --matmul 4096 --set compute.precision=bf16 --set compute.attention=fused \
+    --set train.graph=false --trace "$OUT/trace_eager.json" > "$OUT/attribute.json" 2> "$OUT/attribute.err" || {
+    tail -5 "$OUT/attribute.err"; return 1; }
+  python3 scripts/gpu_attribute.py "$OUT/trace_eager.json" --steps 3
 }
 
 stage_peerbench() {
