@@ -76,6 +76,17 @@ void write_lens_capture(const std::string& dir) {
   write_synthetic_dataset(dir, o);
 }
 
+// The small lens capture in the contracted scene on a small hash grid with the proposal sampler,
+// plus `extra` settings: graph and eager steps agree.
+void expect_graph_equals_eager_on_the_grid(std::initializer_list<const char*> extra) {
+  test::TempDir data;
+  write_lens_capture(data.path());
+  const Config grid = test::config_with(
+      test::tiny_config(), {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
+                            "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16"});
+  expect_graph_equals_eager(test::config_with(grid, extra), data.path());
+}
+
 }  // namespace
 
 TEST(TrainerGpu, GraphEqualsEager) {
@@ -106,15 +117,9 @@ TEST(TrainerGpu, GraphEqualsEagerThroughALensUnbounded) {
 // through torch::matrix_exp, which copies norms to the host on CUDA (now a closed form).
 TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
-  test::TempDir data;
-  write_lens_capture(data.path());
-  const Config c = test::config_with(
-      test::tiny_config(),
-      {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
-       "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16", "train.grid_decay=1.0",
-       "train.photo_colour=true", "train.camera_refine=true", "train.camera_refine_focal=true",
-       "train.camera_refine_c2f_start=0.1", "train.camera_refine_c2f_end=0.6"});
-  expect_graph_equals_eager(c, data.path());
+  expect_graph_equals_eager_on_the_grid({"train.grid_decay=1.0", "train.photo_colour=true", "train.camera_refine=true",
+                                         "train.camera_refine_focal=true", "train.camera_refine_c2f_start=0.1",
+                                         "train.camera_refine_c2f_end=0.6"});
 }
 
 // The capture preset's step as configs/capture.toml trains it, through the captured step: the coarse
@@ -123,15 +128,9 @@ TEST(TrainerGpu, GraphEqualsEagerWithGridProposalPhotoColourAndCameraRefinement)
 // steps (its weight a device value the replays read), all on the grid in the contracted scene.
 TEST(TrainerGpu, GraphEqualsEagerWithTheCapturePresetsViewHeadAndDistortion) {
   if (!have_gpu()) GTEST_SKIP() << "no CUDA device";
-  test::TempDir data;
-  write_lens_capture(data.path());
-  const Config c = test::config_with(
-      test::tiny_config(),
-      {"train.steps=12", "data.scene=unbounded", "model.embedding=grid", "model.grid_levels=4",
-       "model.grid_log2_table=12", "model.grid_max_resolution=64", "model.proposal_samples=16", "train.grid_decay=0.3",
-       "train.coarse_le=false", "train.coarse_view_head=true", "train.proposal_attention_weight=0.01",
-       "train.distortion_weight=0.01", "train.distortion_start=0.5", "train.ray_sampling=\"error\""});
-  expect_graph_equals_eager(c, data.path());
+  expect_graph_equals_eager_on_the_grid({"train.grid_decay=0.3", "train.coarse_le=false", "train.coarse_view_head=true",
+                                         "train.proposal_attention_weight=0.01", "train.distortion_weight=0.01",
+                                         "train.distortion_start=0.5", "train.ray_sampling=\"error\""});
 }
 
 // Coarse pixels first (docs/MODEL.md): the gather mixes full and reduced pixels with tensor ops and
