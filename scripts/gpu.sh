@@ -23,6 +23,8 @@
 #   quality    the same short lego run in fp32 + plain and in bf16 + fused: PSNR side by side
 #   lego8      lego at full resolution, blender preset, 8 minutes of training (steps from bench's rate)
 #   lego8eval  evaluates that run on the first 20 test views (PSNR, SSIM, LPIPS)
+#   versus     the fast settings' bench of $bin against $VERSUS_BIN (the previous binary), alternating,
+#              ROUNDS rounds (default 3) at 1024- and 8192-ray steps: the medians side by side
 #   profile    bench --trace at 1024-ray steps: the GPU's kernels by time per step (Kineto), trace in $OUT
 #   attribute  the same step eagerly (train.graph=false) under the profiler: GPU time by the host op
 #              that launched it (scripts/gpu_attribute.py; a graph's replay names no source)
@@ -153,6 +155,37 @@ for k in ("reference", "fast"):
 print("speedup", j["speedup"])
 PY
   done
+  return $rc
+}
+
+# Two binaries on the same machine in the same minutes: each round runs both at each step size, in
+# turn, so drift in clocks or temperature falls on both; the per-round rates and their medians.
+stage_versus() {
+  local rc=0 rays micro round b
+  [ -x "${VERSUS_BIN:-}" ] || { echo "versus: VERSUS_BIN (the binary to compare against) is not set or not executable"; return 1; }
+  for round in $(seq "${ROUNDS:-3}"); do
+    for rays in 1024 8192; do
+      micro=$((rays < 4096 ? rays : 4096))
+      for b in "$VERSUS_BIN" "$bin"; do
+        "$b" bench --config configs/blender.toml --device cuda --rays $rays --micro-batch $micro --render-rays 16384 \
+          --steps ${BENCH_STEPS:-20} --warmup 2 --matmul 2048 --set compute.precision=bf16 --set compute.attention=fused \
+          > "$OUT/versus_${round}_${rays}_$(basename "$b").json" 2> "$OUT/versus.err" || { rc=1; tail -5 "$OUT/versus.err"; }
+      done
+    done
+  done
+  python3 - "$OUT" "$(basename "$VERSUS_BIN")" "$(basename "$bin")" <<'PY'
+import glob, json, statistics, sys
+out, old, new = sys.argv[1:]
+for rays in (1024, 8192):
+    rates = {b: [json.load(open(f))["train"]["rays_per_s"] for f in sorted(glob.glob(f"{out}/versus_*_{rays}_{b}.json"))]
+             for b in (old, new)}
+    render = {b: [json.load(open(f))["render"]["seconds_per_image"] for f in sorted(glob.glob(f"{out}/versus_*_{rays}_{b}.json"))]
+              for b in (old, new)}
+    m = {b: statistics.median(v) for b, v in rates.items() if v}
+    print(f"{rays}-ray steps: " + "; ".join(f"{b} {' '.join(f'{r:.0f}' for r in rates[b])} rays/s (median {m[b]:.0f}, "
+          f"render {statistics.median(render[b]):.2f} s/800x800)" for b in (old, new) if rates[b]))
+    if len(m) == 2: print(f"  {new} / {old}: {m[new] / m[old]:.3f}")
+PY
   return $rc
 }
 

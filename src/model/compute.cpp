@@ -19,6 +19,19 @@ namespace ablenerf {
 
 bool bf16_autocast_available(const torch::Device& device) { return TORCH_VERSION_MAJOR >= 2 && device.is_cuda(); }
 
+torch::Tensor autocast_product_operand(const torch::Tensor& t) {
+  if (!t.defined() || !t.is_cuda()) return t;
+#if TORCH_VERSION_MAJOR >= 2
+#ifdef ABLENERF_AUTOCAST_BY_DEVICE
+  if (at::autocast::is_autocast_enabled(at::kCUDA))
+    return at::autocast::cached_cast(at::autocast::get_autocast_dtype(at::kCUDA), t, at::kCUDA);
+#else
+  if (at::autocast::is_enabled()) return at::autocast::cached_cast(at::autocast::get_autocast_gpu_dtype(), t);
+#endif
+#endif
+  return t;
+}
+
 AutocastScope::AutocastScope(Precision precision, const torch::Device& device) {
   if (precision != Precision::Bf16) return;
   if (!bf16_autocast_available(device))

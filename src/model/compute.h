@@ -36,6 +36,11 @@ struct Compute {
 // True when bf16 autocast can run on `device` (a CUDA device, LibTorch >= 2).
 bool bf16_autocast_available(const torch::Device& device);
 
+// `t` as CUDA autocast hands it to a matrix product: inside a bf16 scope on CUDA cast to bf16 (a
+// weight through autocast's cache, so once per scope), elsewhere unchanged. For the products an
+// autograd function of the project runs itself (autocast cannot see inside it).
+torch::Tensor autocast_product_operand(const torch::Tensor& t);
+
 // bf16 autocast on CUDA for the scope when `precision` is Bf16 (nothing otherwise). Throws
 // std::invalid_argument when bf16 is asked for where it cannot run. Nested scopes share the
 // outermost one's weight cache (each weight is cast once per outermost scope, e.g. once per

@@ -2,7 +2,9 @@
 // A Linear applied to token tensors as one 2-D product with the bias fused into it:
 // x (..., in) -> (..., out). A 3-D input to torch::nn::Linear would otherwise go through matmul
 // and a separate bias add. CPU float32 runs kernels/linear_cpu.h (one autograd node), elsewhere
-// ATen's addmm. Shared by the volume embedding, attention's projections and the feed-forward layers.
+// ATen's addmm, with the bias gradient as a product with a ones row rather than a column
+// reduction (the reduction was a sixth of the GPU's training step). Shared by the volume embedding, attention's
+// projections and the feed-forward layers.
 #include <torch/torch.h>
 
 namespace ablenerf {
