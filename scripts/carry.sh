@@ -2,7 +2,8 @@
 # Prepares .carry/ here (Debian bookworm, with the package registry) for a GPU machine that has none
 # (docs/GPU.md): the small build dependencies as Debian packages unpacked into .carry/root, and lego's
 # train split plus its first LEGO_TEST_VIEWS (default 6) test views in .carry/lego when the optional ../shared/data has
-# lego, and the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when captures/fox50 (under the checkout, or beside it) is there.
+# lego, the fox (docs/CAPTURES.md) at a quarter of its size in .carry/fox4 when captures/fox50 (under the checkout, or beside it) is there,
+# and LLFF's horns and the scuba-diving video in .carry/horns and .carry/scodive when captures/ has them.
 # The device tool carries them with `carry: [".carry"]` (64 MiB in all).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -76,6 +77,27 @@ PY
     rm -rf .carry/fox4_sfm/images .carry/fox4_sfm/database.db .carry/fox4_sfm/colmap.log
     echo "carry: $(du -sh .carry/fox4_sfm | cut -f1) in .carry/fox4_sfm"
   fi
+fi
+# Two LLFF captures of the zoo (docs/CAPTURES.md), small as JPEG: LLFF's horns at 1/8 (504x378, its
+# images_8/) and the scuba-diving phone video at 1/4 (480x270 in images_4/, which capture_gpu reads).
+if python3 -c "import PIL" 2>/dev/null; then
+  # name : capture folder : its photos : reduced by : the folder written
+  for entry in horns:horns_llff:images_8:1:images_8 scodive:scodive_img4831:images:4:images_4; do
+    IFS=: read -r name dir sub s outsub <<< "$entry"
+    src=captures/$dir; [ -d "$src" ] || src=../captures/$dir
+    [ -d "$src/$sub" ] || continue
+    out=.carry/$name/$outsub
+    rm -rf ".carry/$name" && mkdir -p "$out" && cp "$src/poses_bounds.npy" ".carry/$name/"
+    python3 - "$src/$sub" "$out" "$s" <<'PY'
+import os, sys
+from PIL import Image
+src, out, s = sys.argv[1], sys.argv[2], int(sys.argv[3])
+for f in sorted(os.listdir(src)):
+    im = Image.open(os.path.join(src, f)).convert("RGB")
+    im.resize((im.width // s, im.height // s), Image.BOX).save(os.path.join(out, os.path.splitext(f)[0] + ".jpg"), quality=93)
+PY
+    echo "carry: $(du -sh ".carry/$name" | cut -f1) in .carry/$name"
+  done
 fi
 echo "carry: $(du -sh .carry | cut -f1) in all (the device tool takes 64 MiB; the peer's release and scripts,
   .carry/release and .carry/peer, go in what is left)"

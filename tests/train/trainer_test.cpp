@@ -316,3 +316,28 @@ TEST(Trainer, DivergenceStopsWithLastGoodCheckpoint) {
   EXPECT_LT(s.step, 50);
   for (const auto& p : m->parameters()) EXPECT_TRUE(p.isfinite().all().item<bool>());
 }
+
+TEST(Trainer, TheGpuCapturePresetKeepsTheCapturePresetsRecipe) {
+  // configs/capture_gpu.toml is configs/capture.toml sized for a GPU: its image size, batch, grid
+  // table and time differ; the recipe (what trains and how it is weighed) must not drift apart.
+  auto load = [](const char* name) {
+    Config c = Config::load(test::source_dir() + "/configs/" + name + ".toml");
+    c.validate();
+    return c.get<TrainConfig>();
+  };
+  const TrainConfig cpu = load("capture"), gpu = load("capture_gpu");
+  EXPECT_EQ(gpu.coarse_le, cpu.coarse_le);
+  EXPECT_EQ(gpu.coarse_view_head, cpu.coarse_view_head);
+  EXPECT_EQ(gpu.coarse_weight, cpu.coarse_weight);
+  EXPECT_EQ(gpu.distortion_weight, cpu.distortion_weight);
+  EXPECT_EQ(gpu.distortion_start, cpu.distortion_start);
+  EXPECT_EQ(gpu.distortion_forward_facing, cpu.distortion_forward_facing);
+  EXPECT_EQ(gpu.grid_decay, cpu.grid_decay);
+  EXPECT_EQ(gpu.proposal_attention_weight, cpu.proposal_attention_weight);
+  EXPECT_EQ(gpu.lr_init, cpu.lr_init);
+  EXPECT_EQ(gpu.lr_final, cpu.lr_final);
+  EXPECT_EQ(gpu.ray_sampling, cpu.ray_sampling);
+  // and the GPU's own: bigger steps, the CUDA graph.
+  EXPECT_GT(gpu.rays_per_step, cpu.rays_per_step);
+  EXPECT_TRUE(gpu.graph);
+}
