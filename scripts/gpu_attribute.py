@@ -30,20 +30,35 @@ def main():
     ev = load(a.trace)
     launches = {e["args"]["correlation"]: e for e in ev
                 if e.get("cat") in ("cuda_runtime", "cuda_driver") and "correlation" in e.get("args", {})}
-    ops = collections.defaultdict(list)  # thread -> host ops sorted by start
+    ops = collections.defaultdict(list)  # thread -> host ops sorted by start, outer before inner
     for e in ev:
         if e.get("cat") in ("cpu_op", "user_annotation") and e.get("ph") == "X":
             ops[e["tid"]].append(e)
-    starts = {}
+    starts, parents = {}, {}
     for tid, lst in ops.items():
-        lst.sort(key=lambda e: e["ts"])
+        lst.sort(key=lambda e: (e["ts"], -e["dur"]))
         starts[tid] = [e["ts"] for e in lst]
+        # Each op's parent (the innermost op still open where it starts; -1 for none), by one pass
+        # with a stack: host ops on one thread nest.
+        par, stack = [], []
+        for j, e in enumerate(lst):
+            while stack and lst[stack[-1]]["ts"] + lst[stack[-1]]["dur"] < e["ts"]:
+                stack.pop()
+            par.append(stack[-1] if stack else -1)
+            stack.append(j)
+        parents[tid] = par
 
     def enclosing(launch):
-        lst, st = ops.get(launch["tid"], []), starts.get(launch["tid"], [])
-        i = bisect.bisect_right(st, launch["ts"])
-        # Every op that started before the launch and had not ended, outermost first.
-        return [e for e in lst[:i] if e["ts"] + e["dur"] >= launch["ts"]]
+        """Every op open at the launch, outermost first: up from the last op that started before it."""
+        lst, st, par = ops.get(launch["tid"], []), starts.get(launch["tid"], []), parents.get(launch["tid"], [])
+        j = bisect.bisect_right(st, launch["ts"]) - 1
+        while j >= 0 and lst[j]["ts"] + lst[j]["dur"] < launch["ts"]:
+            j = par[j]
+        chain = []
+        while j >= 0:
+            chain.append(lst[j])
+            j = par[j]
+        return chain[::-1]
 
     def source(chain):
         node = next((e["name"] for e in reversed(chain)
