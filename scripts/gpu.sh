@@ -134,13 +134,20 @@ stage_gputest() {
 
 # One bench JSON per step size: 1024-ray steps (the release's per-GPU batch) and 8192-ray steps
 # (the paper's global batch, micro-batches of 4096), rendering in 16384-ray chunks.
+# ablenerf bench on the GPU at the blender preset with the fast settings (bf16, the fused kernels;
+# the CUDA graph is the preset's): BINARY RAYS, then bench's other flags (--steps, --matmul, ...).
+# Micro-batches of at most 4096 rays.
+fast_bench() {
+  local b=$1 rays=$2
+  shift 2
+  "$b" bench --config configs/blender.toml --device cuda --rays "$rays" --micro-batch $((rays < 4096 ? rays : 4096)) \
+    --render-rays 16384 --warmup 2 --set compute.precision=bf16 --set compute.attention=fused "$@"
+}
+
 stage_bench() {
-  local rc=0 rays micro
+  local rc=0 rays
   for rays in 1024 8192; do
-    micro=$((rays < 4096 ? rays : 4096))
-    $bin bench --config configs/blender.toml --device cuda --rays $rays --micro-batch $micro --render-rays 16384 \
-      --steps ${BENCH_STEPS:-20} --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused \
-      --compare > "$OUT/bench_$rays.json" 2> "$OUT/bench_$rays.err" || { rc=1; tail -5 "$OUT/bench_$rays.err"; continue; }
+    fast_bench "$bin" $rays --steps ${BENCH_STEPS:-20} --matmul 8192 --compare > "$OUT/bench_$rays.json" 2> "$OUT/bench_$rays.err" || { rc=1; tail -5 "$OUT/bench_$rays.err"; continue; }
     python3 - "$OUT/bench_$rays.json" <<'PY'
 import json, sys
 j = json.load(open(sys.argv[1]))
@@ -161,15 +168,12 @@ PY
 # Two binaries on the same machine in the same minutes: each round runs both at each step size, in
 # turn, so drift in clocks or temperature falls on both; the per-round rates and their medians.
 stage_versus() {
-  local rc=0 rays micro round b
+  local rc=0 rays round b
   [ -x "${VERSUS_BIN:-}" ] || { echo "versus: VERSUS_BIN (the binary to compare against) is not set or not executable"; return 1; }
   for round in $(seq "${ROUNDS:-3}"); do
     for rays in 1024 8192; do
-      micro=$((rays < 4096 ? rays : 4096))
       for b in "$VERSUS_BIN" "$bin"; do
-        "$b" bench --config configs/blender.toml --device cuda --rays $rays --micro-batch $micro --render-rays 16384 \
-          --steps ${BENCH_STEPS:-20} --warmup 2 --matmul 2048 --set compute.precision=bf16 --set compute.attention=fused \
-          > "$OUT/versus_${round}_${rays}_$(basename "$b").json" 2> "$OUT/versus.err" || { rc=1; tail -5 "$OUT/versus.err"; }
+        fast_bench "$b" $rays --steps ${BENCH_STEPS:-20} --matmul 2048 > "$OUT/versus_${round}_${rays}_$(basename "$b").json" 2> "$OUT/versus.err" || { rc=1; tail -5 "$OUT/versus.err"; }
       done
     done
   done
@@ -177,10 +181,9 @@ stage_versus() {
 import glob, json, statistics, sys
 out, old, new = sys.argv[1:]
 for rays in (1024, 8192):
-    rates = {b: [json.load(open(f))["train"]["rays_per_s"] for f in sorted(glob.glob(f"{out}/versus_*_{rays}_{b}.json"))]
-             for b in (old, new)}
-    render = {b: [json.load(open(f))["render"]["seconds_per_image"] for f in sorted(glob.glob(f"{out}/versus_*_{rays}_{b}.json"))]
-              for b in (old, new)}
+    runs = {b: [json.load(open(f)) for f in sorted(glob.glob(f"{out}/versus_*_{rays}_{b}.json"))] for b in (old, new)}
+    rates = {b: [j["train"]["rays_per_s"] for j in v] for b, v in runs.items()}
+    render = {b: [j["render"]["seconds_per_image"] for j in v] for b, v in runs.items()}
     m = {b: statistics.median(v) for b, v in rates.items() if v}
     print(f"{rays}-ray steps: " + "; ".join(f"{b} {' '.join(f'{r:.0f}' for r in rates[b])} rays/s (median {m[b]:.0f}, "
           f"render {statistics.median(render[b]):.2f} s/800x800)" for b in (old, new) if rates[b]))
@@ -192,9 +195,7 @@ PY
 # Where the GPU's time goes: bench --trace on the fast settings (Kineto: the kernels inside the CUDA
 # graph's replays too), 1024-ray steps; the trace (for Perfetto) and the report stay in $OUT.
 stage_profile() {
-  $bin bench --config configs/blender.toml --device cuda --rays 1024 --micro-batch 1024 --render-rays 16384 \
-    --steps ${BENCH_STEPS:-10} --warmup 2 --matmul 8192 --set compute.precision=bf16 --set compute.attention=fused \
-    --trace "$OUT/trace_1024.json" > "$OUT/profile_1024.json" 2> "$OUT/profile_1024.err" || { tail -5 "$OUT/profile_1024.err"; return 1; }
+  fast_bench "$bin" 1024 --steps ${BENCH_STEPS:-10} --matmul 8192 --trace "$OUT/trace_1024.json" > "$OUT/profile_1024.json" 2> "$OUT/profile_1024.err" || { tail -5 "$OUT/profile_1024.err"; return 1; }
   python3 - "$OUT/profile_1024.json" <<'PY'
 import json, sys
 t = json.load(open(sys.argv[1]))["trace"]
@@ -211,9 +212,7 @@ PY
 # Which host op each kernel's time comes from: the eager step (a CUDA graph's replay hides the ops
 # that launched its kernels), 3 steps under the profiler, grouped by scripts/gpu_attribute.py.
 stage_attribute() {
-  $bin bench --config configs/blender.toml --device cuda --rays 1024 --micro-batch 1024 --render-rays 16384 \
-    --steps 3 --warmup 2 --matmul 4096 --set compute.precision=bf16 --set compute.attention=fused \
-    --set train.graph=false --trace "$OUT/trace_eager.json" > "$OUT/attribute.json" 2> "$OUT/attribute.err" || {
+  fast_bench "$bin" 1024 --steps 3 --matmul 4096 --set train.graph=false --trace "$OUT/trace_eager.json" > "$OUT/attribute.json" 2> "$OUT/attribute.err" || {
     tail -5 "$OUT/attribute.err"; return 1; }
   python3 scripts/gpu_attribute.py "$OUT/trace_eager.json" --steps 3
 }

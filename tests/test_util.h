@@ -89,6 +89,14 @@ inline Config tiny_model_config() {
   return c;
 }
 
+// A preset of configs/ (capture, blender, ...) as `--preset NAME` reads it, validated.
+// Inline, like tiny_model_config: the kernel tests link no Config.
+inline Config preset_config(const std::string& name) {
+  Config c = Config::load(source_dir() + "/configs/" + name + ".toml");
+  c.validate();
+  return c;
+}
+
 // ../shared/data/nerf_synthetic/lego beside the repository, or "" when it is absent (optional test data: tests that
 // need it skip).
 std::string lego_dir();

@@ -18,12 +18,6 @@
 namespace ablenerf {
 namespace {
 
-Config preset(const std::string& name) {
-  Config c = Config::load(test::source_dir() + "/configs/" + name + ".toml");
-  c.validate();
-  return c;
-}
-
 ModelConfig tiny() {
   ModelConfig m;
   m.width = 32;
@@ -41,24 +35,25 @@ ModelConfig tiny() {
 Rays some_rays(int64_t b) { return test::random_rays(b, 99); }
 
 TEST(AbleNerf, PresetParameterCounts) {
-  EXPECT_EQ(AbleNerf(preset("blender").get<ModelConfig>())->parameter_count(), 6163404);  // docs/MODEL.md, section 11
-  EXPECT_EQ(AbleNerf(preset("shiny").get<ModelConfig>())->parameter_count(), 6160332);    // 16 LE
-  EXPECT_GT(AbleNerf(preset("demo").get<ModelConfig>())->parameter_count(), 0);
+  EXPECT_EQ(AbleNerf(test::preset_config("blender").get<ModelConfig>())->parameter_count(),
+            6163404);  // docs/MODEL.md, section 11
+  EXPECT_EQ(AbleNerf(test::preset_config("shiny").get<ModelConfig>())->parameter_count(), 6160332);  // 16 LE
+  EXPECT_GT(AbleNerf(test::preset_config("demo").get<ModelConfig>())->parameter_count(), 0);
 }
 
 TEST(AbleNerf, CapturePresetReadsTheGridAndPlacesSamplesByTheProposal) {
   // configs/capture.toml and its GPU variant capture_gpu.toml (the presets for real captures,
   // docs/BENCHMARKS.md): both of ablenerf's extensions on, the paper's presets with neither.
   for (const char* name : {"capture", "capture_gpu"}) {
-    const AbleNerf capture(preset(name).get<ModelConfig>());
+    const AbleNerf capture(test::preset_config(name).get<ModelConfig>());
     EXPECT_NE(capture->grid(), nullptr) << name;
     ASSERT_NE(capture->proposal(), nullptr) << name;
     EXPECT_EQ(capture->proposal()->samples(), 32) << name;
     // and forward-facing captures contracted, not in NDC (docs/benchmarks/history.md, "A forward-facing capture").
-    EXPECT_FALSE(preset(name).get<DataConfig>().ndc) << name;
+    EXPECT_FALSE(test::preset_config(name).get<DataConfig>().ndc) << name;
   }
   for (const char* paper : {"blender", "demo"}) {
-    const AbleNerf m(preset(paper).get<ModelConfig>());
+    const AbleNerf m(test::preset_config(paper).get<ModelConfig>());
     EXPECT_EQ(m->grid(), nullptr) << paper;
     EXPECT_EQ(m->proposal(), nullptr) << paper;
   }

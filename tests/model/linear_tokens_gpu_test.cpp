@@ -57,8 +57,9 @@ TEST(LinearTokensGpu, Bf16AutocastMatchesAddmm) {
   ABLENERF_REQUIRE_CUDA();
   if (!bf16_autocast_available(torch::Device(torch::kCUDA))) GTEST_SKIP() << "bf16 autocast needs LibTorch >= 2";
   const auto c = make_case(4, 8, 16, 24, 3);
-  EXPECT_EQ(run(c, true, Precision::Bf16)[0].scalar_type(), torch::kBFloat16);
-  EXPECT_EQ(run(c, true, Precision::Bf16)[2].scalar_type(), torch::kFloat);
+  const auto got = run(c, true, Precision::Bf16);
+  EXPECT_EQ(got[0].scalar_type(), torch::kBFloat16);
+  EXPECT_EQ(got[2].scalar_type(), torch::kFloat);
   compare(Precision::Bf16, 1e-2);
 }
 

@@ -320,12 +320,8 @@ TEST(Trainer, DivergenceStopsWithLastGoodCheckpoint) {
 TEST(Trainer, TheGpuCapturePresetKeepsTheCapturePresetsRecipe) {
   // configs/capture_gpu.toml is configs/capture.toml sized for a GPU: its image size, batch, grid
   // table and time differ; the recipe (what trains and how it is weighed) must not drift apart.
-  auto load = [](const char* name) {
-    Config c = Config::load(test::source_dir() + "/configs/" + name + ".toml");
-    c.validate();
-    return c.get<TrainConfig>();
-  };
-  const TrainConfig cpu = load("capture"), gpu = load("capture_gpu");
+  const auto cpu = test::preset_config("capture").get<TrainConfig>(),
+             gpu = test::preset_config("capture_gpu").get<TrainConfig>();
   EXPECT_EQ(gpu.coarse_le, cpu.coarse_le);
   EXPECT_EQ(gpu.coarse_view_head, cpu.coarse_view_head);
   EXPECT_EQ(gpu.coarse_weight, cpu.coarse_weight);
