@@ -102,12 +102,15 @@ void column_sums_in(CpuVectorForm form, const float* dy, int64_t m, int64_t n, f
   column_sums_body(dy, m, n, block, out);
 }
 
-// y (M, N) = x (M, K) W^T (+ b), then max(y, 0) with `relu`, everything contiguous.
+// y (..., N) = x (..., K) W^T (+ b), then max(y, 0) with `relu`, everything contiguous: x's rows as
+// one (M, K) matrix.
 torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias, bool relu,
                               CpuVectorForm form) {
-  const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
+  const int64_t k = x.size(-1), m = x.numel() / k, n = weight.size(0);
   const auto wt = weight.t().contiguous();  // (K, N): B of the product
-  auto y = torch::empty({m, n}, x.options());
+  auto sizes = x.sizes().vec();
+  sizes.back() = n;
+  auto y = torch::empty(sizes, x.options());
   small_gemm(false, m, n, k, 1.0f, x.data_ptr<float>(), k, wt.data_ptr<float>(), n, y.data_ptr<float>(), n);
   if (bias.defined() || relu)
     bias_relu_in(form, y.data_ptr<float>(), bias.defined() ? bias.data_ptr<float>() : nullptr, m, n, relu);
@@ -121,9 +124,9 @@ torch::Tensor relu_gradient(const torch::Tensor& dy, const torch::Tensor& y, Cpu
   return out;
 }
 
-// Column sums of dy (M, N), contiguous: the bias gradient.
+// Column sums of dy (..., N), contiguous, over all its rows: the bias gradient.
 torch::Tensor column_sums(const torch::Tensor& dy, CpuVectorForm form) {
-  const int64_t m = dy.size(0), n = dy.size(1);
+  const int64_t n = dy.size(-1), m = dy.numel() / n;
   auto total = torch::zeros({n}, dy.options());
   std::vector<float> block(static_cast<size_t>(n));
   column_sums_in(form, dy.data_ptr<float>(), m, n, block.data(), total.data_ptr<float>());
@@ -150,10 +153,10 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
     const auto &x = saved[0], &weight = saved[1];
     const auto form = static_cast<CpuVectorForm>(ctx->saved_data["form"].toInt());
     const auto dy = saved.size() > 2 ? relu_gradient(grads[0].contiguous(), saved[2], form) : grads[0].contiguous();
-    const int64_t m = x.size(0), k = x.size(1), n = weight.size(0);
+    const int64_t k = x.size(-1), m = x.numel() / k, n = weight.size(0);
     torch::Tensor dx, dw, db;
     if (ctx->needs_input_grad(0)) {
-      dx = torch::empty({m, k}, x.options());
+      dx = torch::empty(x.sizes(), x.options());
       small_gemm(false, m, k, n, 1.0f, dy.data_ptr<float>(), n, weight.data_ptr<float>(), k, dx.data_ptr<float>(), k);
     }
     if (ctx->needs_input_grad(1)) {
@@ -169,14 +172,14 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
 
 bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight) {
   return x.device().is_cpu() && weight.device().is_cpu() && x.scalar_type() == torch::kFloat &&
-         weight.scalar_type() == torch::kFloat && x.dim() == 2 && weight.dim() == 2 && x.size(1) == weight.size(1) &&
-         x.size(0) > 0 && weight.size(0) > 0 && x.size(1) > 0;
+         weight.scalar_type() == torch::kFloat && x.dim() >= 2 && weight.dim() == 2 && x.size(-1) == weight.size(1) &&
+         x.numel() > 0 && weight.size(0) > 0;
 }
 
 torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias, bool relu,
                          CpuVectorForm form) {
   RECORD_FUNCTION("ablenerf::linear_cpu", std::vector<c10::IValue>());
-  TORCH_CHECK(linear_cpu_available(x, weight), "linear_cpu: expected CPU float32 x (M, K) and weight (N, K), got ",
+  TORCH_CHECK(linear_cpu_available(x, weight), "linear_cpu: expected CPU float32 x (..., K) and weight (N, K), got ",
               x.sizes(), " ", x.scalar_type(), " and ", weight.sizes(), " ", weight.scalar_type());
   TORCH_CHECK(!bias.defined() || (bias.dim() == 1 && bias.size(0) == weight.size(0) &&
                                   bias.scalar_type() == torch::kFloat && bias.device().is_cpu()),

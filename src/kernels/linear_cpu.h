@@ -19,10 +19,12 @@
 
 namespace ablenerf {
 
-// True when linear_cpu runs on these: CPU float32 x (M, K) and weight (N, K).
+// True when linear_cpu runs on these: CPU float32 x (..., K) with at least two dimensions (a matrix
+// or tokens) and weight (N, K).
 bool linear_cpu_available(const torch::Tensor& x, const torch::Tensor& weight);
 
-// x (M, K), weight (N, K), bias (N) or undefined -> (M, N). Differentiable in all three. With
+// x (..., K), weight (N, K), bias (N) or undefined -> (..., N): x's rows as one (M, K) matrix inside
+// the node, so that tokens need no reshape nodes around it. Differentiable in all three. With
 // `relu`, max(y, 0) in the same node: applied to each row after its bias, and in the backward the
 // output gradient kept where y > 0 (torch::relu's forward and backward, one node and one pass less).
 // `form` picks the element-wise passes' instructions (the bias, the ReLU and its gradient, the bias's

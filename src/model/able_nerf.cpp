@@ -10,6 +10,7 @@
 #include "model/contraction.h"
 #include "model/frustum.h"
 #include "model/ipe.h"
+#include "model/linear_tokens.h"
 #include "model/resampler.h"
 #include "model/tonemap.h"
 #include "model/view_encoding.h"
@@ -277,7 +278,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   if (has_le()) {
     le = effective_le(opts);
     view_code = encode_view(world.directions, cfg_.view_encoding);
-    view = view_token_(view_code);
+    view = linear_tokens(view_token_, view_code);
     // The photo's appearance code on the view token (model/appearance_code.h).
     if (opts.appearance.defined()) view = view + opts.appearance.to(view.device(), view.scalar_type());
   }

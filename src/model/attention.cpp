@@ -107,8 +107,11 @@ torch::Tensor MultiHeadAttentionImpl::forward_cross(const torch::Tensor& q_in, c
                                                     RayQueryProbe* probe, bool project) {
   const auto projected = [&](const torch::Tensor& heads) { return project ? linear_tokens(out_proj, heads) : heads; };
   const int64_t dh = width_ / heads_;
-  const auto wq = in_proj_weight.slice(0, 0, width_), bq = in_proj_bias.slice(0, 0, width_);
-  const auto wkv = in_proj_weight.slice(0, width_), bkv = in_proj_bias.slice(0, width_);
+  // One split per parameter, not two slices: its backward is one concatenation of the two parts'
+  // gradients, where each slice's would fill a gradient of the whole parameter and add them.
+  const auto w = in_proj_weight.split_with_sizes({width_, 2 * width_}, 0);
+  const auto b = in_proj_bias.split_with_sizes({width_, 2 * width_}, 0);
+  const auto &wq = w[0], &wkv = w[1], &bq = b[0], &bkv = b[1];
   const auto q = linear_tokens(q_in, wq, bq);      // (Bq, Lq, E)
   const auto kv = linear_tokens(kv_in, wkv, bkv);  // (B, Lk, 2E)
   const auto kv_heads = kv.view({kv_in.size(0), kv_in.size(1), 2, heads_, dh}).permute({2, 0, 3, 1, 4});

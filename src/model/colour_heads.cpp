@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "data/rays.h"
+#include "model/linear_tokens.h"
 
 namespace ablenerf {
 
@@ -15,7 +16,9 @@ RayColourHeadImpl::RayColourHeadImpl(int64_t width) {
   linear = register_module("linear", torch::nn::Linear(width, kRgbChannels));
 }
 
-torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) { return torch::sigmoid(linear(r) - kRayColourBias); }
+torch::Tensor RayColourHeadImpl::forward(const torch::Tensor& r) {
+  return torch::sigmoid(linear_tokens(linear, r) - kRayColourBias);
+}
 
 LEColourHeadImpl::LEColourHeadImpl(int64_t width, int64_t view_width) {
   hidden = register_module("hidden", torch::nn::Linear(width + view_width, width));
@@ -23,7 +26,8 @@ LEColourHeadImpl::LEColourHeadImpl(int64_t width, int64_t view_width) {
 }
 
 torch::Tensor LEColourHeadImpl::forward(const torch::Tensor& decoded, const torch::Tensor& view_code) {
-  return kLEColourScale * torch::sigmoid(out(torch::relu(hidden(torch::cat({decoded, view_code}, -1)))));
+  const auto h = linear_relu_tokens(hidden, torch::cat({decoded, view_code}, -1));
+  return kLEColourScale * torch::sigmoid(linear_tokens(out, h));
 }
 
 }  // namespace ablenerf

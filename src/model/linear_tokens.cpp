@@ -44,15 +44,12 @@ torch::Tensor bias_product(const torch::Tensor& x, const torch::Tensor& weight, 
 // x (..., in) -> (..., out) as one 2-D product, max(y, 0) after the bias with `relu`.
 torch::Tensor tokens_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias,
                              bool relu) {
+  // CPU float32: one node that takes the tokens as they are (kernels/linear_cpu.h).
+  if (linear_cpu_available(x, weight)) return linear_cpu(x, weight, bias, relu);
   auto sizes = x.sizes().vec();
   const auto flat = x.reshape({-1, sizes.back()});
-  torch::Tensor y;
-  if (linear_cpu_available(flat, weight)) {
-    y = linear_cpu(flat, weight, bias, relu);  // CPU float32: one node (kernels/linear_cpu.h)
-  } else {
-    y = bias.defined() ? bias_product(flat, weight, bias) : flat.mm(weight.t());
-    if (relu) y = torch::relu(y);
-  }
+  auto y = bias.defined() ? bias_product(flat, weight, bias) : flat.mm(weight.t());
+  if (relu) y = torch::relu(y);
   sizes.back() = weight.size(0);
   return y.view(sizes);
 }

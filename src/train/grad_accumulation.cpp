@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <vector>
 
+#include "kernels/attention_losses_cpu.h"
 #include "kernels/cpu_parallel.h"
 #include "kernels/table_gradient.h"
 #include "train/regularisers.h"
@@ -11,7 +12,7 @@
 namespace ablenerf {
 
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
-                   const torch::Tensor& distortion_scale) {
+                   const torch::Tensor& distortion_scale, bool fused) {
   const double inv = 1.0 / (static_cast<double>(kRgbChannels) * static_cast<double>(global_rays));
   const auto ray_se = (out.rgb_fine - target).pow(2).sum(-1);
   const auto se_f = ray_se.sum();
@@ -23,24 +24,36 @@ LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const Tr
     parts[kTermCoarse] = (out.rgb_coarse - target).pow(2).sum() * (tc.coarse_weight * inv);
     loss = parts[kTermCoarse] + loss;
   }
-  if (tc.distortion_weight > 0) {
-    parts[kTermDistortion] = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum() *
-                             (tc.distortion_weight / static_cast<double>(global_rays));
+  const bool distortion = tc.distortion_weight > 0;
+  const bool proposal = (tc.proposal_weight > 0 || tc.proposal_attention_weight > 0) && out.proposal_weights.defined();
+  const double per_ray = 1.0 / static_cast<double>(global_rays);
+  AttentionLosses a;
+  if (fused && (distortion || proposal) &&
+      attention_losses_cpu_available(out.fine_weights, out.fine_s, out.proposal_s, out.proposal_weights)) {
+    a = attention_losses_cpu(out.fine_weights, out.fine_s, out.proposal_s, out.proposal_weights, proposal, distortion);
+  } else {
+    // The plain reference (train/regularisers.h), term by term.
+    if (distortion) a.distortion = distortion_loss(attention_distribution(out.fine_weights), out.fine_s).sum();
+    if (proposal && tc.proposal_weight > 0)
+      a.proposal = proposal_loss(out.proposal_s, out.proposal_weights, out.fine_s,
+                                 attention_distribution(out.fine_weights).detach())
+                       .sum();
+    if (proposal && tc.proposal_attention_weight > 0)
+      a.attention = proposal_loss(out.proposal_s, out.proposal_weights.detach(), out.fine_s,
+                                  attention_distribution(out.fine_weights))
+                        .sum();
+  }
+  if (distortion) {
+    parts[kTermDistortion] = a.distortion * (tc.distortion_weight * per_ray);
     if (distortion_scale.defined()) parts[kTermDistortion] = parts[kTermDistortion] * distortion_scale;
     loss = loss + parts[kTermDistortion];
   }
-  if (tc.proposal_weight > 0 && out.proposal_weights.defined()) {
-    parts[kTermProposal] = proposal_loss(out.proposal_s, out.proposal_weights, out.fine_s,
-                                         attention_distribution(out.fine_weights).detach())
-                               .sum() *
-                           (tc.proposal_weight / static_cast<double>(global_rays));
+  if (proposal && tc.proposal_weight > 0) {
+    parts[kTermProposal] = a.proposal * (tc.proposal_weight * per_ray);
     loss = loss + parts[kTermProposal];
   }
-  if (tc.proposal_attention_weight > 0 && out.proposal_weights.defined()) {
-    parts[kTermProposalAttention] = proposal_loss(out.proposal_s, out.proposal_weights.detach(), out.fine_s,
-                                                  attention_distribution(out.fine_weights))
-                                        .sum() *
-                                    (tc.proposal_attention_weight / static_cast<double>(global_rays));
+  if (proposal && tc.proposal_attention_weight > 0) {
+    parts[kTermProposalAttention] = a.attention * (tc.proposal_attention_weight * per_ray);
     loss = loss + parts[kTermProposalAttention];
   }
   const auto zero = torch::zeros({}, se_f.options());
@@ -91,7 +104,8 @@ LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions
                      int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale) {
   const ModelOutput out = model->forward(through_camera_refine(model, rays.rays, rays.photo), near, far,
                                          with_appearance(model, opts, rays.photo));
-  return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays, distortion_scale);
+  return ray_loss(through_photo_colour(model, out, rays.photo), rays.target, tc, global_rays, distortion_scale,
+                  model->compute().attention == AttentionKernel::Fused);
 }
 
 // Each parameter's gradients from the step's ray slices summed onto its .grad, in slice order. A

@@ -56,8 +56,11 @@ struct LossTerms {
 // trainer writes before each step so that a captured CUDA graph reads it) when it is defined.
 // With coarse_weight 0 the coarse term is left out and out.rgb_coarse may be undefined: the step
 // (accumulate_gradients) then does not compute the coarse colour (CoarseWork::colour).
+// With `fused` (compute.attention = "fused") the distortion and proposal terms run as one CPU node
+// where it can take them (kernels/attention_losses_cpu.h), else as the plain LibTorch functions of
+// train/regularisers.h.
 LossTerms ray_loss(const ModelOutput& out, const torch::Tensor& target, const TrainConfig& tc, int64_t global_rays,
-                   const torch::Tensor& distortion_scale = {});
+                   const torch::Tensor& distortion_scale = {}, bool fused = false);
 
 struct StepSums {
   torch::Tensor

@@ -118,11 +118,42 @@ TEST(LinearCpu, GradientsOnlyWhereRequired) {
   EXPECT_FALSE(linear_cpu(x, w, torch::Tensor()).requires_grad());
 }
 
-TEST(LinearCpu, AvailableOnlyForCpuFloat32Matrices) {
+// Tokens (rays, tokens, K) go in as they are and come out (rays, tokens, N), values and gradients
+// those of torch::linear, also from a non-contiguous input (a transposed view) and with the ReLU.
+TEST(LinearCpu, TakesTokensAsTheyAre) {
+  for (const bool relu : {false, true}) {
+    auto x = test::seeded_randn({6, 17, 12}, 90).to(torch::kFloat).requires_grad_();
+    auto xt = test::seeded_randn({6, 12, 17}, 91).to(torch::kFloat).requires_grad_();
+    auto w = test::seeded_randn({10, 12}, 92).to(torch::kFloat).requires_grad_();
+    auto b = test::seeded_randn({10}, 93).to(torch::kFloat).requires_grad_();
+    const auto up = test::seeded_randn({6, 17, 10}, 94).to(torch::kFloat);
+    for (auto* in : {&x, &xt}) {
+      const auto tokens = in == &x ? x : xt.transpose(1, 2);  // the second not contiguous
+      const auto ref = [&](const torch::Tensor& t) {
+        auto y = torch::linear(t, w, b);
+        return relu ? torch::relu(y) : y;
+      };
+      const auto got = linear_cpu(tokens, w, b, relu);
+      ASSERT_EQ(got.sizes(), (std::vector<int64_t>{6, 17, 10}));
+      const auto grads = torch::autograd::grad({(got * up).sum()}, {*in, w, b});
+      const auto want = ref(tokens);
+      const auto want_grads = torch::autograd::grad({(want * up).sum()}, {*in, w, b});
+      EXPECT_LT((got - want).abs().max().item<double>(), 1e-5);
+      for (size_t i = 0; i < grads.size(); ++i) {
+        ASSERT_EQ(grads[i].sizes(), want_grads[i].sizes()) << i;
+        EXPECT_LT((grads[i] - want_grads[i]).abs().max().item<double>(), 1e-4) << "gradient " << i;
+      }
+    }
+  }
+}
+
+TEST(LinearCpu, AvailableOnlyForCpuFloat32MatricesOrTokens) {
   EXPECT_TRUE(linear_cpu_available(torch::zeros({3, 4}), torch::zeros({5, 4})));
+  EXPECT_TRUE(linear_cpu_available(torch::zeros({2, 3, 4}), torch::zeros({5, 4})));
   EXPECT_FALSE(linear_cpu_available(torch::zeros({3, 4}, torch::kDouble), torch::zeros({5, 4}, torch::kDouble)));
   EXPECT_FALSE(linear_cpu_available(torch::zeros({3, 4}), torch::zeros({5, 3})));
-  EXPECT_FALSE(linear_cpu_available(torch::zeros({2, 3, 4}), torch::zeros({5, 4})));
+  EXPECT_FALSE(linear_cpu_available(torch::zeros({4}), torch::zeros({5, 4})));
+  EXPECT_FALSE(linear_cpu_available(torch::zeros({0, 4}), torch::zeros({5, 4})));
 }
 
 }  // namespace

@@ -321,11 +321,14 @@ TEST(BenchTrace, TinyRunRecordsTheStepsOps) {
   o.trace_steps = 2;
   const auto m = measure(cfg, o);
   const auto j = trace_summary(m.trace_json, o.trace_steps, 5);
-  // A training step runs products (the linear layers) and their backward.
+  // A training step runs products (the linear layers: ATen's or, in float32 on the CPU, the
+  // project's node, kernels/linear_cpu.h) and their backward.
   EXPECT_GT(j["ops_per_step"].get<double>(), 20.0);
   bool has_product = false;
-  for (const auto& e : nlohmann::json::parse(m.trace_json))
-    has_product = has_product || e.value("name", "") == "aten::addmm" || e.value("name", "") == "aten::mm";
+  for (const auto& e : nlohmann::json::parse(m.trace_json)) {
+    const std::string name = e.value("name", "");
+    has_product = has_product || name == "aten::addmm" || name == "aten::mm" || name == "ablenerf::linear_cpu";
+  }
   EXPECT_TRUE(has_product);
   o.trace_steps = 0;
   EXPECT_TRUE(measure(cfg, o).trace_json.empty());
