@@ -280,4 +280,31 @@ void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_
   if (error) std::rethrow_exception(error);
 }
 
+int64_t index_count(const IndexRanges& ranges) {
+  int64_t n = 0;
+  for (const auto& r : ranges) n += r.second - r.first;
+  return n;
+}
+
+void parallel_ranges(const IndexRanges& ranges, int64_t workers,
+                     const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn) {
+  // Each range's start in the concatenation.
+  std::vector<int64_t> starts;
+  int64_t total = 0;
+  for (const auto& r : ranges) {
+    starts.push_back(total);
+    total += r.second - r.first;
+  }
+  if (total == 0) return;
+  parallel_slices(total, workers, [&](int64_t w, int64_t lo, int64_t hi) {
+    // The range holding concatenated index lo, then on through the ones [lo, hi) meets.
+    auto k = static_cast<size_t>(std::upper_bound(starts.begin(), starts.end(), lo) - starts.begin()) - 1;
+    for (int64_t at = lo; at < hi; ++k) {
+      const int64_t end = std::min(hi, starts[k] + (ranges[k].second - ranges[k].first));
+      if (end > at) fn(w, ranges[k].first + (at - starts[k]), ranges[k].first + (end - starts[k]));
+      at = std::max(at, end);
+    }
+  });
+}
+
 }  // namespace ablenerf

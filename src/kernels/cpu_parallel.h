@@ -11,6 +11,8 @@
 
 #include <functional>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace ablenerf {
 
@@ -92,5 +94,15 @@ std::string blas_core_override();
 // finished. W == 1 calls fn(0, 0, n) directly, BLAS untouched. Safe to call from several threads
 // at once (one of them gets the kept threads, the others start their own for the call).
 void parallel_slices(int64_t n, int64_t workers, const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn);
+
+// A set of indices as half-open ranges [begin, end), sorted and disjoint (e.g. the entries of a grid
+// table that lookups can reach: kernels/hash_grid_shape.h).
+using IndexRanges = std::vector<std::pair<int64_t, int64_t>>;
+int64_t index_count(const IndexRanges& ranges);
+
+// parallel_slices over the indices of `ranges` as one run: worker w gets about 1/W of them, as
+// fn(w, lo, hi) once for each range its share meets (every [lo, hi) inside one range, in order).
+void parallel_ranges(const IndexRanges& ranges, int64_t workers,
+                     const std::function<void(int64_t w, int64_t lo, int64_t hi)>& fn);
 
 }  // namespace ablenerf

@@ -40,6 +40,13 @@ ABLENERF_HOST_DEVICE inline bool hash_grid_level_is_dense(const HashGridShape& s
   return side * side * side <= static_cast<uint64_t>(s.table_size);
 }
 
+// The rows of `level` a lookup can reach: its vertices when dense, every row when hashed. A dense
+// level's other rows are never read or written.
+ABLENERF_HOST_DEVICE inline int64_t hash_grid_level_rows(const HashGridShape& s, int level) {
+  const int64_t side = int64_t{s.resolution[level]} + 1;
+  return hash_grid_level_is_dense(s, level) ? side * side * side : s.table_size;
+}
+
 // The row of vertex (x, y, z) at `level`.
 ABLENERF_HOST_DEVICE inline uint32_t hash_grid_row(const HashGridShape& s, int level, uint32_t x, uint32_t y,
                                                    uint32_t z) {

@@ -144,21 +144,34 @@ double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorFo
               "TableGradient: the parameter must be a contiguous float32 CPU tensor");
   torch::Tensor before = parameter.grad();
   if (before.defined()) before = before.to(torch::kFloat).contiguous();
+  const int64_t n = parameter.numel();
+  TORCH_CHECK(entries_.empty() || entries_.back().second <= n, "TableGradient: entries up to ", entries_.back().second,
+              " for a parameter of ", n);
+  // Only the entries lookups reach, unless a gradient before must be carried over everywhere.
+  const bool part = !entries_.empty() && !before.defined();
   // The buffer handed out last step is reused unless someone else still holds it (then a new one:
-  // never write through a tensor another owner reads).
+  // never write through a tensor another owner reads), and, for a partial pass, only while it is
+  // still 0 outside the entries.
   if (!grad_.defined() || !grad_.sizes().equals(parameter.sizes()) || grad_.use_count() > 1 ||
-      (before.defined() && before.is_same(grad_)))
-    grad_ = torch::empty_like(parameter);
+      (before.defined() && before.is_same(grad_)) || (part && !outside_zero_)) {
+    grad_ = part ? torch::zeros_like(parameter) : torch::empty_like(parameter);
+    outside_zero_ = part;
+  }
+  if (!part) outside_zero_ = false;
   const float* w = parameter.data_ptr<float>();
   const float* g0 = before.defined() ? before.data_ptr<float>() : nullptr;
   float* out = grad_.data_ptr<float>();
-  const int64_t n = parameter.numel();
+  const IndexRanges all{{0, n}};
+  const IndexRanges& ranges = part ? entries_ : all;
   const float two_decay = static_cast<float>(2 * decay);
-  const int64_t workers = cpu_workers(n, table_gradient_impl::kEntriesPerWorker);
+  const int64_t workers = cpu_workers(index_count(ranges), table_gradient_impl::kEntriesPerWorker);
   std::vector<table_gradient_impl::FinishSums> sums(static_cast<size_t>(workers));
   const table_gradient_impl::FinishArgs args{g0, src, w, two_decay, out};
-  parallel_slices(n, workers, [&](int64_t t, int64_t lo, int64_t hi) {
-    sums[static_cast<size_t>(t)] = table_gradient_impl::finish_in(form, args, lo, hi);
+  parallel_ranges(ranges, workers, [&](int64_t t, int64_t lo, int64_t hi) {
+    const table_gradient_impl::FinishSums piece = table_gradient_impl::finish_in(form, args, lo, hi);
+    auto& sum = sums[static_cast<size_t>(t)];
+    sum.squares += piece.squares;
+    sum.finite = sum.finite && piece.finite;
   });
   std::fill(written_.begin(), written_.end(), false);
   parameter.mutable_grad() = grad_;
@@ -169,6 +182,15 @@ double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorFo
     finite_ = finite_ && s.finite;
   }
   return decay * total;
+}
+
+void TableGradient::set_entries(IndexRanges entries) {
+  for (size_t i = 0; i < entries.size(); ++i)
+    TORCH_CHECK(entries[i].first <= entries[i].second && (i == 0 || entries[i - 1].second <= entries[i].first),
+                "TableGradient: entry ranges must be sorted and disjoint");
+  const std::lock_guard<std::mutex> lock(mutex_);
+  entries_ = std::move(entries);
+  outside_zero_ = false;
 }
 
 TableGradientScope::TableGradientScope(int k) : previous_(table_gradient_impl::t_slot) {

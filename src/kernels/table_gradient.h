@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "kernels/cpu_features.h"
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 
@@ -48,6 +49,13 @@ class TableGradient {
   // The slots zeroed without a gradient (a step abandoned between its backward and finish()).
   void discard();
 
+  // The table's entries a lookup can reach (the grid's own rule: hash_grid_level_rows), or empty for
+  // all of them. finish() then sums, decays and checks only those: the others' gradient is 0 (a
+  // dense level's unused rows, a quarter of the capture preset's tables), and with Adam told the
+  // same (train/adam.h) no pass of the step reads them. Not when the parameter already holds a
+  // gradient (every entry is written then).
+  void set_entries(IndexRanges entries);
+
   // Whether a slot holds a gradient finish() has not taken yet.
   bool pending() const;
 
@@ -55,7 +63,9 @@ class TableGradient {
   mutable std::mutex mutex_;
   std::vector<torch::Tensor> slots_;
   std::vector<bool> written_;
-  torch::Tensor grad_;  // the .grad handed out, reused while the parameter keeps its shape
+  torch::Tensor grad_;         // the .grad handed out, reused while the parameter keeps its shape
+  bool outside_zero_ = false;  // grad_ is 0 outside entries_
+  IndexRanges entries_;
   bool finite_ = false;
 };
 

@@ -55,6 +55,10 @@ class GridEmbeddingImpl : public torch::nn::Module {
   // Where a CPU training step's threads gather the table's gradient (kernels/table_gradient.h):
   // lookups on a thread with a slot open write there, and the step's finish puts the sum in .grad.
   TableGradient& table_gradient() const { return *table_gradient_; }
+  // The table parameter's entries (flat, as stored) that lookups can reach: every row of a hashed
+  // level, the vertices' rows of a dense one (kernels/hash_grid_shape.h). The table gradient sums
+  // only these (it is told so at construction), and the trainer tells Adam.
+  IndexRanges table_entries_read() const;
   // Under compute.attention = "fused" (set by AbleNerf::set_compute) the points' unit coordinates
   // and level weights come from one CPU loop (kernels/sample_encoding_cpu.h) where nothing
   // differentiates through them; "plain" keeps the tensor ops below.

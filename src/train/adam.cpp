@@ -211,10 +211,19 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     // project's own threads (kernels/cpu_parallel.h), not at::parallel_for: that one is serial in
     // code built without OpenMP, as ours is.
     const AdamScalars scalars{b1, one_b1, b2, one_b2, eps, sqrt_bias2, neg_step};
-    parallel_slices(p.numel(), cpu_workers(p.numel(), kElementsPerTask), [&](int64_t, int64_t lo, int64_t hi) {
+    const auto part = entries_.find(p.unsafeGetTensorImpl());
+    const IndexRanges all{{0, p.numel()}};
+    const IndexRanges& ranges = part != entries_.end() && !part->second.empty() ? part->second : all;
+    TORCH_CHECK(ranges.back().second <= p.numel(), "Adam: entries up to ", ranges.back().second, " of a ", p.sizes(),
+                " parameter");
+    parallel_ranges(ranges, cpu_workers(index_count(ranges), kElementsPerTask), [&](int64_t, int64_t lo, int64_t hi) {
       adam_update_cpu(hi - lo, g + lo, m + lo, v + lo, w + lo, scalars);
     });
   }
+}
+
+void Adam::set_entries(const torch::Tensor& param, IndexRanges entries) {
+  entries_[param.unsafeGetTensorImpl()] = std::move(entries);
 }
 
 void Adam::step_device(const torch::Tensor& loss) {

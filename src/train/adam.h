@@ -18,7 +18,10 @@
 #include <torch/torch.h>
 
 #include <memory>
+#include <unordered_map>
 #include <vector>
+
+#include "kernels/cpu_parallel.h"
 
 namespace ablenerf {
 
@@ -53,6 +56,10 @@ class Adam {
   void step_device(const torch::Tensor& loss);
   const torch::Tensor& found_inf() const { return found_inf_; }
 
+  // Host loops only: `param`'s update touches only these entries (a grid table's entries a lookup
+  // can reach: kernels/table_gradient.h), the others and their moments left as they are. Empty: all.
+  void set_entries(const torch::Tensor& param, IndexRanges entries);
+
   void to_checkpoint();  // device form: the step count into optim()'s per-parameter state
   // After a load: this run's settings over the ones the checkpoint's options carried (a resumed
   // run follows its own config); device form: rebind the state tensors optim() holds.
@@ -65,6 +72,7 @@ class Adam {
   void update_loop(const std::vector<torch::Tensor>& grads);
 
   std::vector<torch::Tensor> params_;
+  std::unordered_map<const void*, IndexRanges> entries_;  // set_entries, by the parameter's TensorImpl
   AdamSettings settings_;
   torch::optim::Adam optim_;
   bool device_form_;

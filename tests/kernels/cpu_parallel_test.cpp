@@ -58,6 +58,44 @@ TEST(CpuParallel, SlicesCoverTheRangeOnceInOrder) {
   }
 }
 
+// parallel_ranges: every index of the ranges once, each call inside one range, the workers' shares
+// of the indices balanced, empty ranges and gaps skipped.
+TEST(CpuParallel, RangesCoverTheirIndicesOnceEachCallInsideOneRange) {
+  const IndexRanges ranges{{3, 10}, {10, 10}, {20, 21}, {40, 73}, {73, 80}};
+  ASSERT_EQ(index_count(ranges), 48);
+  for (const int64_t workers : {1, 2, 3, 7}) {
+    std::mutex m;
+    std::vector<Slice> seen;
+    parallel_ranges(ranges, workers, [&](int64_t w, int64_t lo, int64_t hi) {
+      const std::lock_guard<std::mutex> lock(m);
+      seen.push_back({w, lo, hi, std::this_thread::get_id()});
+    });
+    std::vector<int> hits(80, 0);
+    std::vector<int64_t> share(static_cast<size_t>(workers), 0);
+    for (const Slice& s : seen) {
+      ASSERT_LT(s.lo, s.hi);
+      const bool inside =
+          std::any_of(ranges.begin(), ranges.end(), [&](const auto& r) { return r.first <= s.lo && s.hi <= r.second; });
+      EXPECT_TRUE(inside) << s.lo << ".." << s.hi;
+      for (int64_t i = s.lo; i < s.hi; ++i) hits[static_cast<size_t>(i)]++;
+      share[static_cast<size_t>(s.w)] += s.hi - s.lo;
+    }
+    for (int64_t i = 0; i < 80; ++i) {
+      const bool in =
+          std::any_of(ranges.begin(), ranges.end(), [&](const auto& r) { return r.first <= i && i < r.second; });
+      EXPECT_EQ(hits[static_cast<size_t>(i)], in ? 1 : 0) << "index " << i << " workers " << workers;
+    }
+    for (const int64_t n : share) {
+      EXPECT_GE(n, 48 / workers);
+      EXPECT_LE(n, 48 / workers + 1);
+    }
+  }
+  int calls = 0;
+  parallel_ranges({}, 2, [&](int64_t, int64_t, int64_t) { ++calls; });
+  parallel_ranges({{5, 5}}, 2, [&](int64_t, int64_t, int64_t) { ++calls; });
+  EXPECT_EQ(calls, 0);
+}
+
 TEST(CpuParallel, MoreWorkersThanItemsUsesOnePerItem) {
   std::atomic<int> calls{0};
   parallel_slices(2, 8, [&](int64_t, int64_t lo, int64_t hi) {

@@ -51,6 +51,53 @@ TEST(TableGradient, FinishAddsTheSlotsAndTheDecayInOnePass) {
   }
 }
 
+// With the entries lookups reach set (set_entries), finish() writes the reference's gradient there
+// and 0 elsewhere, sums the squares of those entries only, and zeroes the slots; a gradient already
+// on the parameter makes it write every entry again.
+TEST(TableGradient, FinishWithEntriesWritesOnlyThoseAndZeroElsewhere) {
+  const IndexRanges entries{{0, 10}, {30, 47}, {60, 240}};
+  const auto inside = torch::zeros({240}, torch::kBool);
+  for (const auto& r : entries) inside.slice(0, r.first, r.second).fill_(true);
+  const auto mask = inside.view({3, 40, 2});
+  for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+    if (!cpu_vector_form_available(form)) continue;
+    const auto param = test::seeded_randn({3, 40, 2}, 3).to(torch::kFloat);
+    TableGradient tg;
+    tg.set_entries(entries);
+    for (int step = 0; step < 2; ++step) {  // the second reuses the buffer
+      std::vector<torch::Tensor> slots;
+      for (int k = 0; k < 2; ++k) {
+        // Lookups write only where they can reach.
+        const auto v = test::seeded_randn({3, 40, 2}, 20 + k + step).to(torch::kFloat) * mask;
+        torch::from_blob(tg.slot(param, k), param.sizes(), torch::kFloat).copy_(v);
+        slots.push_back(v);
+      }
+      auto p = param.clone().set_requires_grad(true);
+      const double value = tg.finish(p, 0.125, form);
+      const auto want = table_gradient_reference(torch::Tensor(), slots, param, 0.125) * mask;
+      EXPECT_TRUE(torch::allclose(p.grad(), want, 0, 0)) << "step " << step;
+      EXPECT_NEAR(value, 0.125 * (param.to(torch::kDouble) * mask).pow(2).sum().item<double>(), 1e-9);
+      EXPECT_TRUE(tg.wrote_finite_gradient());
+      for (int k = 0; k < 2; ++k) EXPECT_EQ(slot_tensor(tg, param, k).abs().max().item<float>(), 0.f);
+    }
+    // A gradient before: every entry, as without entries.
+    const auto v = test::seeded_randn({3, 40, 2}, 30).to(torch::kFloat) * mask;
+    torch::from_blob(tg.slot(param, 0), param.sizes(), torch::kFloat).copy_(v);
+    auto p = param.clone().set_requires_grad(true);
+    const auto before = test::seeded_randn({3, 40, 2}, 31).to(torch::kFloat);
+    p.mutable_grad() = before.clone();
+    tg.finish(p, 0.125, form);
+    EXPECT_TRUE(torch::allclose(p.grad(), table_gradient_reference(before, {v}, param, 0.125), 0, 0));
+    // And back to the entries: 0 outside them again.
+    torch::from_blob(tg.slot(param, 0), param.sizes(), torch::kFloat).copy_(v);
+    auto q = param.clone().set_requires_grad(true);
+    tg.finish(q, 0.125, form);
+    EXPECT_TRUE(torch::allclose(q.grad(), table_gradient_reference(torch::Tensor(), {v}, param, 0.125) * mask, 0, 0));
+  }
+  TableGradient bad;
+  EXPECT_THROW(bad.set_entries({{10, 20}, {15, 30}}), c10::Error);
+}
+
 // finish() says whether the gradient it wrote is finite: an infinity or NaN in any slot, at the
 // first entry, inside the 16-wide vectors and in their tail, is found by every form; a pass that
 // wrote nothing vouches for nothing.

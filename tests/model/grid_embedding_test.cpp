@@ -86,6 +86,29 @@ TEST(GridEmbedding, FeaturesAreTheGridAtTheMeanTimesTheLevelWeights) {
     }
 }
 
+// The entries lookups reach, by hand: a table of 64 rows of 2 floats; level 0 (2 cells, 3^3 = 27
+// vertices) dense, level 1 (3 cells, 4^3 = 64) dense and full, level 2 (40 cells) hashed: entries
+// [0, 54) and [128, 384), levels 1 and 2 joined. Every entry a lookup's gradient writes lies in them.
+TEST(GridEmbedding, TableEntriesReadAreTheDenseLevelsVerticesAndTheHashedLevels) {
+  HashGridShape shape;
+  shape.levels = 3;
+  shape.features = 2;
+  shape.table_size = 64;
+  shape.resolution[0] = 2;
+  shape.resolution[1] = 3;
+  shape.resolution[2] = 40;
+  GridEmbedding g(shape, GridCube{-1, 1}, 1.0);
+  const IndexRanges want{{0, 54}, {128, 384}};
+  EXPECT_EQ(g->table_entries_read(), want);
+  const auto mean = (torch::rand({500, 3}) * 2.2 - 1.1).requires_grad_(false);
+  g->forward(mean, torch::full({500, 3}, 1e-6)).pow(2).sum().backward();
+  const auto grad = g->table_parameter().grad().reshape({-1});
+  const auto outside = torch::ones({384}, torch::kBool);
+  for (const auto& r : want) outside.slice(0, r.first, r.second).fill_(false);
+  EXPECT_EQ(grad.masked_select(outside).abs().max().item<float>(), 0.f);
+  EXPECT_GT(grad.slice(0, 0, 54).abs().max().item<float>(), 0.f);
+}
+
 TEST(GridEmbedding, SamplesOutsideTheCubeReadZeros) {
   const ModelConfig m = grid_model();
   GridEmbedding grid(m, GridCube{-1.5, 1.5});

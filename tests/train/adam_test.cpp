@@ -125,6 +125,30 @@ TEST(Adam, ThreadCountChangesNoBit) {
   for (size_t i = 0; i < one.size(); ++i) EXPECT_TRUE(torch::equal(one[i], two[i])) << "parameter " << i;
 }
 
+// With a parameter's entries set, its update touches only those: the same values there as the
+// update of the whole parameter, the rest of it and of its moments untouched.
+TEST(Adam, EntriesSetKeepTheOthersAsTheyAre) {
+  auto whole = make_params(torch::kFloat);
+  auto part = clone_params(whole);
+  Adam a(whole, 1e-2, false), b(part, 1e-2, false);
+  const IndexRanges entries{{0, 1000}, {150000, 250000}, {299990, 300000}};
+  b.set_entries(part[4], entries);
+  const auto start = part[4].detach().clone();
+  for (int s = 0; s < 3; ++s) {
+    set_grads(whole, s);
+    for (size_t i = 0; i < whole.size(); ++i)
+      part[i].mutable_grad() = whole[i].grad().defined() ? whole[i].grad().clone() : torch::Tensor();
+    ASSERT_TRUE(a.step_host(1.0));
+    ASSERT_TRUE(b.step_host(1.0));
+  }
+  const auto inside = torch::zeros({300000}, torch::kBool);
+  for (const auto& r : entries) inside.slice(0, r.first, r.second).fill_(true);
+  const auto flat_whole = whole[4].detach().reshape({-1}), flat_part = part[4].detach().reshape({-1});
+  EXPECT_TRUE(torch::equal(flat_part.masked_select(inside), flat_whole.masked_select(inside)));
+  EXPECT_TRUE(torch::equal(flat_part.masked_select(~inside), start.reshape({-1}).masked_select(~inside)));
+  for (size_t i = 0; i < 4; ++i) EXPECT_TRUE(torch::equal(part[i], whole[i])) << i;
+}
+
 TEST(Adam, FromCheckpointRestoresTheRunsConstants) {
   auto ps = make_params(torch::kFloat);
   Adam adam(ps, 1e-3, false, AdamSettings{0.85, 0.95, 1e-7});

@@ -16,9 +16,20 @@
 #include "test_util.h"
 #include "train/trainer.h"
 #include "util/config.h"
+#include "model/grid_embedding.h"
 #include "model/model_config.h"
 
 namespace ablenerf::test {
+
+// 1 where a grid table's entry can be read by a lookup, 0 in a dense level's unused rows (the
+// entries a training step's gradient and Adam leave alone: GridEmbeddingImpl::table_entries_read),
+// shaped like the table parameter.
+inline torch::Tensor table_entries_mask(const GridEmbeddingImpl& grid) {
+  const auto& table = grid.table_parameter();
+  auto mask = torch::zeros({table.numel()}, table.options().requires_grad(false));
+  for (const auto& r : grid.table_entries_read()) mask.slice(0, r.first, r.second).fill_(1);
+  return mask.view(table.sizes());
+}
 
 // The lines of a run's log.jsonl, parsed, in order.
 inline std::vector<nlohmann::json> read_log(const std::string& run) {
