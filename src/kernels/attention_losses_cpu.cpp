@@ -24,12 +24,15 @@ struct Ray {
   int64_t m, n;
 };
 
-// What the forward and the backward both need of a ray, in float64.
+// What the forward and the backward both need of a ray, in float64; one kept for a whole loop over
+// rays so that its vectors are allocated once.
 struct RayState {
-  double sum = 0, denom = 0;  // sum of w, and max(sum, floor)
-  std::vector<double> a;      // w / denom
-  // Proposal: per target interval j the proposal intervals [lo_j, hi_j) that overlap it, their
-  // weight (bound_j) and the excess r_j = max(0, a_j - bound_j).
+  double sum = 0;         // sum of w
+  std::vector<double> a;  // w / max(sum, floor)
+  // Proposal: c_k the proposal's weight before post k; per target interval j the proposal
+  // intervals [lo_j, hi_j) that overlap it and the excess r_j = max(0, a_j - bound_j) over their
+  // weight bound_j = c_hi - c_lo.
+  std::vector<double> c;
   std::vector<int64_t> lo, hi;
   std::vector<double> r;
 };
@@ -45,12 +48,12 @@ void fill_state(const Ray<T>& ray, bool proposal, RayState& st) {
   const int64_t m = ray.m, n = ray.n;
   st.sum = 0;
   for (int64_t j = 0; j < m; ++j) st.sum += static_cast<double>(ray.w[j]);
-  st.denom = std::max(st.sum, kSumFloor);
+  const double denom = std::max(st.sum, kSumFloor);
   st.a.resize(static_cast<size_t>(m));
-  for (int64_t j = 0; j < m; ++j) st.a[static_cast<size_t>(j)] = static_cast<double>(ray.w[j]) / st.denom;
+  for (int64_t j = 0; j < m; ++j) st.a[static_cast<size_t>(j)] = static_cast<double>(ray.w[j]) / denom;
   if (!proposal) return;
-  // c_k: the proposal's weight before post k (c_0 = 0).
-  std::vector<double> c(static_cast<size_t>(n + 1), 0.0);
+  auto& c = st.c;
+  c.assign(static_cast<size_t>(n + 1), 0.0);
   for (int64_t k = 0; k < n; ++k) c[static_cast<size_t>(k + 1)] = c[static_cast<size_t>(k)] + ray.wp[k];
   st.lo.resize(static_cast<size_t>(m));
   st.hi.resize(static_cast<size_t>(m));
@@ -88,10 +91,26 @@ double distortion_value(const Ray<T>& ray, const RayState& st) {
   return 2 * inter + intra / 3;
 }
 
+// The batch's inputs as pointers, ray by ray (the proposal's null without it).
 template <typename T>
-Ray<T> ray_at(const T* w, const T* st, const T* sp, const T* wp, int64_t b, int64_t m, int64_t n) {
-  return {w + b * m, st + b * (m + 1), sp ? sp + b * (n + 1) : nullptr, wp ? wp + b * n : nullptr, m, n};
-}
+struct Rays {
+  const T *w, *st, *sp, *wp;
+  int64_t count, m, n;
+
+  Rays(const torch::Tensor& w_, const torch::Tensor& st_, const torch::Tensor& sp_, const torch::Tensor& wp_,
+       bool proposal)
+      : w(w_.data_ptr<T>()),
+        st(st_.data_ptr<T>()),
+        sp(proposal ? sp_.data_ptr<T>() : nullptr),
+        wp(proposal ? wp_.data_ptr<T>() : nullptr),
+        count(w_.size(0)),
+        m(w_.size(1)),
+        n(proposal ? wp_.size(1) : 0) {}
+
+  Ray<T> at(int64_t b) const {
+    return {w + b * m, st + b * (m + 1), sp ? sp + b * (n + 1) : nullptr, wp ? wp + b * n : nullptr, m, n};
+  }
+};
 
 struct Sums {
   double proposal = 0, distortion = 0;
@@ -100,15 +119,11 @@ struct Sums {
 template <typename T>
 Sums forward_rays(const torch::Tensor& w, const torch::Tensor& st, const torch::Tensor& sp, const torch::Tensor& wp,
                   bool proposal, bool distortion) {
-  const int64_t rays = w.size(0), m = w.size(1), n = proposal ? wp.size(1) : 0;
-  const T* pw = w.data_ptr<T>();
-  const T* pst = st.data_ptr<T>();
-  const T* psp = proposal ? sp.data_ptr<T>() : nullptr;
-  const T* pwp = proposal ? wp.data_ptr<T>() : nullptr;
+  const Rays<T> rays(w, st, sp, wp, proposal);
   Sums s;
   RayState state;
-  for (int64_t b = 0; b < rays; ++b) {
-    const Ray<T> ray = ray_at(pw, pst, psp, pwp, b, m, n);
+  for (int64_t b = 0; b < rays.count; ++b) {
+    const Ray<T> ray = rays.at(b);
     fill_state(ray, proposal, state);
     if (proposal) s.proposal += proposal_value(state);
     if (distortion) s.distortion += distortion_value(ray, state);
@@ -122,17 +137,14 @@ template <typename T>
 void backward_rays(const torch::Tensor& w, const torch::Tensor& st, const torch::Tensor& sp, const torch::Tensor& wp,
                    bool proposal, bool distortion, double g_proposal, double g_attention, double g_distortion,
                    torch::Tensor& dw, torch::Tensor& dwp) {
-  const int64_t rays = w.size(0), m = w.size(1), n = proposal ? wp.size(1) : 0;
-  const T* pw = w.data_ptr<T>();
-  const T* pst = st.data_ptr<T>();
-  const T* psp = proposal ? sp.data_ptr<T>() : nullptr;
-  const T* pwp = proposal ? wp.data_ptr<T>() : nullptr;
+  const Rays<T> rays(w, st, sp, wp, proposal);
+  const int64_t m = rays.m, n = rays.n;
   T* out_w = dw.defined() ? dw.data_ptr<T>() : nullptr;
   T* out_wp = dwp.defined() ? dwp.data_ptr<T>() : nullptr;
   RayState state;
   std::vector<double> ga(static_cast<size_t>(m)), diff(static_cast<size_t>(n + 1));
-  for (int64_t b = 0; b < rays; ++b) {
-    const Ray<T> ray = ray_at(pw, pst, psp, pwp, b, m, n);
+  for (int64_t b = 0; b < rays.count; ++b) {
+    const Ray<T> ray = rays.at(b);
     fill_state(ray, proposal, state);
     std::fill(ga.begin(), ga.end(), 0.0);
     if (proposal) {

@@ -149,6 +149,13 @@ void AbleNerfImpl::enable_appearance_code(int64_t photos) {
   appearance_code_->to(device);
 }
 
+std::vector<GridEmbeddingImpl*> AbleNerfImpl::grids() {
+  std::vector<GridEmbeddingImpl*> out;
+  if (grid_) out.push_back(grid_.get());
+  if (proposal_) out.push_back(&proposal_->grid());
+  return out;
+}
+
 int64_t AbleNerfImpl::parameter_count() const {
   int64_t n = 0;
   for (const auto& p : parameters()) n += p.numel();

@@ -102,6 +102,8 @@ class AbleNerfImpl : public torch::nn::Module {
   GridEmbeddingImpl* grid() { return grid_ ? grid_.get() : nullptr; }
   // The proposal field, or nullptr without one (model.proposal_samples = 0, the paper).
   const ProposalImpl* proposal() const { return proposal_ ? proposal_.get() : nullptr; }
+  // Every hash grid the model has: the front end's, then the proposal field's.
+  std::vector<GridEmbeddingImpl*> grids();
   // Per-photo colour (model/photo_colour.h): registered by the trainer (train.photo_colour) before
   // its optimiser is made, or by load_weights when the weights carry it; never read by forward().
   void enable_photo_colour(int64_t photos, PhotoColourMap map = PhotoColourMap::Affine);

@@ -89,15 +89,6 @@ ForwardOptions with_appearance(AbleNerf& model, ForwardOptions opts, const torch
   return opts;
 }
 
-// The grid tables the step's threads write their gradients to (kernels/table_gradient.h): the
-// front end's and the proposal field's.
-std::vector<GridEmbeddingImpl*> slotted_tables(AbleNerf& model) {
-  std::vector<GridEmbeddingImpl*> out;
-  if (model->grid()) out.push_back(model->grid());
-  if (model->proposal()) out.push_back(&model->proposal()->grid());
-  return out;
-}
-
 // The loss terms of some rays of the step: through the corrected cameras, the model with the photos'
 // appearance codes and the photo colour maps.
 LossTerms slice_loss(AbleNerf& model, const RayBatch& rays, const ForwardOptions& opts, const TrainConfig& tc,
@@ -205,7 +196,8 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     sums.terms[term].add_(v);
   };
   // The tables' slots hold nothing from a step that did not finish.
-  const auto tables = slotted_tables(model);
+  // The grid tables the step's threads write their gradients to (kernels/table_gradient.h).
+  const auto tables = model->grids();
   try {
     for (int64_t b = 0; b < batch.size(); b += micro) {
       const RayBatch mb = batch.slice(b, std::min(b + micro, batch.size()));

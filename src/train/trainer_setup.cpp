@@ -150,8 +150,7 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.adam = std::make_unique<Adam>(s.model->parameters(), tc.lr_init, device_form,
                                   AdamSettings{tc.adam_beta1, tc.adam_beta2, tc.adam_eps});
   // The grid tables' entries no lookup reaches take no update (kernels/table_gradient.h).
-  for (GridEmbeddingImpl* g : {s.model->grid(), s.model->proposal() ? &s.model->proposal()->grid() : nullptr})
-    if (g != nullptr) s.adam->set_entries(g->table_parameter(), g->table_entries_read());
+  for (GridEmbeddingImpl* g : s.model->grids()) s.adam->set_entries(g->table_parameter(), g->table_entries_read());
   std::optional<ErrorMapOptions> map;
   if (tc.ray_sampling == RaySampling::Error) map = ErrorMapOptions{tc.error_tile, tc.error_uniform_share};
   s.sampler = std::make_unique<RaySampler>(train, k, opts_.device, static_cast<uint64_t>(tc.seed), map,
