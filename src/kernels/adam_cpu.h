@@ -25,4 +25,13 @@ void adam_update_cpu_in(CpuVectorForm form, int64_t n, const float* g, float* m,
                         const AdamScalars& s);
 void adam_update_cpu(int64_t n, const float* g, float* m, float* v, float* w, const AdamScalars& s);
 
+// The update of a grid table's entries whose gradient is formed on the way (kernels/table_gradient.h):
+// g = sum + two_decay x w (the weight decay's term on the scattered lookups), then the update above:
+// the same float32 operations as that sum followed by adam_update_cpu, to the bit, in one pass over
+// the memory instead of a gradient written and read again. Returns the sum of w^2 before the update
+// in float64 (the decay's value); an entry whose g is not finite is left as it is (w, m and v) and
+// clears `finite`.
+double adam_update_decayed_cpu_in(CpuVectorForm form, int64_t n, const float* sum, float two_decay, float* m, float* v,
+                                  float* w, const AdamScalars& s, bool& finite);
+
 }  // namespace ablenerf

@@ -56,16 +56,16 @@ HashGridShape shape_of(const torch::Tensor& table, const std::vector<int64_t>& r
 }
 
 // Saved for backward: the positions (the rows and weights are recomputed) and the resolutions; with
-// a TableGradient slot (kernels/table_gradient.h) the sink and the slot: the table's gradient then
-// goes there and autograd gets none for it (the table stays an input so that the node exists when
-// nothing else needs a gradient).
+// a TableGradient key (kernels/table_gradient.h) the sink and the key: the table's scatter is then
+// deferred to the sink and autograd gets no gradient for the table (the table stays an input so that the node exists
+// when nothing else needs a gradient).
 class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
  public:
   // `scales`: a contiguous CPU tensor (n, levels) that takes no gradient, or undefined; kept in the
   // node's data rather than as an input, having no gradient.
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& positions,
                                const torch::Tensor& table, const std::vector<int64_t>& res, TableGradient* sink,
-                               int64_t slot, const torch::Tensor* scales_in) {
+                               int64_t key, const torch::Tensor* scales_in) {
     const torch::Tensor& scales = *scales_in;
     const HashGridShape s = shape_of(table, res);
     const int64_t n = positions.size(0);
@@ -87,7 +87,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     ctx->saved_data["res"] = res;
     // The sink outlives the graph: it belongs to the module that owns the table.
     ctx->saved_data["sink"] = static_cast<int64_t>(reinterpret_cast<intptr_t>(sink));
-    ctx->saved_data["slot"] = slot;
+    ctx->saved_data["key"] = key;
     return out;
   }
 
@@ -109,8 +109,7 @@ class HashGridFunction : public torch::autograd::Function<HashGridFunction> {
     if (ctx->needs_input_grad(1) && sink == nullptr) grad_table = torch::zeros_like(table);
     if (positions.is_cpu()) {
       if (sink != nullptr && ctx->needs_input_grad(1))
-        hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, scales,
-                               sink->slot(table, static_cast<int>(ctx->saved_data["slot"].toInt())));
+        sink->defer(static_cast<int>(ctx->saved_data["key"].toInt()), {positions, g, scale_tensor});
       if (grad_table.defined())
         hash_grid_backward_cpu(positions.data_ptr<float>(), n, g.data_ptr<float>(), s, scales,
                                grad_table.data_ptr<float>());
@@ -172,16 +171,29 @@ torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tens
     TORCH_CHECK(scales.device() == positions.device(), kOp, ": scales must be on ", positions.device(),
                 " like positions, got ", scales.device());
   }
-  const int slot = TableGradient::current_slot();
-  const bool to_slot =
-      gradient != nullptr && slot >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled();
+  const int key = TableGradient::current_key();
+  const bool deferred =
+      gradient != nullptr && key >= 0 && positions.is_cpu() && table.requires_grad() && torch::GradMode::is_enabled();
   // The CPU loops multiply by the scales themselves; scales that take a gradient, and the CUDA
   // kernels, get a separate product.
   const bool fused_scales = scales.defined() && positions.is_cpu() && !scales.requires_grad();
   const torch::Tensor loop_scales = fused_scales ? scales.contiguous() : torch::Tensor();
-  const auto out = HashGridFunction::apply(positions, table, resolutions(shape), to_slot ? gradient : nullptr,
-                                           int64_t{to_slot ? slot : -1}, &loop_scales);
+  const auto out = HashGridFunction::apply(positions, table, resolutions(shape), deferred ? gradient : nullptr,
+                                           int64_t{deferred ? key : -1}, &loop_scales);
   return scales.defined() && !fused_scales ? out * scales.unsqueeze(-1) : out;
+}
+
+IndexRanges hash_grid_table_entries(const HashGridShape& shape) {
+  IndexRanges out;
+  const int64_t f = shape.features;
+  for (int level = 0; level < shape.levels; ++level) {
+    const int64_t begin = level * shape.table_size * f, end = begin + hash_grid_level_rows(shape, level) * f;
+    if (!out.empty() && out.back().second == begin)
+      out.back().second = end;  // joined to the level before (hashed levels fill their rows)
+    else
+      out.emplace_back(begin, end);
+  }
+  return out;
 }
 
 torch::Tensor hash_grid_rows_reference(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& z,

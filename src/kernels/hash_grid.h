@@ -6,6 +6,7 @@
 // The model's grid front end (model/grid_embedding.h) is its user.
 #include <torch/torch.h>
 
+#include "kernels/cpu_parallel.h"
 #include "kernels/hash_grid_shape.h"
 
 namespace ablenerf {
@@ -26,13 +27,18 @@ HashGridShape hash_grid_shape(int levels, int features, int log2_table, int base
 // gradient is added level by level, points in order: no lock, the same sums every run); CUDA tensors the
 // kernels (atomic adds), or throw "built without CUDA kernels" where those were not built. Throws c10::Error naming the
 // argument on bad input.
-// With `gradient` (kernels/table_gradient.h), on the CPU, while the calling thread has a slot open
-// and the table requires a gradient: the table's gradient goes to that slot instead of autograd.
+// With `gradient` (kernels/table_gradient.h), on the CPU, while the calling thread has a key open
+// and the table requires a gradient: the table's scatter is deferred to it instead of autograd.
 // With `scales` (N, levels) float32 on the positions' device: each point's output at each level
 // times its scale, i.e. hash_grid_encode(...) * scales.unsqueeze(-1); on the CPU, for scales that
 // take no gradient, inside the loops (one pass over the output less, forward and backward).
 torch::Tensor hash_grid_encode(const torch::Tensor& positions, const torch::Tensor& table, const HashGridShape& shape,
                                TableGradient* gradient = nullptr, const torch::Tensor& scales = {});
+
+// The entries (flat, as stored) of a (levels, table_size, features) table that lookups can reach:
+// every row of a hashed level, the vertices' rows of a dense one (hash_grid_level_rows); levels that
+// meet joined into one range.
+IndexRanges hash_grid_table_entries(const HashGridShape& shape);
 
 // The same in plain LibTorch ops (index_select and products; autograd gives the table's and the
 // positions' gradients),

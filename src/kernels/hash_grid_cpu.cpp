@@ -321,6 +321,21 @@ void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_
   });
 }
 
+void hash_grid_backward_level_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
+                                     const HashGridShape& s, int level, const float* scales, float* level_rows) {
+  if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  if (vector_loops(form, s.features)) {
+    hash_grid_avx512::scatter_level(positions, n, grad_out, s, level, hash_grid_avx512::LevelStream(), scales,
+                                    level_rows);
+    return;
+  }
+#endif
+  with_features(s.features, [&](auto f) {
+    backward_level<decltype(f)::value>(positions, n, grad_out, s, level, s.features, scales, level_rows);
+  });
+}
+
 void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
                                const HashGridShape& s, const float* scales, float* grad_table) {
   if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");

@@ -44,4 +44,10 @@ void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_
 void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
                                const HashGridShape& s, const float* scales, float* grad_table);
 
+// The scatter of one level alone, on the calling thread: level_rows (table_size, features) += the
+// scatter of grad_out's level `level` (the same products and order as hash_grid_backward_cpu_in's).
+// For a caller that has the level's rows in its cache already (kernels/table_gradient.h).
+void hash_grid_backward_level_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
+                                     const HashGridShape& s, int level, const float* scales, float* level_rows);
+
 }  // namespace ablenerf

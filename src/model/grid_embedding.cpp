@@ -44,21 +44,10 @@ GridEmbeddingImpl::GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, 
       "table", (torch::rand({shape_.levels, shape_.table_size, shape_.features}) * 2 - 1) * (kTableInit / lr_scale_));
   std::vector<float> res(shape_.resolution, shape_.resolution + shape_.levels);
   resolution_ = register_buffer("resolution", torch::tensor(res));
-  table_gradient_->set_entries(table_entries_read());
+  table_gradient_ = std::make_shared<TableGradient>(shape_);
 }
 
-IndexRanges GridEmbeddingImpl::table_entries_read() const {
-  IndexRanges out;
-  const int64_t f = shape_.features;
-  for (int level = 0; level < shape_.levels; ++level) {
-    const int64_t begin = level * shape_.table_size * f, end = begin + hash_grid_level_rows(shape_, level) * f;
-    if (!out.empty() && out.back().second == begin)
-      out.back().second = end;  // joined to the level before (hashed levels fill their rows)
-    else
-      out.emplace_back(begin, end);
-  }
-  return out;
-}
+IndexRanges GridEmbeddingImpl::table_entries_read() const { return hash_grid_table_entries(shape_); }
 
 torch::Tensor GridEmbeddingImpl::unit_coordinates(const torch::Tensor& mean) const {
   return ((mean.to(torch::kFloat).reshape({-1, 3}) - cube_.lo) / (cube_.hi - cube_.lo)).contiguous();

@@ -19,6 +19,7 @@
 #include <memory>
 
 #include "kernels/hash_grid_shape.h"
+#include "kernels/cpu_parallel.h"
 #include "kernels/table_gradient.h"
 #include "data/data_config.h"
 #include "model/model_config.h"
@@ -53,11 +54,12 @@ class GridEmbeddingImpl : public torch::nn::Module {
   const torch::Tensor& table_parameter() const { return table_; }
   double lr_scale() const { return lr_scale_; }
   // Where a CPU training step's threads gather the table's gradient (kernels/table_gradient.h):
-  // lookups on a thread with a slot open write there, and the step's finish puts the sum in .grad.
+  // lookups on a thread with a key open defer their scatters there, and the step's finish puts
+  // their sum in .grad.
   TableGradient& table_gradient() const { return *table_gradient_; }
-  // The table parameter's entries (flat, as stored) that lookups can reach: every row of a hashed
-  // level, the vertices' rows of a dense one (kernels/hash_grid_shape.h). The table gradient sums
-  // only these (it is told so at construction), and the trainer tells Adam.
+  // The table parameter's entries that lookups can reach (hash_grid_table_entries,
+  // kernels/hash_grid.h). The table gradient writes only these (kernels/table_gradient.h), and the
+  // trainer tells Adam.
   IndexRanges table_entries_read() const;
   // Under compute.attention = "fused" (set by AbleNerf::set_compute) the points' unit coordinates
   // and level weights come from one CPU loop (kernels/sample_encoding_cpu.h) where nothing
@@ -75,7 +77,7 @@ class GridEmbeddingImpl : public torch::nn::Module {
 
   torch::Tensor table_;       // the parameter: the table / lr_scale
   torch::Tensor resolution_;  // (levels) cells per side, a buffer for the weights
-  std::shared_ptr<TableGradient> table_gradient_ = std::make_shared<TableGradient>();
+  std::shared_ptr<TableGradient> table_gradient_;
 };
 TORCH_MODULE(GridEmbedding);
 

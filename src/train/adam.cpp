@@ -121,8 +121,16 @@ void Adam::clear_grads() {
   for (auto& p : params_) p.mutable_grad() = torch::Tensor();
 }
 
-bool Adam::step_host(double loss, const std::vector<torch::Tensor>& checked) {
-  if (!std::isfinite(loss)) return false;
+bool Adam::step_host(double loss, const std::vector<torch::Tensor>& checked, std::vector<TableStep>* tables) {
+  // A skipped step's tables drop their lookups as a cleared gradient would.
+  const auto skip = [&] {
+    if (tables != nullptr)
+      for (auto& t : *tables) t.gradient->discard();
+    return false;
+  };
+  TORCH_CHECK(tables == nullptr || tables->empty() || host_loops_,
+              "Adam: tables whose gradient is formed in the update need the host loops");
+  if (!std::isfinite(loss)) return skip();
   if (host_loops_) {
     const auto was_checked = [&](const torch::Tensor& p) {
       return std::any_of(checked.begin(), checked.end(), [&](const torch::Tensor& c) { return c.is_same(p); });
@@ -134,9 +142,12 @@ bool Adam::step_host(double loss, const std::vector<torch::Tensor>& checked) {
       grads.push_back(p.grad().defined() ? p.grad().contiguous() : torch::Tensor());
       if (!was_checked(p)) unchecked.push_back(grads.back());
     }
-    if (!gradients_finite_loop(unchecked)) return false;
+    if (!gradients_finite_loop(unchecked)) return skip();
+    if (tables != nullptr)
+      for (const auto& t : *tables)
+        if (!t.gradient->lookups_finite()) return skip();
     update_loop(grads);
-    return true;
+    return tables == nullptr || update_tables(*tables);
   }
   std::vector<torch::Tensor> norms;
   for (const auto& p : params_)
@@ -174,32 +185,50 @@ bool Adam::gradients_finite_loop(const std::vector<torch::Tensor>& grads) {
 // torch::optim::Adam::step (LibTorch 1.13, no weight decay, no amsgrad) element by element
 // (kernels/adam_cpu.h): the same per-parameter state (created on a parameter's first gradient, step
 // counted per parameter) and the same operations in the same order, in float32.
-void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
-  torch::NoGradGuard no_grad;
-  auto& group = optim_.param_groups().front();
-  const double lr = static_cast<torch::optim::AdamOptions&>(group.options()).lr();
+torch::optim::AdamParamState& Adam::advance(const torch::Tensor& p, AdamScalars& scalars) {
   auto& state = optim_.state();
+  const auto key = state_key(state, p);
+  if (state.count(key) == 0) add_zero_state(state, p);
+  auto& st = static_cast<torch::optim::AdamParamState&>(*state.at(key));
+  st.step(st.step() + 1);
+  const double lr = static_cast<torch::optim::AdamOptions&>(optim_.param_groups().front().options()).lr();
   // The scalars as the tensor ops see them: cast to float once.
   const double beta1 = settings_.beta1, beta2 = settings_.beta2;
-  const float b1 = static_cast<float>(beta1), one_b1 = static_cast<float>(1.0 - beta1);
-  const float b2 = static_cast<float>(beta2), one_b2 = static_cast<float>(1.0 - beta2);
-  const float eps = static_cast<float>(settings_.eps);
+  const double bias1 = 1.0 - std::pow(beta1, static_cast<double>(st.step()));
+  const double bias2 = 1.0 - std::pow(beta2, static_cast<double>(st.step()));
+  scalars = {static_cast<float>(beta1),        static_cast<float>(1.0 - beta1),   static_cast<float>(beta2),
+             static_cast<float>(1.0 - beta2),  static_cast<float>(settings_.eps), static_cast<float>(std::sqrt(bias2)),
+             static_cast<float>(-(lr / bias1))};
+  TORCH_CHECK(st.exp_avg().is_contiguous() && st.exp_avg_sq().is_contiguous() &&
+                  st.exp_avg().scalar_type() == torch::kFloat && st.exp_avg_sq().scalar_type() == torch::kFloat &&
+                  st.exp_avg().numel() == p.numel() && st.exp_avg_sq().numel() == p.numel(),
+              "Adam: the moments of a ", p.sizes(), " parameter are not contiguous float32 tensors of its size");
+  return st;
+}
+
+bool Adam::update_tables(std::vector<TableStep>& tables) {
+  torch::NoGradGuard no_grad;
+  bool finite = true;
+  for (auto& t : tables) {
+    t.value = 0.0;
+    if (!t.gradient->pending() && t.decay == 0) continue;  // no gradient: no step, as for .grad
+    AdamScalars scalars{};
+    auto& st = advance(t.param, scalars);
+    t.value = t.gradient->finish_adam(t.param, t.decay, scalars, st.exp_avg().data_ptr<float>(),
+                                      st.exp_avg_sq().data_ptr<float>());
+    finite = finite && t.gradient->wrote_finite_gradient();
+  }
+  return finite;
+}
+
+void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
+  torch::NoGradGuard no_grad;
   for (size_t i = 0; i < params_.size(); ++i) {
     auto& p = params_[i];
     const auto& gc = grads[i];
     if (!gc.defined()) continue;
-    const auto key = state_key(state, p);
-    if (state.count(key) == 0) add_zero_state(state, p);
-    auto& st = static_cast<torch::optim::AdamParamState&>(*state.at(key));
-    st.step(st.step() + 1);
-    const double bias1 = 1.0 - std::pow(beta1, static_cast<double>(st.step()));
-    const double bias2 = 1.0 - std::pow(beta2, static_cast<double>(st.step()));
-    const float sqrt_bias2 = static_cast<float>(std::sqrt(bias2));
-    const float neg_step = static_cast<float>(-(lr / bias1));
-    TORCH_CHECK(st.exp_avg().is_contiguous() && st.exp_avg_sq().is_contiguous() &&
-                    st.exp_avg().scalar_type() == torch::kFloat && st.exp_avg_sq().scalar_type() == torch::kFloat &&
-                    st.exp_avg().numel() == p.numel() && st.exp_avg_sq().numel() == p.numel(),
-                "Adam: the moments of a ", p.sizes(), " parameter are not contiguous float32 tensors of its size");
+    AdamScalars scalars{};
+    auto& st = advance(p, scalars);
     TORCH_CHECK(gc.scalar_type() == torch::kFloat && gc.numel() == p.numel(), "Adam: the gradient of a ", p.sizes(),
                 " parameter is ", gc.scalar_type(), " ", gc.sizes());
     const float* g = gc.data_ptr<float>();
@@ -210,7 +239,6 @@ void Adam::update_loop(const std::vector<torch::Tensor>& grads) {
     // a million entries; the transformer's matrices are far smaller and stay on one thread). The
     // project's own threads (kernels/cpu_parallel.h), not at::parallel_for: that one is serial in
     // code built without OpenMP, as ours is.
-    const AdamScalars scalars{b1, one_b1, b2, one_b2, eps, sqrt_bias2, neg_step};
     const auto part = entries_.find(p.unsafeGetTensorImpl());
     const IndexRanges all{{0, p.numel()}};
     const IndexRanges& ranges = part != entries_.end() && !part->second.empty() ? part->second : all;

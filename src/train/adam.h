@@ -21,7 +21,9 @@
 #include <unordered_map>
 #include <vector>
 
+#include "kernels/adam_cpu.h"
 #include "kernels/cpu_parallel.h"
+#include "kernels/table_gradient.h"
 
 namespace ablenerf {
 
@@ -45,11 +47,25 @@ class Adam {
   void set_lr(double lr);  // host form: the options; device form: an asynchronous fill
   void clear_grads();      // every .grad undefined (the next backward writes fresh buffers)
 
+  // A grid table whose gradient is never stored: its deferred lookups (kernels/table_gradient.h)
+  // are summed level by level inside its update (TableGradient::finish_adam), with its weight
+  // decay's term (`decay`, the coefficient: train/regularisers.h). The parameter holds no .grad.
+  struct TableStep {
+    torch::Tensor param;
+    TableGradient* gradient = nullptr;
+    double decay = 0.0;
+    double value = 0.0;  // out: the decay's value (decay x the sum of squares), 0 when skipped
+  };
+
   // Host form: when `loss` and every gradient are finite, updates and returns true; otherwise
   // returns false without updating (the caller clears the gradients). `checked`: parameters whose
   // gradient the caller has already found finite in a pass of its own (a grid table's, in the pass
-  // that gathers it: kernels/table_gradient.h); the check does not read those again.
-  bool step_host(double loss, const std::vector<torch::Tensor>& checked = {});
+  // that gathers it: kernels/table_gradient.h); the check does not read those again. `tables`
+  // (host loops only): updated after the others, when their lookups are finite too
+  // (TableGradient::lookups_finite); their lookups are consumed either way. Returns false, the
+  // others updated, in the one case the tables' own pass finds a gradient that is not finite (a
+  // table that is not finite itself).
+  bool step_host(double loss, const std::vector<torch::Tensor>& checked = {}, std::vector<TableStep>* tables = nullptr);
 
   // Device form: sets found_inf() to 1 when `loss` or a gradient is not finite, else 0, then
   // updates unless it is 1. Capturable.
@@ -70,6 +86,9 @@ class Adam {
   // grads: each parameter's gradient, contiguous, or undefined where it has none.
   static bool gradients_finite_loop(const std::vector<torch::Tensor>& grads);
   void update_loop(const std::vector<torch::Tensor>& grads);
+  bool update_tables(std::vector<TableStep>& tables);
+  // p's state advanced by one step (created on its first) and the scalars of its update.
+  torch::optim::AdamParamState& advance(const torch::Tensor& p, AdamScalars& scalars);
 
   std::vector<torch::Tensor> params_;
   std::unordered_map<const void*, IndexRanges> entries_;  // set_entries, by the parameter's TensorImpl

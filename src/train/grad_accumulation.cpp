@@ -176,12 +176,13 @@ double near_gradient_distance_for(const TrainConfig& tc, double near) {
 }
 
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
-                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale) {
+                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale,
+                              bool tables_in_update) {
   TORCH_CHECK(micro > 0, "accumulate_gradients: micro-batch must be positive");
   const auto params = model->parameters();
   // In the parameters' dtype (fp32 in training; float64 in tests).
   const auto zero = torch::zeros({}, params.front().options());
-  StepSums sums{zero, zero.clone(), {}, torch::zeros({kLossTermCount}, zero.options()), {}};
+  StepSums sums{zero, zero.clone(), {}, torch::zeros({kLossTermCount}, zero.options()), {}, {}};
   std::vector<torch::Tensor> ray_se;
   const auto add = [&](const LossTerms& t) {
     sums.loss.add_(t.loss.detach());
@@ -195,7 +196,6 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     sums.loss.add_(v);
     sums.terms[term].add_(v);
   };
-  // The tables' slots hold nothing from a step that did not finish.
   // The grid tables the step's threads write their gradients to (kernels/table_gradient.h).
   const auto tables = model->grids();
   try {
@@ -211,7 +211,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       opts.near_gradient_distance = near_gradient_distance_for(tc, near);
       const int64_t workers = model->cpu_ray_workers(mb.size(), /*draws_randomness=*/false);
       if (workers == 1) {
-        const TableGradientScope slot(0);
+        const TableGradientScope key(0);
         const LossTerms t = slice_loss(model, mb, opts, tc, global_rays, near, far, distortion_scale);
         t.loss.backward();
         add(t);
@@ -220,7 +220,7 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
       std::vector<std::vector<torch::Tensor>> grads(static_cast<size_t>(workers));
       std::vector<LossTerms> parts(static_cast<size_t>(workers));
       parallel_slices(mb.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
-        const TableGradientScope slot(static_cast<int>(w));
+        const TableGradientScope key(static_cast<int>(w));
         const RayBatch s = mb.slice(lo, hi);
         LossTerms t = slice_loss(model, s, opts.slice(lo, hi), tc, global_rays, near, far, distortion_scale);
         // Gradients returned, not accumulated, so the threads never write the same .grad.
@@ -238,8 +238,8 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
     throw;
   }
   // The decays once per step, this process's share of them (ranks add their gradients): the grid
-  // table's, in the pass that gathers the tables' gradients from their slots (on a GPU, where no
-  // slot is written, on its own),
+  // table's, in the pass that sums the tables' deferred lookups (on a GPU, where none is deferred,
+  // on its own),
   const double share = static_cast<double>(batch.size()) / static_cast<double>(global_rays);
   for (auto* t : tables) {
     auto param = t->table_parameter();
@@ -248,6 +248,10 @@ StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t mi
         front && tc.grid_decay > 0 ? grid_decay_coefficient(param, t->lr_scale(), tc.grid_decay * share) : 0.0;
     if (!param.is_cpu()) {
       if (decay > 0) add_decay(kTermGridDecay, add_grid_weight_decay(param, t->lr_scale(), tc.grid_decay * share));
+      continue;
+    }
+    if (tables_in_update) {
+      sums.tables.push_back({param, &t->table_gradient(), decay});
       continue;
     }
     const double value = t->table_gradient().finish(param, decay);

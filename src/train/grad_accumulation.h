@@ -12,6 +12,7 @@
 #include <torch/torch.h>
 
 #include "model/able_nerf.h"
+#include "train/adam.h"
 #include "train/ray_batch.h"
 #include "train/train_config.h"
 
@@ -71,6 +72,9 @@ struct StepSums {
   // The grid tables whose gradient the pass that gathered it found finite (Adam::step_host's
   // `checked`; valid until the gradients change, e.g. by an all-reduce).
   std::vector<torch::Tensor> finite_tables;
+  // With tables_in_update: the CPU grid tables whose gradient Adam forms inside its update
+  // (Adam::TableStep), their lookups still deferred and their decay not yet in loss or terms.
+  std::vector<Adam::TableStep> tables;
 };
 
 // The distance below which sample tokens' gradients are scaled (ForwardOptions::near_gradient_distance)
@@ -81,7 +85,10 @@ double near_gradient_distance_for(const TrainConfig& tc, double near);
 // Runs forward and backward over `batch` in micro-batches of at most `micro` rays; gradients add
 // into the parameters' .grad (zero them first), and the grid table's decay (train.grid_decay, its
 // share batch / global_rays) once. `distortion_scale` as ray_loss's. Returns the summed loss terms.
+// `tables_in_update`: the CPU grid tables' gradients are left to Adam's update (StepSums::tables)
+// instead of written to their .grad.
 StepSums accumulate_gradients(AbleNerf& model, const RayBatch& batch, int64_t micro, const TrainConfig& tc,
-                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale = {});
+                              int64_t global_rays, double near, double far, const torch::Tensor& distortion_scale = {},
+                              bool tables_in_update = false);
 
 }  // namespace ablenerf

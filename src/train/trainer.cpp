@@ -130,8 +130,11 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
   std::optional<SerialIntraOp> serial;
   if (s.model->cpu_ray_workers(s.micro, /*draws_randomness=*/false) > 1) serial.emplace();
   const RayBatch batch = s.sampler->gather(indices);
-  const StepSums sums =
-      accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far, s.distortion_scale);
+  // The CPU grid tables' gradients formed inside Adam's update, never stored (Adam::TableStep),
+  // unless an all-reduce must add them up first.
+  const bool tables_in_update = !opts_.dist && s.adam->host_loops();
+  StepSums sums = accumulate_gradients(s.model, batch, s.micro, tc, tc.rays_per_step, s.near, s.far, s.distortion_scale,
+                                       tables_in_update);
   StepReport r;
   r.step = s.state.step + 1;
   r.lr = lr;
@@ -161,7 +164,13 @@ StepReport Trainer::host_step(const torch::Tensor& all, const torch::Tensor& ind
     if (guided) ray_se = torch::tensor(std::vector<double>(stats.begin() + kRays, stats.end()), torch::kDouble);
   }
   // The tables' finite check made while gathering them holds unless an all-reduce changed them.
-  r.finite = s.adam->step_host(r.loss, opts_.dist ? std::vector<torch::Tensor>() : sums.finite_tables);
+  r.finite = s.adam->step_host(r.loss, opts_.dist ? std::vector<torch::Tensor>() : sums.finite_tables,
+                               tables_in_update ? &sums.tables : nullptr);
+  // Their decay's value comes out of that update.
+  for (const auto& t : sums.tables) {
+    r.loss += t.value;
+    r.terms[kTermGridDecay] += t.value;
+  }
   if (guided && r.finite) s.sampler->observe(all, ray_se);
   if (!r.finite) s.adam->clear_grads();
   s.last = r;

@@ -68,10 +68,82 @@ TEST(AdamCpu, EveryFormFollowsTheFormulasAndTheFormsAgreeToTheBit) {
   EXPECT_GE(ran, 5);  // the scalar form ran at every length
 }
 
+AdamScalars some_scalars() {
+  const double beta1 = 0.9, beta2 = 0.999, eps = 1e-8, lr = 2e-3;
+  const int step = 7;
+  const double bias1 = 1 - std::pow(beta1, step), bias2 = 1 - std::pow(beta2, step);
+  return {float(beta1), float(1 - beta1),        float(beta2),      float(1 - beta2),
+          float(eps),   float(std::sqrt(bias2)), float(-lr / bias1)};
+}
+
+// The update with the gradient formed on the way (a grid table's): g = sum + two_decay x w in
+// float32, then adam_update_cpu's update, to the bit, in every form; the squares of w before the
+// update; entries whose g is not finite (a NaN or infinite sum, an infinite w) keep their values
+// and clear `finite`, the others update as without them.
+TEST(AdamCpu, TheDecayedUpdateIsTheSumThenTheUpdate) {
+  const AdamScalars s = some_scalars();
+  const float two_decay = 0.25f;
+  for (const int64_t n : {int64_t(1), int64_t(17), int64_t(1003)}) {
+    const State start = random_state(n, uint64_t(n) + 100);
+    const auto sum = start.g;
+    // The plain sequence: the gradient as float32 tensor ops (one rounding each), then the update.
+    const auto g = sum + (start.w * two_decay);
+    State want{g, start.m.clone(), start.v.clone(), start.w.clone()};
+    adam_update_cpu_in(CpuVectorForm::Scalar, n, want.g.data_ptr<float>(), want.m.data_ptr<float>(),
+                       want.v.data_ptr<float>(), want.w.data_ptr<float>(), s);
+    const double squares = start.w.to(torch::kDouble).pow(2).sum().item<double>();
+    for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+      if (!cpu_vector_form_available(form)) continue;
+      State st{sum, start.m.clone(), start.v.clone(), start.w.clone()};
+      bool finite = true;
+      const double got = adam_update_decayed_cpu_in(form, n, st.g.data_ptr<float>(), two_decay, st.m.data_ptr<float>(),
+                                                    st.v.data_ptr<float>(), st.w.data_ptr<float>(), s, finite);
+      EXPECT_TRUE(finite);
+      EXPECT_NEAR(got, squares, 1e-12 * squares) << "n " << n;
+      EXPECT_TRUE(torch::equal(st.w, want.w)) << "n " << n;
+      EXPECT_TRUE(torch::equal(st.m, want.m)) << "n " << n;
+      EXPECT_TRUE(torch::equal(st.v, want.v)) << "n " << n;
+    }
+  }
+  // Not finite: a NaN and an infinite sum, an infinite w, at the first entry, inside the vectors
+  // and in the tail.
+  const int64_t n = 37;
+  for (const int64_t at : {int64_t(0), int64_t(20), int64_t(36)}) {
+    for (int kind = 0; kind < 3; ++kind) {
+      for (const CpuVectorForm form : {CpuVectorForm::Scalar, CpuVectorForm::Avx512}) {
+        if (!cpu_vector_form_available(form)) continue;
+        const State start = random_state(n, 5);
+        State st{start.g.clone(), start.m.clone(), start.v.clone(), start.w.clone()};
+        if (kind == 0) st.g[at] = std::nanf("");
+        if (kind == 1) st.g[at] = INFINITY;
+        if (kind == 2) st.w[at] = -INFINITY;
+        const auto w_before = st.w.clone();
+        State clean{start.g.clone(), start.m.clone(), start.v.clone(), start.w.clone()};
+        bool finite = true, clean_finite = true;
+        adam_update_decayed_cpu_in(form, n, st.g.data_ptr<float>(), two_decay, st.m.data_ptr<float>(),
+                                   st.v.data_ptr<float>(), st.w.data_ptr<float>(), s, finite);
+        adam_update_decayed_cpu_in(form, n, clean.g.data_ptr<float>(), two_decay, clean.m.data_ptr<float>(),
+                                   clean.v.data_ptr<float>(), clean.w.data_ptr<float>(), s, clean_finite);
+        EXPECT_FALSE(finite) << "kind " << kind << " at " << at;
+        EXPECT_TRUE(clean_finite);
+        EXPECT_EQ(st.m[at].item<float>(), start.m[at].item<float>()) << "kind " << kind << " at " << at;
+        EXPECT_EQ(st.v[at].item<float>(), start.v[at].item<float>());
+        EXPECT_TRUE(torch::equal(st.w[at], w_before[at]));
+        const auto others = torch::arange(n) != at;
+        EXPECT_TRUE(torch::equal(st.w.index({others}), clean.w.index({others}))) << "kind " << kind << " at " << at;
+        EXPECT_TRUE(torch::equal(st.m.index({others}), clean.m.index({others})));
+      }
+    }
+  }
+}
+
 TEST(AdamCpu, AFormThisCpuLacksIsRefused) {
   if (cpu_vector_form_available(CpuVectorForm::Avx512)) GTEST_SKIP() << "this CPU runs every form";
   float x = 0;
   EXPECT_THROW(adam_update_cpu_in(CpuVectorForm::Avx512, 1, &x, &x, &x, &x, AdamScalars{}), std::invalid_argument);
+  bool finite = true;
+  EXPECT_THROW(adam_update_decayed_cpu_in(CpuVectorForm::Avx512, 1, &x, 0.f, &x, &x, &x, AdamScalars{}, finite),
+               std::invalid_argument);
 }
 
 }  // namespace

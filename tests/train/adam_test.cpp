@@ -12,6 +12,8 @@
 #include <utility>
 #include <vector>
 
+#include "kernels/hash_grid.h"
+#include "kernels/table_gradient.h"
 #include "train/adam.h"
 
 using namespace ablenerf;
@@ -210,5 +212,101 @@ TEST(Adam, NonFiniteGradientOrLossSkipsTheStep) {
     EXPECT_TRUE(adam.step_host(1.0));
     for (const auto& kv : adam.optim().state())
       EXPECT_EQ(static_cast<torch::optim::AdamParamState&>(*kv.second).step(), 2);
+  }
+}
+
+namespace {
+
+// A small grid table (a dense level and hashed ones: hash_grid_shape) as a parameter of its own,
+// and lookups deferred to its TableGradient as a training step's threads would.
+struct TableFixture {
+  HashGridShape shape = hash_grid_shape(4, 2, 9, 4, 64);
+  torch::Tensor table;
+  TableGradient gradient{shape};
+  explicit TableFixture(uint64_t seed) {
+    auto gen = at::detail::createCPUGenerator(seed);
+    table = (torch::randn({shape.levels, shape.table_size, shape.features}, gen) * 1e-2).requires_grad_(true);
+  }
+  DeferredLookup lookup(int step, int64_t n = 400) const {
+    auto gen = at::detail::createCPUGenerator(500 + step);
+    return {torch::rand({n, 3}, gen), torch::randn({n, shape.levels, shape.features}, gen) * 1e-2, {}};
+  }
+};
+
+}  // namespace
+
+// A table whose gradient is formed inside the update (Adam::TableStep) follows the same steps, to
+// the bit, as the same table given its gradient in .grad by TableGradient::finish (the decay's term
+// included) and updated with the other parameters over the entries a lookup reaches; its decay's
+// value comes back; its state counts steps as a .grad parameter's would.
+TEST(Adam, ATableUpdatedFromItsLookupsFollowsTheGradientPath) {
+  auto ps = make_params(torch::kFloat);
+  auto ref = clone_params(ps);
+  TableFixture t(3), r(3);
+  ps.push_back(t.table);
+  ref.push_back(r.table);
+  Adam adam(ps, 1e-2, false);
+  Adam plain(ref, 1e-2, false);
+  plain.set_entries(r.table, hash_grid_table_entries(r.shape));
+  const double decay = 0.05;
+  for (int s = 0; s < 4; ++s) {
+    set_grads(ps, s);
+    set_grads(ref, s);
+    ps.back().mutable_grad() = torch::Tensor();
+    ref.back().mutable_grad() = torch::Tensor();
+    t.gradient.defer(0, t.lookup(s));
+    r.gradient.defer(0, r.lookup(s));
+    const double want = r.gradient.finish(ref.back(), decay);
+    std::vector<Adam::TableStep> tables{{t.table, &t.gradient, decay}};
+    ASSERT_TRUE(adam.step_host(1.0, {}, &tables));
+    ASSERT_TRUE(plain.step_host(1.0));
+    EXPECT_NEAR(tables[0].value, want, 1e-12 * want);
+    EXPECT_FALSE(t.gradient.pending());
+    for (size_t i = 0; i < ps.size(); ++i)
+      EXPECT_TRUE(torch::equal(ps[i], ref[i])) << "parameter " << i << " step " << s;
+  }
+  EXPECT_GT((t.table - TableFixture(3).table).abs().max().item<double>(), 1e-3);
+  for (const auto& kv : adam.optim().state())
+    EXPECT_GE(static_cast<torch::optim::AdamParamState&>(*kv.second).step(), 2);
+  // Nothing deferred and no decay: no gradient, so no step (the state stays where it was).
+  std::vector<Adam::TableStep> idle{{t.table, &t.gradient, 0.0}};
+  const auto table_before = t.table.detach().clone();
+  set_grads(ps, 0);
+  ps.back().mutable_grad() = torch::Tensor();
+  ASSERT_TRUE(adam.step_host(1.0, {}, &idle));
+  EXPECT_TRUE(torch::equal(t.table, table_before));
+  EXPECT_EQ(idle[0].value, 0.0);
+}
+
+// A step whose loss, other gradients or the table's lookups are not finite is skipped whole: no
+// parameter moves, the table's lookups are dropped, and the next step counts as the second.
+TEST(Adam, ANonFiniteStepLeavesTheTableAndDropsItsLookups) {
+  for (int kind = 0; kind < 3; ++kind) {
+    auto ps = make_params(torch::kFloat);
+    TableFixture t(4);
+    ps.push_back(t.table);
+    Adam adam(ps, 1e-2, false);
+    set_grads(ps, 0);
+    ps.back().mutable_grad() = torch::Tensor();
+    t.gradient.defer(0, t.lookup(0));
+    std::vector<Adam::TableStep> tables{{t.table, &t.gradient, 0.05}};
+    ASSERT_TRUE(adam.step_host(1.0, {}, &tables));
+    const auto before = clone_params(ps);
+    set_grads(ps, 1);
+    ps.back().mutable_grad() = torch::Tensor();
+    auto bad = t.lookup(1);
+    if (kind == 0) bad.grad_out.view(-1)[123] = std::numeric_limits<float>::quiet_NaN();
+    if (kind == 1) ps[1].mutable_grad().view(-1)[2] = std::numeric_limits<float>::infinity();
+    t.gradient.defer(0, bad);
+    EXPECT_FALSE(adam.step_host(kind == 2 ? std::numeric_limits<double>::quiet_NaN() : 1.0, {}, &tables))
+        << "kind " << kind;
+    EXPECT_FALSE(t.gradient.pending()) << "kind " << kind;
+    for (size_t i = 0; i < ps.size(); ++i) EXPECT_TRUE(torch::equal(ps[i], before[i])) << "parameter " << i;
+    set_grads(ps, 2);
+    ps.back().mutable_grad() = torch::Tensor();
+    t.gradient.defer(0, t.lookup(2));
+    EXPECT_TRUE(adam.step_host(1.0, {}, &tables));
+    for (const auto& kv : adam.optim().state())
+      EXPECT_EQ(static_cast<torch::optim::AdamParamState&>(*kv.second).step(), 2) << "kind " << kind;
   }
 }

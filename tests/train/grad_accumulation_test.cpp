@@ -387,10 +387,12 @@ TEST(GradAccumulation, CameraRefineGradientsEqualOneBackwardOverTheCorrectedRays
   }
 }
 
-// The grid tables' gradients (the front end's and the proposal field's) gathered in slots by the
+// The grid tables' gradients (the front end's and the proposal field's) deferred by the
 // step's threads (kernels/table_gradient.h), with the front end's decay added in the same pass, equal
 // autograd's through one backward of the same loss plus the decay's own gradient
-// (add_grid_weight_decay), on the ray split and in micro-batches; the slots are empty afterwards.
+// (add_grid_weight_decay), on the ray split and in micro-batches; nothing is left deferred
+// afterwards. Left to Adam's update (tables_in_update), the tables get no .grad, their lookups stay
+// deferred and their decay is not in the loss yet.
 TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
   const test::IntraOpThreads threads(2);
   torch::manual_seed(12);
@@ -414,7 +416,7 @@ TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
   for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
   const LossTerms t = ray_loss(model->forward(batch.rays, 2.0, 6.0), batch.target, tc, n);
   t.loss.backward();
-  // The decay over the entries a lookup reaches (a dense level's unused rows take none: the slots'
+  // The decay over the entries a lookup reaches (a dense level's unused rows take none: the
   // finishing pass leaves them at 0).
   const auto front_mask = test::table_entries_mask(front), proposal_mask = test::table_entries_mask(proposal);
   const double coefficient = grid_decay_coefficient(front_table, front.lr_scale(), tc.grid_decay);
@@ -441,6 +443,20 @@ TEST(GradAccumulation, GridTablesGatheredInSlotsEqualOneBackward) {
     ASSERT_EQ(s.finite_tables.size(), 2u);
     for (const auto& table : {front_table, proposal_table})
       EXPECT_TRUE(s.finite_tables[0].is_same(table) || s.finite_tables[1].is_same(table));
+  }
+  for (auto& p : model->parameters()) p.mutable_grad() = torch::Tensor();
+  const StepSums s = accumulate_gradients(model, batch, 16, tc, n, 2.0, 6.0, {}, /*tables_in_update=*/true);
+  EXPECT_NEAR(s.loss.item<double>(), t.loss.item<double>(), 1e-5 * s.loss.item<double>());
+  EXPECT_EQ(s.terms[kTermGridDecay].item<double>(), 0.0);
+  EXPECT_TRUE(s.finite_tables.empty());
+  ASSERT_EQ(s.tables.size(), 2u);
+  for (const auto& step : s.tables) {
+    const bool is_front = step.param.is_same(front_table);
+    EXPECT_TRUE(is_front || step.param.is_same(proposal_table));
+    EXPECT_EQ(step.decay, is_front ? coefficient : 0.0);
+    EXPECT_FALSE(step.param.grad().defined());
+    EXPECT_TRUE(step.gradient->pending());
+    step.gradient->discard();
   }
 }
 
