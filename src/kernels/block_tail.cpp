@@ -89,7 +89,7 @@ ABLENERF_ALWAYS_INLINE void layer_norm_backward_row(const float* __restrict dy, 
 // Raw pointers to the parameters, with the transposed copies the forward's products read.
 struct TailParams {
   const float *wo, *bo, *g1, *be1, *w1, *b1, *w2, *b2, *g2, *be2;
-  std::vector<float> wo_t, w1_t, w2_t;  // (E x E), (E x F), (F x E)
+  AlignedFloats wo_t, w1_t, w2_t;  // (E x E), (E x F), (F x E)
   TailParams(const BlockTailWeights& w, const TailShape& s)
       : wo(w.out_weight.data_ptr<float>()),
         bo(w.out_bias.data_ptr<float>()),

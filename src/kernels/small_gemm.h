@@ -18,6 +18,9 @@
 //  - the token linear layers' forward and input gradient (kernels/linear_cpu.h: m in the
 //    thousands, n and k 48-192), where it measured ~1.4x OpenBLAS's sgemm.
 #include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <new>
 
 namespace ablenerf {
 
@@ -32,12 +35,44 @@ void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, cons
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
                 const double* b, int64_t ldb, double* c, int64_t ldc);
 
+// A float buffer that starts on a cache line (64 bytes), for a B operand small_gemm reads in
+// vectors: from a std::vector (16-byte aligned) three loads in four cross two lines. With the
+// transposed weights of linear_cpu in one, the paper's model rendered 1.25x faster
+// (docs/benchmarks/history.md, "The grid tables' gradient formed inside Adam's update").
+class AlignedFloats {
+ public:
+  explicit AlignedFloats(size_t n = 0) { resize(n); }
+  // At least n floats (the contents are not kept when it grows).
+  void resize(size_t n) {
+    if (n <= capacity_) return;
+    const size_t bytes = (n * sizeof(float) + 63) / 64 * 64;
+    data_.reset(static_cast<float*>(std::aligned_alloc(64, bytes)));
+    if (!data_) throw std::bad_alloc();
+    capacity_ = bytes / sizeof(float);
+  }
+  float* data() const { return data_.get(); }
+
+ private:
+  struct Free {
+    void operator()(float* p) const { std::free(p); }
+  };
+  std::unique_ptr<float, Free> data_;
+  size_t capacity_ = 0;
+};
+
 // Row-major transpose: dst (cols x rows, row stride rows) = src (rows x cols, row stride lds)^T.
 // For C = A B^T with small_gemm: transpose B once into a scratch.
+// In tiles of 16 x 16, so that a large matrix (the paper's 576 x 192 feed-forward weights) is read
+// and written a cache line at a time rather than one strided element after another.
 template <class T>
 void transpose_into(const T* src, int64_t rows, int64_t cols, int64_t lds, T* dst) {
-  for (int64_t r = 0; r < rows; ++r)
-    for (int64_t c = 0; c < cols; ++c) dst[c * rows + r] = src[r * lds + c];
+  constexpr int64_t kTile = 16;
+  for (int64_t r0 = 0; r0 < rows; r0 += kTile)
+    for (int64_t c0 = 0; c0 < cols; c0 += kTile) {
+      const int64_t r1 = r0 + kTile < rows ? r0 + kTile : rows, c1 = c0 + kTile < cols ? c0 + kTile : cols;
+      for (int64_t r = r0; r < r1; ++r)
+        for (int64_t c = c0; c < c1; ++c) dst[c * rows + r] = src[r * lds + c];
+    }
 }
 
 // The instruction forms small_gemm chooses from at run time, the widest this CPU runs: AVX-512

@@ -1,7 +1,8 @@
 // The CPU token linear layer (kernels/linear_cpu.h) against LibTorch's torch::linear, the plain
 // reference: the same values and the same gradients for x, W and b, with and without a bias,
 // with widths that fill whole SIMD vectors and widths that leave columns over (including a
-// reduction longer than 64 with such columns), and with only some inputs requiring gradients.
+// reduction longer than 64 with such columns), an x too large for the small products' weight
+// gradient, and with only some inputs requiring gradients.
 #include <gtest/gtest.h>
 
 #include "kernels/kernel_test_util.h"
@@ -61,7 +62,10 @@ TEST(LinearCpu, MatchesTorchLinear) {
                                                      {300, 48, 48, false},
                                                      {37, 60, 48, true},   // an embedding layer's odd input width
                                                      {50, 100, 13, true},  // columns over, reduction > 64
-                                                     {5, 7, 3, true}})
+                                                     {5, 7, 3, true},
+                                                     // x over 1 MiB: the weight gradient through BLAS
+                                                     // (the paper's model: 50k tokens of width 192)
+                                                     {3104, 192, 100, true}})
     compare_linear(c, seed += 4);
 }
 

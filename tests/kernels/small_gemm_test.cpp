@@ -6,6 +6,10 @@
 // instruction form this CPU runs (AVX-512, AVX2, the baseline one), and the one small_gemm picks.
 #include <gtest/gtest.h>
 
+#include <cstdint>
+#include <tuple>
+#include <vector>
+
 #include "kernels/kernel_test_util.h"
 #include "kernels/small_gemm.h"
 
@@ -108,12 +112,32 @@ TEST(SmallGemm, FitsOnlySmallPositiveSizes) {
   EXPECT_FALSE(small_gemm_fits(0, 4, 4));
 }
 
+// Inside one tile, and over several with partial ones at both edges (rows and columns not a
+// multiple of the tile).
 TEST(SmallGemm, TransposeIntoMatchesTranspose) {
-  const auto src = test::seeded_randn({5, 9}, 77).to(torch::kFloat);  // rows of 9, the first 7 used
-  std::vector<float> dst(7 * 5);
-  transpose_into(src.data_ptr<float>(), 5, 7, 9, dst.data());
-  const auto got = torch::from_blob(dst.data(), {7, 5}, torch::kFloat);
-  EXPECT_TRUE(got.equal(src.narrow(1, 0, 7).t().contiguous()));
+  for (const auto& [rows, cols, stride] : {std::tuple<int64_t, int64_t, int64_t>{5, 7, 9}, {37, 50, 53}}) {
+    const auto src = test::seeded_randn({rows, stride}, 77).to(torch::kFloat);  // the first `cols` of each row used
+    std::vector<float> dst(static_cast<size_t>(cols * rows));
+    transpose_into(src.data_ptr<float>(), rows, cols, stride, dst.data());
+    const auto got = torch::from_blob(dst.data(), {cols, rows}, torch::kFloat);
+    EXPECT_TRUE(got.equal(src.narrow(1, 0, cols).t().contiguous())) << rows << " x " << cols;
+  }
+}
+
+// The buffer starts on a cache line at every size, keeps its memory when asked for less, and
+// holds what is written to it.
+TEST(SmallGemm, AlignedFloatsStartOnACacheLine) {
+  AlignedFloats buffer;
+  for (const size_t n : {size_t(1), size_t(17), size_t(1000), size_t(10), size_t(100000)}) {
+    buffer.resize(n);
+    ASSERT_NE(buffer.data(), nullptr);
+    EXPECT_EQ(reinterpret_cast<uintptr_t>(buffer.data()) % 64, 0u) << n;
+    for (size_t i = 0; i < n; ++i) buffer.data()[i] = static_cast<float>(i);
+    EXPECT_EQ(buffer.data()[n - 1], static_cast<float>(n - 1));
+  }
+  float* kept = buffer.data();
+  buffer.resize(5);
+  EXPECT_EQ(buffer.data(), kept);
 }
 
 }  // namespace
