@@ -265,11 +265,24 @@ ModelOutput AbleNerfImpl::forward(const Rays& in, double near, double far, const
   // (its draws would depend on the split); rays never interact inside the model.
   const bool draws_randomness = opts.generator != nullptr && opts.le_noise > 0;
   const int64_t workers = torch::GradMode::is_enabled() ? 1 : cpu_ray_workers(in.size(), draws_randomness);
-  if (workers == 1) return forward_serial(in, near, far, opts);
+  if (workers == 1) return forward_pieces(in, near, far, opts, draws_randomness);
   std::vector<ModelOutput> parts(static_cast<size_t>(workers));
   parallel_slices(in.size(), workers, [&](int64_t w, int64_t lo, int64_t hi) {
-    parts[static_cast<size_t>(w)] = forward_serial(in.slice(lo, hi), near, far, opts.slice(lo, hi));
+    parts[static_cast<size_t>(w)] = forward_pieces(in.slice(lo, hi), near, far, opts.slice(lo, hi), draws_randomness);
   });
+  return concat_outputs(parts);
+}
+
+ModelOutput AbleNerfImpl::forward_pieces(const Rays& in, double near, double far, const ForwardOptions& opts,
+                                         bool draws_randomness) {
+  const int64_t n = in.size();
+  if (torch::GradMode::is_enabled() || draws_randomness || !ray_token_.device().is_cpu() || n <= kCpuPieceRays)
+    return forward_serial(in, near, far, opts);
+  std::vector<ModelOutput> parts;
+  for (int64_t lo = 0; lo < n; lo += kCpuPieceRays) {
+    const int64_t hi = std::min(n, lo + kCpuPieceRays);
+    parts.push_back(forward_serial(in.slice(lo, hi), near, far, opts.slice(lo, hi)));
+  }
   return concat_outputs(parts);
 }
 

@@ -149,6 +149,14 @@ class AbleNerfImpl : public torch::nn::Module {
                 RayColourHead& ray_head, LETransformer* le_tf, LEColourHead* le_head, const torch::Tensor& le,
                 const torch::Tensor& view, const torch::Tensor& view_code, bool colour, const ForwardOptions& opts);
   ModelOutput forward_serial(const Rays& rays, double near, double far, const ForwardOptions& opts);
+  // forward_serial over pieces of at most kCpuPieceRays rays on a CPU when nothing is recorded for
+  // autograd and nothing draws randomness (then each ray's output is what it would be in any
+  // batch): a piece's tokens stay in the core's cache between the model's stages. The capture
+  // preset rendering at the eval.chunk default (4096 rays): 60,300 -> 63,500 rays/s, 256-ray pieces
+  // slower again (docs/benchmarks/history.md, "The grid tables' gradient formed inside Adam's update").
+  ModelOutput forward_pieces(const Rays& rays, double near, double far, const ForwardOptions& opts,
+                             bool draws_randomness);
+  static constexpr int64_t kCpuPieceRays = 512;
   // The interval Gaussians of fence-posts t (B,N+1) (depths): contracted for unbounded scenes.
   Gaussians frustums(const torch::Tensor& t, const Rays& rays) const;
   // True when the samples' Gaussians and encoding run as kernels/sample_encoding_cpu.h (CPU float32

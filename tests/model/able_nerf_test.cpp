@@ -331,5 +331,37 @@ TEST(AbleNerf, RayParallelInferenceEqualsOneBatch) {
   EXPECT_GT((split.rgb_fine - split.rgb_fine.flip(0)).abs().max().item<double>(), 1e-3);
 }
 
+// A CPU inference forward over more rays than a piece (AbleNerfImpl::forward_pieces, 512 rays a
+// thread) gives every ray what a batch of 100 gives it, on the ray split and on one thread.
+TEST(AbleNerf, InferenceInPiecesEqualsSmallBatches) {
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(7);
+  AbleNerf model(tiny());
+  model->eval();
+  const int64_t b = 1300;  // over two pieces a thread on two threads, three on one
+  const Rays rays = some_rays(b);
+  torch::NoGradGuard no_grad;
+  ForwardOptions opts;
+  opts.branches = true;
+  for (const CpuSplit split : {CpuSplit::Rays, CpuSplit::Ops}) {
+    Compute c;
+    c.cpu_split = split;
+    model->set_compute(c);
+    const auto whole = model->forward(rays, 2.0, 6.0, opts);
+    std::vector<torch::Tensor> rgb, weights, le;
+    for (int64_t lo = 0; lo < b; lo += 100) {
+      const auto part = model->forward(rays.slice(lo, std::min(b, lo + 100)), 2.0, 6.0, opts);
+      rgb.push_back(part.rgb_fine);
+      weights.push_back(part.fine_weights);
+      le.push_back(part.le_colour_fine);
+    }
+    expect_same(whole.rgb_fine, torch::cat(rgb), 1e-6, "rgb_fine");
+    expect_same(whole.fine_weights, torch::cat(weights), 1e-6, "fine_weights");
+    expect_same(whole.le_colour_fine, torch::cat(le), 1e-6, "le_colour_fine");
+    EXPECT_GT((whole.rgb_fine - whole.rgb_fine.roll(1, 0)).abs().max().item<double>(), 1e-3);
+  }
+  model->set_compute(Compute{});
+}
+
 }  // namespace
 }  // namespace ablenerf
