@@ -86,6 +86,16 @@ FinishSums finish_in(CpuVectorForm form, const FinishArgs& a, int64_t lo, int64_
   return finish_scalar(a, lo, hi);
 }
 
+// The levels' sums in level order (the same on any number of threads), finite when every level is.
+FinishSums levels_total(const std::vector<FinishSums>& levels) {
+  FinishSums total;
+  for (const auto& l : levels) {
+    total.squares += l.squares;
+    total.finite = total.finite && l.finite;
+  }
+  return total;
+}
+
 }  // namespace table_gradient_impl
 
 int TableGradient::current_key() { return table_gradient_impl::t_key; }
@@ -215,13 +225,9 @@ double TableGradient::finish(torch::Tensor& parameter, double decay, CpuVectorFo
                    table_gradient_impl::finish_in(form, {sum, w + begin, two_decay, out + begin}, 0, count);
              });
   parameter.mutable_grad() = grad_;
-  double total = 0.0;
-  finite_ = true;
-  for (const auto& s : sums) {  // in level order: the same sum on any number of threads
-    total += s.squares;
-    finite_ = finite_ && s.finite;
-  }
-  return decay * total;
+  const auto total = table_gradient_impl::levels_total(sums);
+  finite_ = total.finite;
+  return decay * total.squares;
 }
 
 bool TableGradient::lookups_finite() const {
@@ -240,22 +246,15 @@ double TableGradient::finish_adam(torch::Tensor& parameter, double decay, const 
   TORCH_CHECK(!parameter.grad().defined(), "TableGradient: finish_adam on a parameter that holds a gradient");
   float* w = parameter.data_ptr<float>();
   const float two_decay = static_cast<float>(2 * decay);
-  std::vector<double> squares(static_cast<size_t>(shape_.levels), 0.0);
-  std::vector<char> finite(static_cast<size_t>(shape_.levels), 1);
-  torch::NoGradGuard no_grad;
+  std::vector<table_gradient_impl::FinishSums> sums(static_cast<size_t>(shape_.levels));
   sum_levels(form, nullptr, false, [&](int level, const float* sum, int64_t begin, int64_t count) {
-    bool ok = true;
-    squares[static_cast<size_t>(level)] =
-        adam_update_decayed_cpu_in(form, count, sum, two_decay, m + begin, v + begin, w + begin, scalars, ok);
-    finite[static_cast<size_t>(level)] = ok ? 1 : 0;
+    auto& out = sums[static_cast<size_t>(level)];
+    out.squares =
+        adam_update_decayed_cpu_in(form, count, sum, two_decay, m + begin, v + begin, w + begin, scalars, out.finite);
   });
-  double total = 0.0;
-  finite_ = true;
-  for (size_t l = 0; l < squares.size(); ++l) {  // in level order: the same sum on any number of threads
-    total += squares[l];
-    finite_ = finite_ && finite[l] != 0;
-  }
-  return decay * total;
+  const auto total = table_gradient_impl::levels_total(sums);
+  finite_ = total.finite;
+  return decay * total.squares;
 }
 
 TableGradientScope::TableGradientScope(int k) : previous_(table_gradient_impl::t_key) {
