@@ -8,7 +8,9 @@
 #include "kernels/cpu_features.h"
 #include "kernels/gelu_cpu.h"
 #include "kernels/row_reduce.h"
+#include "kernels/bf16_gemm.h"
 #include "kernels/small_gemm.h"
+#include "kernels/token_product.h"
 
 namespace ablenerf {
 
@@ -40,16 +42,17 @@ ABLENERF_ALWAYS_INLINE void add_column_sums(float* acc, const float* a, int64_t 
   for (int64_t i = 0; i < rows; ++i) add_into(acc, a + i * n, n);
 }
 
-// y = x W^T for x (m x k) and wt = W^T (k x n), both row-major (small_gemm overwrites y).
-void product(int64_t m, int64_t n, int64_t k, const float* x, const float* wt, float* y) {
-  small_gemm(false, m, n, k, 1.0f, x, k, wt, n, y, n);
-}
-
-// acc (m x n) += a^T b for a (rows x m), b (rows x n): a weight's gradient over one chunk.
+// acc (m x n) += a^T b for a (rows x m), b (rows x n): a weight's gradient over one chunk, in
+// float32 or (`bf16`) with bfloat16 operands, b packed into `packed`.
 void add_transposed_product(float* acc, const float* a, int64_t m, const float* b, int64_t n, int64_t rows,
-                            std::vector<float>& scratch) {
+                            std::vector<float>& scratch, bool bf16, Bf16Operand& packed) {
   scratch.resize(static_cast<size_t>(m * n));
-  small_gemm(true, m, n, rows, 1.0f, a, m, b, n, scratch.data(), n);
+  if (bf16) {
+    packed.pack(b, rows, n, n, 1);
+    bf16_gemm_at(m, a, m, packed, scratch.data(), n);
+  } else {
+    small_gemm(true, m, n, rows, 1.0f, a, m, b, n, scratch.data(), n);
+  }
   add_into(acc, scratch.data(), m * n);
 }
 
@@ -87,10 +90,16 @@ ABLENERF_ALWAYS_INLINE void layer_norm_backward_row(const float* __restrict dy, 
 }
 
 // Raw pointers to the parameters, with the transposed copies the forward's products read.
+// Which products a TailParams prepares its weights for.
+enum class TailPass { Forward, Backward };
+
 struct TailParams {
   const float *wo, *bo, *g1, *be1, *w1, *b1, *w2, *b2, *g2, *be2;
-  AlignedFloats wo_t, w1_t, w2_t;  // (E x E), (E x F), (F x E)
-  TailParams(const BlockTailWeights& w, const TailShape& s)
+  // The three weights as the pass's product operands (kernels/token_product.h): forward
+  // heads Wo^T, h W1^T, g W2^T; backward d1 Wo, da1 W1, d2 W2.
+  WeightOperand wo_op, w1_op, w2_op;
+  bool bf16;  // every product with bfloat16 operands, the weights' gradients' too
+  TailParams(const BlockTailWeights& w, const TailShape& s, TailPass pass, bool bf16_products)
       : wo(w.out_weight.data_ptr<float>()),
         bo(w.out_bias.data_ptr<float>()),
         g1(w.norm1_weight.data_ptr<float>()),
@@ -101,12 +110,11 @@ struct TailParams {
         b2(w.ff_out_bias.data_ptr<float>()),
         g2(w.norm2_weight.data_ptr<float>()),
         be2(w.norm2_bias.data_ptr<float>()),
-        wo_t(size_t(s.e * s.e)),
-        w1_t(size_t(s.e * s.f)),
-        w2_t(size_t(s.f * s.e)) {
-    transpose_into(wo, s.e, s.e, s.e, wo_t.data());
-    transpose_into(w1, s.f, s.e, s.e, w1_t.data());
-    transpose_into(w2, s.e, s.f, s.f, w2_t.data());
+        bf16(bf16_products) {
+    const auto use = pass == TailPass::Forward ? WeightOperand::Use::Transposed : WeightOperand::Use::AsIs;
+    wo_op.prepare(wo, s.e, s.e, use, bf16_products);
+    w1_op.prepare(w1, s.f, s.e, use, bf16_products);
+    w2_op.prepare(w2, s.e, s.f, use, bf16_products);
   }
 };
 
@@ -134,7 +142,7 @@ ABLENERF_ALWAYS_INLINE void forward_chunk_body(const TailShape& s, const TailPar
   float* h = h_buf.data();
   float* a1 = a_buf.data();
   // xhat1 <- heads Wo^T, then + bo + x, normalised; h = xhat1 * g1 + be1.
-  product(n, e, e, heads + lo * e, p.wo_t.data(), xhat1);
+  p.wo_op.multiply(n, heads + lo * e, e, xhat1, e);
   for (int64_t i = 0; i < n; ++i) {
     float* row = xhat1 + i * e;
     const float* xr = x + s.residual_row(lo + i) * e;
@@ -144,12 +152,12 @@ ABLENERF_ALWAYS_INLINE void forward_chunk_body(const TailShape& s, const TailPar
   for (int64_t i = 0; i < n; ++i)
     for (int64_t j = 0; j < e; ++j) h[i * e + j] = xhat1[i * e + j] * p.g1[j] + p.be1[j];
   // a1 = h W1^T + b1; g = GELU(a1) and GELU'(a1).
-  product(n, f, e, h, p.w1_t.data(), a1);
+  p.w1_op.multiply(n, h, e, a1, f);
   for (int64_t i = 0; i < n; ++i)
     for (int64_t j = 0; j < f; ++j) a1[i * f + j] += p.b1[j];
   gelu_and_derivative(a1, g, dgelu, n * f);
   // xhat2 <- g W2^T + b2 + h, normalised; y = xhat2 * g2 + be2.
-  product(n, e, f, g, p.w2_t.data(), xhat2);
+  p.w2_op.multiply(n, g, f, xhat2, e);
   float* yc = y + lo * e;
   for (int64_t i = 0; i < n; ++i)
     for (int64_t j = 0; j < e; ++j) xhat2[i * e + j] += p.b2[j] + h[i * e + j];
@@ -177,6 +185,7 @@ struct TailGrads {
 // Scratch of one backward chunk.
 struct BackwardScratch {
   std::vector<float> d2, dg, dh, h, product;
+  Bf16Operand packed;  // a weight gradient's second operand in bfloat16
 };
 
 // The backward of rows [lo, hi): dx's and dheads' rows (dx added into: several rows share one
@@ -202,16 +211,16 @@ ABLENERF_ALWAYS_INLINE void backward_chunk_body(const TailShape& s, const TailPa
                             gr.be2.data());
   // The feed-forward's output layer: db2, dW2 = d2^T GELU(a1), dg = d2 W2.
   add_column_sums(gr.b2.data(), d2, n, e);
-  add_transposed_product(gr.w2.data(), d2, e, g, f, n, t.product);
-  small_gemm(false, n, f, e, 1.0f, d2, e, p.w2, f, dg, f);
+  add_transposed_product(gr.w2.data(), d2, e, g, f, n, t.product, p.bf16, t.packed);
+  p.w2_op.multiply(n, d2, e, dg, f);
   // GELU: da1 = dg GELU'(a1), in dg's memory.
   for (int64_t i = 0; i < n * f; ++i) dg[i] *= dgelu[i];
   // The feed-forward's input layer: db1, dW1 = da1^T h, dh = d2 + da1 W1.
   add_column_sums(gr.b1.data(), dg, n, f);
   for (int64_t i = 0; i < n; ++i)
     for (int64_t j = 0; j < e; ++j) h[i * e + j] = xhat1[i * e + j] * p.g1[j] + p.be1[j];
-  add_transposed_product(gr.w1.data(), dg, f, h, e, n, t.product);
-  small_gemm(false, n, e, f, 1.0f, dg, f, p.w1, e, dh, e);
+  add_transposed_product(gr.w1.data(), dg, f, h, e, n, t.product, p.bf16, t.packed);
+  p.w1_op.multiply(n, dg, f, dh, e);
   add_into(dh, d2, n * e);
   // LN1: d1 = d(x + heads Wo^T + bo), into d2's memory; the residual's share into dx.
   float* d1 = d2;
@@ -221,8 +230,8 @@ ABLENERF_ALWAYS_INLINE void backward_chunk_body(const TailShape& s, const TailPa
   }
   // The output projection: dbo, dWo = d1^T heads, dheads = d1 Wo.
   add_column_sums(gr.bo.data(), d1, n, e);
-  add_transposed_product(gr.wo.data(), d1, e, heads + lo * e, e, n, t.product);
-  small_gemm(false, n, e, e, 1.0f, d1, e, p.wo, e, dheads + lo * e, e);
+  add_transposed_product(gr.wo.data(), d1, e, heads + lo * e, e, n, t.product, p.bf16, t.packed);
+  p.wo_op.multiply(n, d1, e, dheads + lo * e, e);
 }
 
 // The two passes in each instruction form: the bodies above compiled for AVX-512 (their row loops
@@ -272,9 +281,9 @@ TailShape shape_of(const torch::Tensor& x, const torch::Tensor& heads, const Blo
 
 // One call's forward over every chunk; with `keep` the saved values are full-size (for backward).
 torch::Tensor forward_all(const torch::Tensor& x, const torch::Tensor& heads, const BlockTailWeights& w, double eps,
-                          int64_t chunk, CpuVectorForm form, bool keep, TailSaved* saved) {
+                          int64_t chunk, CpuVectorForm form, bool bf16, bool keep, TailSaved* saved) {
   const TailShape s = shape_of(x, heads, w);
-  const TailParams p(w, s);
+  const TailParams p(w, s, TailPass::Forward, bf16);
   const int64_t held = keep ? s.rows : std::min(chunk, s.rows);
   const auto opts = heads.options();
   TailSaved sv{torch::empty({held, s.e}, opts), torch::empty({held, s.f}, opts), torch::empty({held, s.f}, opts),
@@ -304,11 +313,14 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
                                int64_t form) {
     const BlockTailWeights w{wo, bo, g1, be1, w1, b1, w2, b2, g2, be2};
     TailSaved sv;
-    auto y = forward_all(x, heads, w, eps, chunk, CpuVectorForm(form), /*keep=*/true, &sv);
+    // The products' precision is the calling thread's now; the backward may run on another.
+    const bool bf16 = token_products_bf16();
+    auto y = forward_all(x, heads, w, eps, chunk, CpuVectorForm(form), bf16, /*keep=*/true, &sv);
     ctx->save_for_backward(
         {x, heads, wo, bo, g1, be1, w1, b1, w2, b2, g2, be2, sv.xhat1, sv.g, sv.dgelu, sv.xhat2, sv.rstd});
     ctx->saved_data["chunk"] = chunk;
     ctx->saved_data["form"] = form;
+    ctx->saved_data["bf16"] = bf16;
     return y;
   }
 
@@ -321,7 +333,7 @@ class BlockTailFunction : public torch::autograd::Function<BlockTailFunction> {
     const int64_t chunk = ctx->saved_data["chunk"].toInt();
     const auto form = CpuVectorForm(ctx->saved_data["form"].toInt());
     const TailShape s = shape_of(x, heads, w);
-    const TailParams p(w, s);
+    const TailParams p(w, s, TailPass::Backward, ctx->saved_data["bf16"].toBool());
     const auto dy = grads[0].contiguous();
     auto dx = torch::zeros(x.sizes(), x.options());
     auto dheads = torch::empty(heads.sizes(), heads.options());
@@ -415,7 +427,7 @@ torch::Tensor block_tail(const torch::Tensor& x, const torch::Tensor& heads, con
                           &wc.ff_in_bias, &wc.ff_out_weight, &wc.ff_out_bias, &wc.norm2_weight, &wc.norm2_bias})
       needs_graph = needs_graph || t->requires_grad();
   if (!needs_graph) {
-    return tail::forward_all(xc, hc, wc, eps, chunk, form, /*keep=*/false, nullptr);
+    return tail::forward_all(xc, hc, wc, eps, chunk, form, token_products_bf16(), /*keep=*/false, nullptr);
   }
   return tail::BlockTailFunction::apply(xc, hc, wc.out_weight, wc.out_bias, wc.norm1_weight, wc.norm1_bias,
                                         wc.ff_in_weight, wc.ff_in_bias, wc.ff_out_weight, wc.ff_out_bias,

@@ -1,6 +1,7 @@
 #include "kernels/linear_cpu.h"
 
 #include "kernels/small_gemm.h"
+#include "kernels/token_product.h"
 
 #include <ATen/record_function.h>
 #include <algorithm>
@@ -103,19 +104,18 @@ void column_sums_in(CpuVectorForm form, const float* dy, int64_t m, int64_t n, f
 }
 
 // y (..., N) = x (..., K) W^T (+ b), then max(y, 0) with `relu`, everything contiguous: x's rows as
-// one (M, K) matrix.
+// one (M, K) matrix; the product in float32 or with bfloat16 operands (kernels/token_product.h).
 torch::Tensor forward_product(const torch::Tensor& x, const torch::Tensor& weight, const torch::Tensor& bias, bool relu,
-                              CpuVectorForm form) {
+                              CpuVectorForm form, bool bf16) {
   const int64_t k = x.size(-1), m = x.numel() / k, n = weight.size(0);
-  // W^T (K, N), B of the product, in this thread's scratch: a transpose as a LibTorch op (a view
-  // made contiguous) cost ~9 us of dispatch and allocation for a few thousand floats, 25 times a step.
-  thread_local AlignedFloats wt;
-  wt.resize(static_cast<size_t>(n * k));
-  transpose_into(weight.data_ptr<float>(), n, k, k, wt.data());
+  // W^T (or W packed) in this thread's scratch: a transpose as a LibTorch op (a view made
+  // contiguous) cost ~9 us of dispatch and allocation for a few thousand floats, 25 times a step.
+  thread_local WeightOperand w;
+  w.prepare(weight.data_ptr<float>(), n, k, WeightOperand::Use::Transposed, bf16);
   auto sizes = x.sizes().vec();
   sizes.back() = n;
   auto y = torch::empty(sizes, x.options());
-  small_gemm(false, m, n, k, 1.0f, x.data_ptr<float>(), k, wt.data(), n, y.data_ptr<float>(), n);
+  w.multiply(m, x.data_ptr<float>(), k, y.data_ptr<float>(), n);
   if (bias.defined() || relu)
     bias_relu_in(form, y.data_ptr<float>(), bias.defined() ? bias.data_ptr<float>() : nullptr, m, n, relu);
   return y;
@@ -145,12 +145,16 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
   static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& x,
                                const torch::Tensor& weight, const torch::Tensor& bias, bool relu, int64_t form) {
     const bool has_bias = bias.numel() > 0;
-    auto y = forward_product(x, weight, has_bias ? bias : torch::Tensor(), relu, static_cast<CpuVectorForm>(form));
+    // The products' precision is the calling thread's now; the backward may run on another.
+    const bool bf16 = token_products_bf16();
+    auto y =
+        forward_product(x, weight, has_bias ? bias : torch::Tensor(), relu, static_cast<CpuVectorForm>(form), bf16);
     // With the ReLU, its output says where the gradient passes.
     ctx->save_for_backward(relu ? torch::autograd::variable_list{x, weight, y}
                                 : torch::autograd::variable_list{x, weight});
     ctx->saved_data["bias"] = has_bias;
     ctx->saved_data["form"] = form;
+    ctx->saved_data["bf16"] = bf16;
     return y;
   }
 
@@ -161,17 +165,24 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
     const auto form = static_cast<CpuVectorForm>(ctx->saved_data["form"].toInt());
     const auto dy = saved.size() > 2 ? relu_gradient(grads[0].contiguous(), saved[2], form) : grads[0].contiguous();
     const int64_t k = x.size(-1), m = x.numel() / k, n = weight.size(0);
+    const bool bf16 = ctx->saved_data["bf16"].toBool();
     torch::Tensor dx, dw, db;
     if (ctx->needs_input_grad(0)) {
       dx = torch::empty(x.sizes(), x.options());
-      small_gemm(false, m, k, n, 1.0f, dy.data_ptr<float>(), n, weight.data_ptr<float>(), k, dx.data_ptr<float>(), k);
+      thread_local WeightOperand w;
+      w.prepare(weight.data_ptr<float>(), n, k, WeightOperand::Use::AsIs, bf16);
+      w.multiply(m, dy.data_ptr<float>(), n, dx.data_ptr<float>(), k);
     }
     if (ctx->needs_input_grad(1)) {
       dw = torch::empty({n, k}, x.options());
       // small_gemm reads all of x once for every four rows of dw: from the core's cache at the
       // presets that train on a CPU, from memory at the paper's (50k tokens of width 192 in a
-      // slice), where BLAS's blocked product is the one to use.
-      if (m * k * static_cast<int64_t>(sizeof(float)) <= kSmallGemmReductionBytes)
+      // slice), where BLAS's blocked product is the one to use. In bfloat16, x packed once.
+      if (bf16) {
+        thread_local Bf16Operand xp;
+        xp.pack(x.data_ptr<float>(), m, k, k, 1);
+        bf16_gemm_at(n, dy.data_ptr<float>(), n, xp, dw.data_ptr<float>(), k);
+      } else if (m * k * static_cast<int64_t>(sizeof(float)) <= kSmallGemmReductionBytes)
         small_gemm(true, n, k, m, 1.0f, dy.data_ptr<float>(), n, x.data_ptr<float>(), k, dw.data_ptr<float>(), k);
       else
         torch::mm_out(dw, dy.reshape({m, n}).t(), x.reshape({m, k}));
@@ -202,7 +213,7 @@ torch::Tensor linear_cpu(const torch::Tensor& x, const torch::Tensor& weight, co
   const auto bc = bias.defined() ? bias.contiguous() : torch::Tensor();
   const bool needs_graph = torch::GradMode::is_enabled() &&
                            (xc.requires_grad() || wc.requires_grad() || (bc.defined() && bc.requires_grad()));
-  if (!needs_graph) return forward_product(xc, wc, bc, relu, form);
+  if (!needs_graph) return forward_product(xc, wc, bc, relu, form, token_products_bf16());
   return LinearFunction::apply(xc, wc, bc.defined() ? bc : torch::empty({0}, x.options()), relu,
                                static_cast<int64_t>(form));
 }

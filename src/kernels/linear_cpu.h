@@ -10,6 +10,9 @@
 //                db = column sums of dy, a block of rows at a time (linear_cpu.cpp);
 //   the bias, the ReLU, its gradient and the column sums in loops compiled for AVX-512 as well as
 //   the baseline, chosen at run time.
+// With compute.precision = "bf16" on a CPU with AMX (kernels/token_product.h: the thread's setting
+// when the forward runs, kept for its backward), y, dx and dW take bfloat16 operands with float32
+// sums (kernels/bf16_gemm.h); db and everything else stay float32.
 // Why: at the demo preset (2,176 tokens per 128-ray slice, 48-144 features) OpenBLAS's sgemm spends
 // a large share of each call packing operands (measured ~1.4x slower than the loops for x W^T), and
 // LibTorch's addmm path adds reshape / t / view nodes to every layer's forward and backward.

@@ -18,9 +18,8 @@
 //  - the token linear layers' forward and input gradient (kernels/linear_cpu.h: m in the
 //    thousands, n and k 48-192), where it measured ~1.4x OpenBLAS's sgemm.
 #include <cstdint>
-#include <cstdlib>
-#include <memory>
-#include <new>
+
+#include "kernels/aligned_buffer.h"
 
 namespace ablenerf {
 
@@ -34,31 +33,6 @@ void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, float alpha, cons
                 int64_t ldb, float* c, int64_t ldc);
 void small_gemm(bool trans_a, int64_t m, int64_t n, int64_t k, double alpha, const double* a, int64_t lda,
                 const double* b, int64_t ldb, double* c, int64_t ldc);
-
-// A float buffer that starts on a cache line (64 bytes), for a B operand small_gemm reads in
-// vectors: from a std::vector (16-byte aligned) three loads in four cross two lines. With the
-// transposed weights of linear_cpu in one, the paper's model rendered 1.25x faster
-// (docs/benchmarks/history.md, "The grid tables' gradient formed inside Adam's update").
-class AlignedFloats {
- public:
-  explicit AlignedFloats(size_t n = 0) { resize(n); }
-  // At least n floats (the contents are not kept when it grows).
-  void resize(size_t n) {
-    if (n <= capacity_) return;
-    const size_t bytes = (n * sizeof(float) + 63) / 64 * 64;
-    data_.reset(static_cast<float*>(std::aligned_alloc(64, bytes)));
-    if (!data_) throw std::bad_alloc();
-    capacity_ = bytes / sizeof(float);
-  }
-  float* data() const { return data_.get(); }
-
- private:
-  struct Free {
-    void operator()(float* p) const { std::free(p); }
-  };
-  std::unique_ptr<float, Free> data_;
-  size_t capacity_ = 0;
-};
 
 // Row-major transpose: dst (cols x rows, row stride rows) = src (rows x cols, row stride lds)^T.
 // For C = A B^T with small_gemm: transpose B once into a scratch.

@@ -19,6 +19,17 @@ namespace ablenerf {
 
 bool bf16_autocast_available(const torch::Device& device) { return TORCH_VERSION_MAJOR >= 2 && device.is_cuda(); }
 
+bool bf16_available(const torch::Device& device) {
+  return bf16_autocast_available(device) || (device.is_cpu() && cpu_has_bf16_products());
+}
+
+namespace {
+std::string bf16_unavailable(const torch::Device& device) {
+  return std::string("bf16 needs a CUDA device with LibTorch >= 2 or a CPU with AMX bfloat16 tiles (device ") +
+         device.str() + ", LibTorch " + TORCH_VERSION + ")";
+}
+}  // namespace
+
 torch::Tensor autocast_product_operand(const torch::Tensor& t) {
   if (!t.defined() || !t.is_cuda()) return t;
 #if TORCH_VERSION_MAJOR >= 2
@@ -34,9 +45,11 @@ torch::Tensor autocast_product_operand(const torch::Tensor& t) {
 
 AutocastScope::AutocastScope(Precision precision, const torch::Device& device) {
   if (precision != Precision::Bf16) return;
-  if (!bf16_autocast_available(device))
-    throw std::invalid_argument(std::string("bf16 needs a CUDA device and LibTorch >= 2 (device: ") + device.str() +
-                                ", LibTorch " + TORCH_VERSION + ")");
+  if (!bf16_available(device)) throw std::invalid_argument(bf16_unavailable(device));
+  if (device.is_cpu()) {
+    cpu_products_.emplace(true);
+    return;
+  }
 #if TORCH_VERSION_MAJOR >= 2
 #ifdef ABLENERF_AUTOCAST_BY_DEVICE
   previous_enabled_ = at::autocast::is_autocast_enabled(at::kCUDA);
@@ -67,14 +80,9 @@ AutocastScope::~AutocastScope() {
 Compute Compute::from_config(const ComputeConfig& c, const torch::Device& device, const std::string& source,
                              bool bf16_falls_back) {
   Compute out{c.attention, c.precision, c.cpu_split};
-  if (out.precision == Precision::Bf16 && !bf16_autocast_available(device)) {
-    if (bf16_falls_back) {
-      out.precision = Precision::Fp32;
-    } else {
-      throw InputError(source, "compute.precision",
-                       "bf16 needs a CUDA device and LibTorch >= 2 (device " + device.str() + ", LibTorch " +
-                           TORCH_VERSION + "); use fp32");
-    }
+  if (out.precision == Precision::Bf16 && !bf16_available(device)) {
+    if (!bf16_falls_back) throw InputError(source, "compute.precision", bf16_unavailable(device) + "; use fp32");
+    out.precision = Precision::Fp32;
   }
   return out;
 }

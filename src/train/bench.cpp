@@ -20,6 +20,7 @@
 
 #include "eval/camera_path.h"
 #include "kernels/cpu_parallel.h"
+#include "kernels/bf16_gemm.h"
 #include "kernels/small_gemm.h"
 #include "model/able_nerf.h"
 #include "model/compute.h"
@@ -217,6 +218,18 @@ std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, 
                    c.data_ptr<float>(), p.n);
     };
     p.seconds = time_it(torch::kCPU, /*warmup=*/1, kTimings, run).wall_median() / static_cast<double>(calls);
+    if (!cpu_has_bf16_products()) continue;
+    Bf16Operand packed;
+    const auto run_bf16 = [&] {
+      for (int64_t i = 0; i < calls; ++i) {
+        packed.pack(b.data_ptr<float>(), p.k, p.n, p.n, 1);
+        if (p.trans_a)
+          bf16_gemm_at(p.m, a.data_ptr<float>(), lda, packed, c.data_ptr<float>(), p.n);
+        else
+          bf16_gemm(p.m, a.data_ptr<float>(), lda, packed, c.data_ptr<float>(), p.n);
+      }
+    };
+    p.bf16_seconds = time_it(torch::kCPU, /*warmup=*/1, kTimings, run_bf16).wall_median() / static_cast<double>(calls);
   }
   return list;
 }
@@ -273,10 +286,11 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
     });
   }
   {
-    // The peak in the precision the model's products run in.
-    const auto opts =
-        torch::TensorOptions().device(d).dtype(precision == Precision::Bf16 ? torch::kBFloat16 : torch::kFloat);
-    m.matmul_dtype = precision == Precision::Bf16 ? "bf16" : "fp32";
+    // The peak in the precision the model's products run in on a GPU; on a CPU the float32 one
+    // (sgemm), whatever the products' precision, so that the two precisions' shares compare.
+    const bool bf16_peak = precision == Precision::Bf16 && d.is_cuda();
+    const auto opts = torch::TensorOptions().device(d).dtype(bf16_peak ? torch::kBFloat16 : torch::kFloat);
+    m.matmul_dtype = bf16_peak ? "bf16" : "fp32";
     const auto a = torch::randn({o.matmul_size, o.matmul_size}, opts);
     const auto b = torch::randn({o.matmul_size, o.matmul_size}, opts);
     auto c = torch::empty({o.matmul_size, o.matmul_size}, opts);
@@ -383,11 +397,17 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
                       {"seconds_median", p.seconds},
                       {"flop_per_s", rate},
                       {"fraction_of_thread_peak", rate / share}});
+      if (p.bf16_seconds > 0) {
+        list.back()["bf16_seconds_median"] = p.bf16_seconds;
+        list.back()["bf16_speedup"] = p.seconds / p.bf16_seconds;
+      }
     }
-    j["token_products"] = {{"kernel", "small_gemm, one thread"},
-                           {"thread_peak_flop_per_s", share},
-                           {"note", "the transformer's products at one training slice's shapes, each timed alone"},
-                           {"products", list}};
+    j["token_products"] = {
+        {"kernel", "small_gemm, one thread"},
+        {"bf16_kernel", std::string("bf16_gemm, form ") + bf16_gemm_form_name(bf16_gemm_best_form())},
+        {"thread_peak_flop_per_s", share},
+        {"note", "the transformer's products at one training slice's shapes, each timed alone"},
+        {"products", list}};
   }
   j["peak_memory_bytes"] = m.peak_memory_bytes;
   j["peak_memory_source"] = m.peak_memory_source;

@@ -47,11 +47,15 @@ struct ProductTiming {
   int64_t m = 0, n = 0, k = 0;
   bool trans_a = false;  // a weight's gradient: the reduction runs over the tokens
   double seconds = 0;    // median of one call
+  // The same product with bfloat16 operands (kernels/bf16_gemm.h, B packed in every call, as the
+  // model does), where the CPU has AMX tiles; 0 otherwise.
+  double bf16_seconds = 0;
 };
 
 // The transformer's token products at the shapes one ray slice of a training step runs (m = the
 // slice's tokens, rays / workers x (samples + 1)): the projections and feed-forward layers forward
-// and their weight gradients, each timed alone on the calling thread (kernels/small_gemm.h).
+// and their weight gradients, each timed alone on the calling thread (kernels/small_gemm.h), and
+// with bfloat16 operands where the CPU has the instructions.
 std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, int64_t tokens);
 
 struct BenchMeasurements {

@@ -8,6 +8,9 @@
 
 #include "model/able_nerf.h"
 #include "model/compute.h"
+#include "kernels/bf16_gemm.h"
+#include "kernels/token_product.h"
+#include "util/errors.h"
 #include "kernels/cpu_parallel.h"
 #include "model/tonemap.h"
 #include "test_util.h"
@@ -361,6 +364,64 @@ TEST(AbleNerf, InferenceInPiecesEqualsSmallBatches) {
     EXPECT_GT((whole.rgb_fine - whole.rgb_fine.roll(1, 0)).abs().max().item<double>(), 1e-3);
   }
   model->set_compute(Compute{});
+}
+
+// compute.precision = "bf16" on a CPU: taken where the CPU has AMX tiles, else refused naming the
+// key (or, for a run's saved config, fallen back to fp32); the scope switches the token products.
+TEST(Compute, Bf16OnACpuIsTakenWithTilesAndRefusedWithout) {
+  ComputeConfig cc;
+  cc.precision = Precision::Bf16;
+  const torch::Device cpu(torch::kCPU);
+  if (cpu_has_bf16_products()) {
+    EXPECT_EQ(Compute::from_config(cc, cpu, "run.toml").precision, Precision::Bf16);
+    {
+      const AutocastScope scope(Precision::Bf16, cpu);
+      EXPECT_TRUE(token_products_bf16());
+    }
+    EXPECT_FALSE(token_products_bf16());
+  } else {
+    try {
+      (void)Compute::from_config(cc, cpu, "run.toml");
+      ADD_FAILURE() << "bf16 taken on a CPU without AMX";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("compute.precision"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("run.toml"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(AutocastScope(Precision::Bf16, cpu), std::invalid_argument);
+  }
+  EXPECT_EQ(Compute::from_config(cc, cpu, "run.toml", /*bf16_falls_back=*/true).precision,
+            cpu_has_bf16_products() ? Precision::Bf16 : Precision::Fp32);
+}
+
+// The whole model in bf16 on the ray split's threads: near its fp32 output, not equal to it, and
+// its gradients near fp32's.
+TEST(AbleNerf, Bf16ForwardAndBackwardStayNearFp32) {
+  if (!cpu_has_bf16_products()) GTEST_SKIP() << "no AMX bfloat16 tiles on this CPU";
+  const test::IntraOpThreads threads(2);
+  torch::manual_seed(11);
+  AbleNerf model(tiny());
+  const Rays rays = some_rays(600);
+  std::vector<torch::Tensor> rgb, grads;
+  for (const Precision p : {Precision::Fp32, Precision::Bf16}) {
+    Compute c;
+    c.precision = p;
+    model->set_compute(c);
+    model->zero_grad();
+    const auto out = model->forward(rays, 2.0, 6.0, ForwardOptions{});
+    out.rgb_fine.square().sum().backward();
+    rgb.push_back(out.rgb_fine.detach());
+    std::vector<torch::Tensor> g;
+    for (const auto& param : model->parameters())
+      if (param.grad().defined()) g.push_back(param.grad().flatten());
+    grads.push_back(torch::cat(g));
+  }
+  model->set_compute(Compute{});
+  const double diff = (rgb[1] - rgb[0]).abs().max().item<double>();
+  EXPECT_GT(diff, 1e-6) << "the bf16 products were not taken";
+  EXPECT_LT(diff, 0.02);
+  const double gscale = grads[0].abs().max().item<double>();
+  EXPECT_LT((grads[1] - grads[0]).abs().max().item<double>(), 0.05 * gscale);
+  EXPECT_GT(torch::cosine_similarity(grads[0], grads[1], 0).item<double>(), 0.999);
 }
 
 }  // namespace
