@@ -91,13 +91,16 @@ void gemm_reference_at(int64_t m, const float* a, int64_t lda, const Bf16Operand
 }
 
 #ifdef ABLENERF_HAVE_AVX2_FORM
+// The first `left` of 16 lanes (none when left <= 0, all when left >= 16).
+ABLENERF_TARGET_AMX ABLENERF_ALWAYS_INLINE __mmask16 lanes_mask(int64_t left) {
+  return left >= 16 ? __mmask16(0xffff) : left <= 0 ? __mmask16(0) : __mmask16((1u << left) - 1);
+}
+
 // Row i of A (k floats) as bfloat16 into `out` (kp values, zeros after k), 32 at a time.
 ABLENERF_TARGET_AMX ABLENERF_ALWAYS_INLINE void convert_row(const float* a, int64_t k, int64_t kp, uint16_t* out) {
   for (int64_t p = 0; p < kp; p += 32) {
     const int64_t left = k - p;
-    const __mmask16 lo = left >= 16 ? __mmask16(0xffff) : left <= 0 ? __mmask16(0) : __mmask16((1u << left) - 1);
-    const __mmask16 hi =
-        left >= 32 ? __mmask16(0xffff) : left <= 16 ? __mmask16(0) : __mmask16((1u << (left - 16)) - 1);
+    const __mmask16 lo = lanes_mask(left), hi = lanes_mask(left - 16);
     const __m512 x0 = _mm512_maskz_loadu_ps(lo, a + p), x1 = _mm512_maskz_loadu_ps(hi, a + p + 16);
     _mm512_store_si512(out + p, reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(x1, x0)));
   }
@@ -168,8 +171,7 @@ ABLENERF_TARGET_AMX void amx_rows(const uint16_t* arows, int64_t kp, const Bf16O
       std::memcpy(c + r * ldc, cblock + r * np, static_cast<size_t>(n) * sizeof(float));
 }
 
-ABLENERF_TARGET_AMX void gemm_amx(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c,
-                                  int64_t ldc) {
+ABLENERF_TARGET_AMX void gemm_amx(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
   const int64_t k = b.k(), kp = b.k_padded();
   configure_tiles();
   thread_local AlignedBuffer<uint16_t> a_buffer;
@@ -185,10 +187,6 @@ ABLENERF_TARGET_AMX void gemm_amx(int64_t m, const float* a, int64_t lda, const 
     amx_rows(arows, kp, b, rows, c + i0 * ldc, ldc, cblock);
   }
   _tile_release();
-}
-
-ABLENERF_TARGET_AMX ABLENERF_ALWAYS_INLINE __mmask16 lanes_mask(int64_t left) {
-  return left >= 16 ? __mmask16(0xffff) : left <= 0 ? __mmask16(0) : __mmask16((1u << left) - 1);
 }
 
 // 16 vectors of 16 32-bit values transposed in registers: r[i] lane j <- r[j] lane i.
@@ -259,9 +257,6 @@ ABLENERF_TARGET_AMX void gemm_amx_at(int64_t m, const float* a, int64_t lda, con
 // B = W^T: each row of W converted 32 values at a time, its 16 pairs scattered np apart).
 ABLENERF_TARGET_AMX void pack_vectors(const float* b, int64_t k, int64_t n, int64_t row_stride, int64_t col_stride,
                                       int64_t np, uint16_t* d) {
-  const auto mask_of = [](int64_t left) {
-    return left >= 16 ? __mmask16(0xffff) : left <= 0 ? __mmask16(0) : __mmask16((1u << left) - 1);
-  };
   if (col_stride == 1) {
     alignas(64) static const int16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
                                                   8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
@@ -270,7 +265,7 @@ ABLENERF_TARGET_AMX void pack_vectors(const float* b, int64_t k, int64_t n, int6
       const float* r0 = b + p * row_stride;
       const float* r1 = p + 1 < k ? r0 + row_stride : nullptr;
       for (int64_t j0 = 0; j0 < n; j0 += 16) {
-        const __mmask16 m = mask_of(n - j0);
+        const __mmask16 m = lanes_mask(n - j0);
         const __m512 x0 = _mm512_maskz_loadu_ps(m, r0 + j0);
         const __m512 x1 = r1 != nullptr ? _mm512_maskz_loadu_ps(m, r1 + j0) : _mm512_setzero_ps();
         const __m512i both = reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(x1, x0));
@@ -284,15 +279,15 @@ ABLENERF_TARGET_AMX void pack_vectors(const float* b, int64_t k, int64_t n, int6
   for (int64_t j = 0; j < n; ++j) {
     const float* w = b + j * col_stride;
     for (int64_t p0 = 0; p0 < k; p0 += 32) {
-      const __m512 x0 = _mm512_maskz_loadu_ps(mask_of(k - p0), w + p0);
-      const __m512 x1 = _mm512_maskz_loadu_ps(mask_of(k - p0 - 16), w + p0 + 16);
+      const __m512 x0 = _mm512_maskz_loadu_ps(lanes_mask(k - p0), w + p0);
+      const __m512 x1 = _mm512_maskz_loadu_ps(lanes_mask(k - p0 - 16), w + p0 + 16);
       const __m512i pairs = reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(x1, x0));
       // Pair q = p0 / 2 + lane goes to d32[q * np + j]; pairs past k are zeros already.
-      const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(_mm512_add_epi32(lanes, _mm512_set1_epi32(
-                                                                                        static_cast<int>(p0 / 2))),
-                                                             _mm512_set1_epi32(static_cast<int>(np))),
-                                          _mm512_set1_epi32(static_cast<int>(j)));
-      _mm512_mask_i32scatter_epi32(d32, mask_of((k - p0 + 1) / 2), at, pairs, 4);
+      const __m512i at =
+          _mm512_add_epi32(_mm512_mullo_epi32(_mm512_add_epi32(lanes, _mm512_set1_epi32(static_cast<int>(p0 / 2))),
+                                              _mm512_set1_epi32(static_cast<int>(np))),
+                           _mm512_set1_epi32(static_cast<int>(j)));
+      _mm512_mask_i32scatter_epi32(d32, lanes_mask((k - p0 + 1) / 2), at, pairs, 4);
     }
   }
 }
@@ -326,7 +321,7 @@ const char* bf16_gemm_form_name(Bf16GemmForm form) {
 uint16_t bf16_bits(float x) {
   uint32_t u;
   std::memcpy(&u, &x, sizeof(u));
-  if ((u & 0x7f800000u) == 0) return static_cast<uint16_t>((u & 0x80000000u) >> 16);  // zero, subnormal
+  if ((u & 0x7f800000u) == 0) return static_cast<uint16_t>((u & 0x80000000u) >> 16);     // zero, subnormal
   if ((u & 0x7fffffffu) > 0x7f800000u) return static_cast<uint16_t>((u >> 16) | 0x40u);  // NaN, quiet
   u += 0x7fffu + ((u >> 16) & 1u);
   return static_cast<uint16_t>(u >> 16);

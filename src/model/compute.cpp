@@ -80,6 +80,7 @@ AutocastScope::~AutocastScope() {
 Compute Compute::from_config(const ComputeConfig& c, const torch::Device& device, const std::string& source,
                              bool bf16_falls_back) {
   Compute out{c.attention, c.precision, c.cpu_split};
+  if (out.precision == Precision::Auto) out.precision = bf16_available(device) ? Precision::Bf16 : Precision::Fp32;
   if (out.precision == Precision::Bf16 && !bf16_available(device)) {
     if (!bf16_falls_back) throw InputError(source, "compute.precision", bf16_unavailable(device) + "; use fp32");
     out.precision = Precision::Fp32;

@@ -10,7 +10,8 @@
 //  - the precision of the matrix products: "fp32", or "bf16": on CUDA autocast to bfloat16, on a
 //    CPU with AMX tiles the transformer's token products (the linear layers' and the block tails'
 //    forward and input-gradient products: kernels/token_product.h) with bfloat16 operands and
-//    float32 sums; the weights, the loss and the optimiser kept in fp32 either way;
+//    float32 sums; the weights, the loss and the optimiser kept in fp32 either way; or "auto" =
+//    bf16 where it runs (a CUDA device with LibTorch >= 2, a CPU with AMX), fp32 elsewhere;
 //  - how CPU threads share the work: "rays" = a slice of the rays per thread through the whole
 //    model (kernels/cpu_parallel.h), "ops" = threads only inside each op or product.
 // A model owns its Compute (AbleNerf::set_compute), so two models in one process (a benchmark's
@@ -30,9 +31,10 @@ struct Compute {
   Precision precision = Precision::Fp32;
   CpuSplit cpu_split = CpuSplit::Rays;
 
-  // A config's [compute] section for `device`. InputError naming `source` and compute.precision
-  // when bf16 cannot run on the device; with `bf16_falls_back` bf16 becomes fp32 there instead
-  // (a run trained in bf16 on a GPU still renders on a CPU).
+  // A config's [compute] section for `device`, "auto" resolved to fp32 or bf16 (a Compute holds
+  // one of those two). InputError naming `source` and compute.precision when bf16 cannot run on
+  // the device; with `bf16_falls_back` bf16 becomes fp32 there instead (a run trained in bf16 on a
+  // GPU still renders on a CPU).
   static Compute from_config(const ComputeConfig& c, const torch::Device& device, const std::string& source,
                              bool bf16_falls_back = false);
 };

@@ -6,14 +6,15 @@
 namespace ablenerf {
 
 enum class AttentionKernel { Fused, Plain };
-enum class Precision { Fp32, Bf16 };
+enum class Precision { Fp32, Bf16, Auto };
 enum class CpuSplit { Rays, Ops };
 
 template <>
 inline const EnumNames<AttentionKernel> kEnumNames<AttentionKernel>{{AttentionKernel::Fused, "fused"},
                                                                     {AttentionKernel::Plain, "plain"}};
 template <>
-inline const EnumNames<Precision> kEnumNames<Precision>{{Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}};
+inline const EnumNames<Precision> kEnumNames<Precision>{
+    {Precision::Fp32, "fp32"}, {Precision::Bf16, "bf16"}, {Precision::Auto, "auto"}};
 template <>
 inline const EnumNames<CpuSplit> kEnumNames<CpuSplit>{{CpuSplit::Rays, "rays"}, {CpuSplit::Ops, "ops"}};
 
@@ -21,7 +22,9 @@ struct ComputeConfig {
   static constexpr const char* kName = "compute";
   static constexpr int kOrder = 4;
 
-  Precision precision = Precision::Fp32;  // "fp32" | "bf16" (CUDA autocast; weights, loss, optimiser in fp32)
+  // "fp32" | "bf16" (CUDA autocast, or a CPU's AMX tiles for the token products; weights, loss,
+  // optimiser in fp32) | "auto" (bf16 where it runs, else fp32: model/compute.h)
+  Precision precision = Precision::Fp32;
   // "fused" (CPU: packed BLAS kernel and the fused block tail; CUDA: the project's ray-attention kernel where it
   // applies, else SDPA) | "plain" (explicit softmax)
   AttentionKernel attention = AttentionKernel::Fused;

@@ -252,7 +252,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   m.threads = at::get_num_threads();
   const auto& d = o.device;
   const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
-  const Precision precision = cfg.get<ComputeConfig>().precision;
+  const Precision precision = Compute::from_config(cfg.get<ComputeConfig>(), d, cfg.source).precision;
   // The trainer's own step (Trainer::step) on an in-memory split: the same rays, micro-batches,
   // loss, optimiser and (on CUDA) CUDA graph as `ablenerf train`.
   Config c = cfg;

@@ -131,6 +131,11 @@ void Trainer::build(const Split& train, const Intrinsics& k) {
   s.model = AbleNerf(config_.get<ModelConfig>(), s.scene, ndc);
   s.model->to(opts_.device);
   s.model->set_compute(Compute::from_config(config_.get<ComputeConfig>(), opts_.device, config_.source));
+  if (config_.get<ComputeConfig>().precision == Precision::Auto && s.leader && !opts_.quiet)
+    log_info(std::string("train: compute.precision \"auto\": ") +
+             (s.model->compute().precision == Precision::Bf16
+                  ? (opts_.device.is_cpu() ? "bf16 products on this CPU's AMX tiles" : "bf16 autocast")
+                  : "fp32 (bf16 needs a CPU with AMX tiles or a GPU)"));
   s.model->train();
   // Per-photo colour, camera refinement and appearance codes: one map, one correction and one code
   // per training photo, made before Adam sees the parameters.

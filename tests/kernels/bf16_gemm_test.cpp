@@ -40,7 +40,7 @@ TEST(Bf16Gemm, RoundingMatchesLibTorchAndItsEdges) {
   EXPECT_EQ(bits_of(std::numeric_limits<float>::max()), 0x7f80);  // rounds to infinity
   EXPECT_TRUE(std::isnan(bf16_round(std::numeric_limits<float>::quiet_NaN())));
   EXPECT_TRUE(std::isnan(bf16_round(from_bits(0x7f800001u))));  // a NaN whose payload would round away
-  EXPECT_EQ(bits_of(from_bits(0x00000001u)), 0x0000);            // subnormals to signed zero
+  EXPECT_EQ(bits_of(from_bits(0x00000001u)), 0x0000);           // subnormals to signed zero
   EXPECT_EQ(bits_of(from_bits(0x807fffffu)), 0x8000);
 }
 
@@ -81,8 +81,8 @@ void check(Bf16GemmForm form, const Shape& s, bool b_from_weight, uint64_t seed)
 }
 
 std::vector<Shape> shapes() {
-  return {{1, 1, 1},     {1, 32, 16},   {5, 3, 7},     {4, 32, 64},   {33, 32, 96},  {31, 33, 50},
-          {37, 48, 17},  {64, 96, 32},  {16, 64, 16},  {65, 64, 48},  {2, 130, 72},  {100, 17, 100},
+  return {{1, 1, 1},      {1, 32, 16},    {5, 3, 7},      {4, 32, 64},   {33, 32, 96}, {31, 33, 50},
+          {37, 48, 17},   {64, 96, 32},   {16, 64, 16},   {65, 64, 48},  {2, 130, 72}, {100, 17, 100},
           {2176, 32, 96}, {2176, 64, 32}, {2176, 96, 32}, {97, 192, 576}};
 }
 
@@ -143,14 +143,16 @@ TEST(Bf16Gemm, TransposedAMatchesTheRoundedProduct) {
 
 TEST(Bf16Gemm, EveryPackingFormGivesTheSameBits) {
   // Rows contiguous, columns contiguous (W^T) and neither, at odd sizes.
-  for (const auto& [k, n] : std::vector<std::pair<int64_t, int64_t>>{{1, 1}, {3, 5}, {32, 16}, {33, 17}, {96, 32}, {47, 70}}) {
+  for (const auto& [k, n] :
+       std::vector<std::pair<int64_t, int64_t>>{{1, 1}, {3, 5}, {32, 16}, {33, 17}, {96, 32}, {47, 70}}) {
     const auto b = test::seeded_randn({k * n * 2}, static_cast<uint64_t>(k * 100 + n)).to(torch::kFloat);
     for (const auto& [rs, cs] : std::vector<std::pair<int64_t, int64_t>>{{n, 1}, {1, k}, {2 * n, 2}}) {
       Bf16Operand want, got;
       want.pack(b.data_ptr<float>(), k, n, rs, cs, Bf16GemmForm::Reference);
       const size_t count = static_cast<size_t>(want.k_padded() * want.n_padded());
       for (size_t i = 0; i < count; ++i) {
-        const int64_t q = static_cast<int64_t>(i) / 2 / want.n_padded(), j = static_cast<int64_t>(i) / 2 % want.n_padded();
+        const int64_t q = static_cast<int64_t>(i) / 2 / want.n_padded(),
+                      j = static_cast<int64_t>(i) / 2 % want.n_padded();
         const int64_t p = 2 * q + static_cast<int64_t>(i % 2);
         const uint16_t expect = p < k && j < n ? bf16_bits(b[p * rs + j * cs].item<float>()) : 0;
         ASSERT_EQ(want.data()[i], expect) << "reference packing, k " << k << " n " << n << " index " << i;

@@ -79,12 +79,10 @@ TEST(TokenProduct, BlockTailInBf16StaysNearTheFloat32Reference) {
   const int64_t b = 16, l = 17, e = 32, f = 64;
   const double se = 1.0 / std::sqrt(double(e)), sf = 1.0 / std::sqrt(double(f));
   std::vector<torch::Tensor> inputs{
-      test::seeded_randn({b, l, e}, 1),         test::seeded_randn({b, l, e}, 2),
-      test::seeded_randn({e, e}, 3, se),        test::seeded_randn({e}, 4, 0.1),
-      test::seeded_randn({e}, 5, 0.2, 1.0),     test::seeded_randn({e}, 6, 0.1),
-      test::seeded_randn({f, e}, 7, se),        test::seeded_randn({f}, 8, 0.1),
-      test::seeded_randn({e, f}, 9, sf),        test::seeded_randn({e}, 10, 0.1),
-      test::seeded_randn({e}, 11, 0.2, 1.0),    test::seeded_randn({e}, 12, 0.1)};
+      test::seeded_randn({b, l, e}, 1),  test::seeded_randn({b, l, e}, 2),      test::seeded_randn({e, e}, 3, se),
+      test::seeded_randn({e}, 4, 0.1),   test::seeded_randn({e}, 5, 0.2, 1.0),  test::seeded_randn({e}, 6, 0.1),
+      test::seeded_randn({f, e}, 7, se), test::seeded_randn({f}, 8, 0.1),       test::seeded_randn({e, f}, 9, sf),
+      test::seeded_randn({e}, 10, 0.1),  test::seeded_randn({e}, 11, 0.2, 1.0), test::seeded_randn({e}, 12, 0.1)};
   const auto up = test::seeded_randn({b, l, e}, 13).to(torch::kFloat);
   const auto run = [&](int which) {
     std::vector<torch::Tensor> leaves;

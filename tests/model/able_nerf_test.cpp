@@ -367,7 +367,8 @@ TEST(AbleNerf, InferenceInPiecesEqualsSmallBatches) {
 }
 
 // compute.precision = "bf16" on a CPU: taken where the CPU has AMX tiles, else refused naming the
-// key (or, for a run's saved config, fallen back to fp32); the scope switches the token products.
+// key (or, for a run's saved config, fallen back to fp32); "auto" resolved to whichever runs; the
+// scope switches the token products.
 TEST(Compute, Bf16OnACpuIsTakenWithTilesAndRefusedWithout) {
   ComputeConfig cc;
   cc.precision = Precision::Bf16;
@@ -390,6 +391,10 @@ TEST(Compute, Bf16OnACpuIsTakenWithTilesAndRefusedWithout) {
     EXPECT_THROW(AutocastScope(Precision::Bf16, cpu), std::invalid_argument);
   }
   EXPECT_EQ(Compute::from_config(cc, cpu, "run.toml", /*bf16_falls_back=*/true).precision,
+            cpu_has_bf16_products() ? Precision::Bf16 : Precision::Fp32);
+  // "auto": bf16 where it runs, fp32 elsewhere, never refused.
+  cc.precision = Precision::Auto;
+  EXPECT_EQ(Compute::from_config(cc, cpu, "run.toml").precision,
             cpu_has_bf16_products() ? Precision::Bf16 : Precision::Fp32);
 }
 
