@@ -62,29 +62,17 @@ float bits_value(uint16_t h) {
   return x;
 }
 
-void gemm_reference(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
+// C = bf16(op(A)) B with op(A)(i, p) = a[i * si + p * sp]: A (si = lda, sp = 1) or A^T (si = 1,
+// sp = lda).
+void gemm_reference(int64_t m, const float* a, int64_t si, int64_t sp, const Bf16Operand& b, float* c, int64_t ldc) {
   const int64_t k = b.k(), n = b.n(), np = b.n_padded();
   const uint16_t* d = b.data();
   std::vector<float> row(static_cast<size_t>(k));
   for (int64_t i = 0; i < m; ++i) {
-    for (int64_t p = 0; p < k; ++p) row[p] = bf16_round(a[i * lda + p]);
+    for (int64_t p = 0; p < k; ++p) row[p] = bf16_round(a[i * si + p * sp]);
     for (int64_t j = 0; j < n; ++j) {
       float s = 0.f;
       for (int64_t p = 0; p < k; ++p) s += row[p] * bits_value(d[((p / 2) * np + j) * 2 + p % 2]);
-      c[i * ldc + j] = s;
-    }
-  }
-}
-
-void gemm_reference_at(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
-  const int64_t k = b.k(), n = b.n(), np = b.n_padded();
-  const uint16_t* d = b.data();
-  std::vector<float> column(static_cast<size_t>(k));
-  for (int64_t i = 0; i < m; ++i) {
-    for (int64_t p = 0; p < k; ++p) column[p] = bf16_round(a[p * lda + i]);
-    for (int64_t j = 0; j < n; ++j) {
-      float s = 0.f;
-      for (int64_t p = 0; p < k; ++p) s += column[p] * bits_value(d[((p / 2) * np + j) * 2 + p % 2]);
       c[i * ldc + j] = s;
     }
   }
@@ -370,7 +358,7 @@ void bf16_gemm_in(Bf16GemmForm form, int64_t m, const float* a, int64_t lda, con
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (form == Bf16GemmForm::Amx) return gemm_amx(m, a, lda, b, c, ldc);
 #endif
-  gemm_reference(m, a, lda, b, c, ldc);
+  gemm_reference(m, a, lda, 1, b, c, ldc);
 }
 
 void bf16_gemm(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
@@ -384,7 +372,7 @@ void bf16_gemm_at_in(Bf16GemmForm form, int64_t m, const float* a, int64_t lda, 
 #ifdef ABLENERF_HAVE_AVX2_FORM
   if (form == Bf16GemmForm::Amx) return gemm_amx_at(m, a, lda, b, c, ldc);
 #endif
-  gemm_reference_at(m, a, lda, b, c, ldc);
+  gemm_reference(m, a, 1, lda, b, c, ldc);
 }
 
 void bf16_gemm_at(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
