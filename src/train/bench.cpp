@@ -253,6 +253,7 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   const auto& d = o.device;
   const int64_t render_rays = o.render_rays > 0 ? o.render_rays : o.train_rays;
   const Precision precision = Compute::from_config(cfg.get<ComputeConfig>(), d, cfg.source).precision;
+  m.precision = name_of(precision);
   // The trainer's own step (Trainer::step) on an in-memory split: the same rays, micro-batches,
   // loss, optimiser and (on CUDA) CUDA graph as `ablenerf train`.
   Config c = cfg;
@@ -363,7 +364,7 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   j["flops_per_ray"] = {{"forward", f_render.forward},
                         {"train", f.train()},
                         {"counted", "matrix products only (GEMMs + attention); element-wise ops excluded"}};
-  j["precision"] = name_of(cfg.get<ComputeConfig>().precision);
+  j["precision"] = m.precision;
   j["attention"] = name_of(cfg.get<ComputeConfig>().attention);
   j["cpu_split"] = name_of(cfg.get<ComputeConfig>().cpu_split);
   j["device_step"] = m.device_step;

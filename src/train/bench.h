@@ -67,6 +67,7 @@ struct BenchMeasurements {
   int64_t threads = 1;  // intra-op threads used
   int64_t parameters = 0;
   std::string matmul_dtype;  // dtype of the peak-measuring product ("fp32" | "bf16")
+  std::string precision;     // the products' precision the model ran in ("auto" resolved)
   bool device_step = false;  // the trainer ran its device form (CUDA, one process)
   bool graph = false;        // ... captured as a CUDA graph
   // The operator trace of BenchOptions::trace_steps training steps (Chrome trace JSON, one "X"
