@@ -159,15 +159,34 @@ ABLENERF_TARGET_AMX void amx_rows(const uint16_t* arows, int64_t kp, const Bf16O
       std::memcpy(c + r * ldc, cblock + r * np, static_cast<size_t>(n) * sizeof(float));
 }
 
-ABLENERF_TARGET_AMX void gemm_amx(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
-  const int64_t k = b.k(), kp = b.k_padded();
-  configure_tiles();
+// The two thread-local buffers a product's blocks of 32 rows go through: A's rows in bfloat16
+// (32 x kp) and a block of C (32 x np).
+struct AmxScratch {
+  uint16_t* arows;
+  float* cblock;
+};
+AmxScratch amx_scratch(int64_t kp, int64_t np) {
   thread_local AlignedBuffer<uint16_t> a_buffer;
   thread_local AlignedFloats c_buffer;
   a_buffer.resize(static_cast<size_t>(32 * kp));
-  c_buffer.resize(static_cast<size_t>(32 * b.n_padded()));
-  uint16_t* arows = a_buffer.data();
-  float* cblock = c_buffer.data();
+  c_buffer.resize(static_cast<size_t>(32 * np));
+  return {a_buffer.data(), c_buffer.data()};
+}
+
+// Two rows' 16 bfloat16 values each, as VCVTNE2PS2BF16 leaves them (row 0 in the low half, row 1
+// in the high), interleaved into 16 pairs (row 0's value, row 1's value): the tiles' pair layout.
+ABLENERF_TARGET_AMX ABLENERF_ALWAYS_INLINE __m512i interleave_pairs(__m512bh rows) {
+  alignas(64) static const int16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
+                                                8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
+  return _mm512_permutexvar_epi16(_mm512_load_si512(order), reinterpret_cast<__m512i>(rows));
+}
+
+ABLENERF_TARGET_AMX void gemm_amx(int64_t m, const float* a, int64_t lda, const Bf16Operand& b, float* c, int64_t ldc) {
+  const int64_t k = b.k(), kp = b.k_padded();
+  configure_tiles();
+  const AmxScratch scratch = amx_scratch(kp, b.n_padded());
+  uint16_t* arows = scratch.arows;
+  float* cblock = scratch.cblock;
   for (int64_t i0 = 0; i0 < m; i0 += 32) {
     const int64_t rows = std::min<int64_t>(32, m - i0);
     for (int64_t r = 0; r < rows; ++r) convert_row(a + (i0 + r) * lda, k, kp, arows + r * kp);
@@ -210,15 +229,9 @@ ABLENERF_TARGET_AMX void gemm_amx_at(int64_t m, const float* a, int64_t lda, con
                                      int64_t ldc) {
   const int64_t k = b.k(), kp = b.k_padded();
   configure_tiles();
-  thread_local AlignedBuffer<uint16_t> a_buffer;
-  thread_local AlignedFloats c_buffer;
-  a_buffer.resize(static_cast<size_t>(32 * kp));
-  c_buffer.resize(static_cast<size_t>(32 * b.n_padded()));
-  uint16_t* arows = a_buffer.data();
-  float* cblock = c_buffer.data();
-  alignas(64) static const int16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
-                                                8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-  const __m512i interleave = _mm512_load_si512(order);
+  const AmxScratch scratch = amx_scratch(kp, b.n_padded());
+  uint16_t* arows = scratch.arows;
+  float* cblock = scratch.cblock;
   for (int64_t i0 = 0; i0 < m; i0 += 32) {
     const int64_t rows = std::min<int64_t>(32, m - i0);
     for (int64_t h = 0; h < 32; h += 16) {
@@ -229,7 +242,7 @@ ABLENERF_TARGET_AMX void gemm_amx_at(int64_t m, const float* a, int64_t lda, con
           const int64_t p = p0 + 2 * q;
           const __m512 x0 = p < k ? _mm512_maskz_loadu_ps(cols, a + p * lda + i0 + h) : _mm512_setzero_ps();
           const __m512 x1 = p + 1 < k ? _mm512_maskz_loadu_ps(cols, a + (p + 1) * lda + i0 + h) : _mm512_setzero_ps();
-          u[q] = _mm512_permutexvar_epi16(interleave, reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(x1, x0)));
+          u[q] = interleave_pairs(_mm512_cvtne2ps_pbh(x1, x0));
         }
         transpose16(u);
         for (int r = 0; r < 16; ++r) _mm512_store_si512(arows + (h + r) * kp + p0, u[r]);
@@ -246,9 +259,6 @@ ABLENERF_TARGET_AMX void gemm_amx_at(int64_t m, const float* a, int64_t lda, con
 ABLENERF_TARGET_AMX void pack_vectors(const float* b, int64_t k, int64_t n, int64_t row_stride, int64_t col_stride,
                                       int64_t np, uint16_t* d) {
   if (col_stride == 1) {
-    alignas(64) static const int16_t order[32] = {0, 16, 1, 17, 2,  18, 3,  19, 4,  20, 5,  21, 6,  22, 7,  23,
-                                                  8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31};
-    const __m512i interleave = _mm512_load_si512(order);
     for (int64_t p = 0; p < k; p += 2) {
       const float* r0 = b + p * row_stride;
       const float* r1 = p + 1 < k ? r0 + row_stride : nullptr;
@@ -256,8 +266,7 @@ ABLENERF_TARGET_AMX void pack_vectors(const float* b, int64_t k, int64_t n, int6
         const __mmask16 m = lanes_mask(n - j0);
         const __m512 x0 = _mm512_maskz_loadu_ps(m, r0 + j0);
         const __m512 x1 = r1 != nullptr ? _mm512_maskz_loadu_ps(m, r1 + j0) : _mm512_setzero_ps();
-        const __m512i both = reinterpret_cast<__m512i>(_mm512_cvtne2ps_pbh(x1, x0));
-        _mm512_store_si512(d + ((p / 2) * np + j0) * 2, _mm512_permutexvar_epi16(interleave, both));
+        _mm512_store_si512(d + ((p / 2) * np + j0) * 2, interleave_pairs(_mm512_cvtne2ps_pbh(x1, x0)));
       }
     }
     return;
