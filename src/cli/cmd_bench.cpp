@@ -43,7 +43,8 @@ void setup(CLI::App& app) {
   app.add_option("--trace", a->trace,
                  "After the timed steps, run --steps more under LibTorch's profiler: write their operator trace "
                  "(Chrome trace JSON, for Perfetto) to this file and add the ops of largest self time and the time of "
-                 "each of the model's stages to the report");
+                 "each of the model's stages to the report; on a CPU also --steps rendering forwards, their trace "
+                 "beside it as NAME.render.json");
   app.add_flag("--compare", a->compare,
                "Also measure the same model with every fast path off (compute.precision=fp32, "
                "compute.attention=plain, compute.cpu_split=ops, train.graph=false) in this run, and report the ratios");
@@ -89,6 +90,15 @@ void setup(CLI::App& app) {
                   "the device's kernels, copies and fills by their GPU time"
                 : "profiled steps, run after the timed ones; the calling thread's ops only (with the CPU ray split: "
                   "the first slice's forward/backward and the rest of the step)";
+        if (!m.render_trace_json.empty()) {
+          const fs::path file(a->trace);
+          const auto render_file = file.parent_path() / (file.stem().string() + ".render" + file.extension().string());
+          write_file_atomic(render_file.string(), m.render_trace_json);
+          report["trace"]["render"] = trace_summary(m.render_trace_json, o.trace_steps, kTraceTopOps);
+          report["trace"]["render"]["file"] = render_file.string();
+          report["trace"]["render"]["note"] =
+              "profiled rendering forwards (one chunk each), run after the timed ones; the calling thread's ops only";
+        }
       }
       std::cout << report.dump(2) << std::endl;
       return;

@@ -163,30 +163,41 @@ inline void warm_level(const float* table, const HashGridShape& s, int level, in
   LevelStream(table + int64_t{level} * s.table_size * 2, s, level, points, 1).finish();
 }
 
-// Vertex k's rows and trilinear weights for the 16 points (hash_grid_corners' order and products).
-ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void vertex(const Cells& c, int k, const Addressing& a, __m512i& row,
-                                                          __m512& weight) {
-  const __m512i one_i = _mm512_set1_epi32(1);
-  const __m512 one = _mm512_set1_ps(1.f);
-  __m512i v[3];
-  __m512 w[3];
-  for (int d = 0; d < 3; ++d) {
-    const bool bit = ((k >> d) & 1) != 0;
-    v[d] = bit ? _mm512_add_epi32(c.cell[d], one_i) : c.cell[d];
-    w[d] = bit ? c.frac[d] : _mm512_sub_ps(one, c.frac[d]);
+// The rows and trilinear weights of 16 points' eight vertices (hash_grid_corners' order and
+// products): each axis's two row terms and two weights formed once, so that a vertex costs one sum
+// (dense level) or two exclusive ors (hashed level) and one product. The terms wrap modulo 2^32
+// as hash_grid_row's products do, (c + 1) p = c p + p, so the rows are the same integers.
+struct Vertices {
+  __m512i term[3][2];
+  __m512 weight_xy[4], weight_z[2];
+  bool dense;
+  __m512i mask;
+
+  ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE Vertices(const Cells& c, const Addressing& a) : dense(a.dense) {
+    const __m512i one_i = _mm512_set1_epi32(1);
+    const __m512 one = _mm512_set1_ps(1.f);
+    __m512 w[3][2];
+    for (int d = 0; d < 3; ++d) w[d][0] = _mm512_sub_ps(one, c.frac[d]), w[d][1] = c.frac[d];
+    for (int k = 0; k < 4; ++k) weight_xy[k] = _mm512_mul_ps(w[0][k & 1], w[1][k >> 1]);
+    weight_z[0] = w[2][0], weight_z[1] = w[2][1];
+    // Dense: x + side (y + side z); hashed: x ^ y pY ^ z pZ, masked to the table.
+    const uint32_t side = a.side;
+    const uint32_t factor[3] = {1u, dense ? side : kHashPrimeY, dense ? side * side : kHashPrimeZ};
+    for (int d = 0; d < 3; ++d) {
+      const __m512i f = _mm512_set1_epi32(static_cast<int>(factor[d]));
+      term[d][0] = d == 0 ? c.cell[0] : _mm512_mullo_epi32(c.cell[d], f);
+      term[d][1] = _mm512_add_epi32(term[d][0], d == 0 ? one_i : f);
+    }
+    mask = _mm512_set1_epi32(static_cast<int>(a.mask));
   }
-  weight = _mm512_mul_ps(_mm512_mul_ps(w[0], w[1]), w[2]);
-  if (a.dense) {
-    const __m512i side = _mm512_set1_epi32(static_cast<int>(a.side));
-    row = _mm512_add_epi32(v[0], _mm512_mullo_epi32(side, _mm512_add_epi32(v[1], _mm512_mullo_epi32(side, v[2]))));
-  } else {
-    const __m512i py = _mm512_set1_epi32(static_cast<int>(kHashPrimeY)),
-                  pz = _mm512_set1_epi32(static_cast<int>(kHashPrimeZ));
-    row = _mm512_and_si512(
-        _mm512_xor_si512(_mm512_xor_si512(v[0], _mm512_mullo_epi32(v[1], py)), _mm512_mullo_epi32(v[2], pz)),
-        _mm512_set1_epi32(static_cast<int>(a.mask)));
+  // Vertex k (bit d of k: the cell's upper corner along axis d).
+  ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void at(int k, __m512i& row, __m512& weight) const {
+    const int bx = k & 1, by = (k >> 1) & 1, bz = (k >> 2) & 1;
+    weight = _mm512_mul_ps(weight_xy[k & 3], weight_z[bz]);
+    row = dense ? _mm512_add_epi32(term[0][bx], _mm512_add_epi32(term[1][by], term[2][bz]))
+                : _mm512_and_si512(_mm512_xor_si512(_mm512_xor_si512(term[0][bx], term[1][by]), term[2][bz]), mask);
   }
-}
+};
 
 // Lanes 0-7 and 8-15 of a weight, each twice: beside the two floats of a row.
 ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 pairs_low(__m512 w) {
@@ -214,11 +225,11 @@ ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int
   int64_t i = lo;
   for (; i + kLanes <= hi; i += kLanes) {
     next.advance();
-    const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
+    const Vertices corners(cells_of(positions + 3 * i, s.resolution[level]), a);
     for (int k = 0; k < 8; ++k) {
       __m512i row;
       __m512 w;
-      vertex(c, k, a, row, w);
+      corners.at(k, row, w);
       _mm512_store_si512(rows[k], row);
       _mm512_store_ps(weights[k], w);
     }
@@ -232,6 +243,44 @@ ABLENERF_TARGET_AVX512 void gather_level(const float* positions, int64_t lo, int
       if (scales != nullptr) acc = _mm_mul_ps(acc, _mm_set1_ps(scales[(i + p) * s.levels + level]));
       _mm_store_sd(reinterpret_cast<double*>(out + ((i + p) * s.levels + level) * 2), _mm_castps_pd(acc));
     }
+  }
+  next.finish();
+  forward_level<2>(positions, i, hi, level_rows, s, level, 2, scales, out);  // the last < 16 points
+}
+
+// The same with the rows read by vector gathers (HashGridReads::Gathers): each vertex's 16 rows
+// (8 bytes each) in two 64-bit gathers of 8 points, multiplied by the weights beside them and summed
+// in vertex order: the same products and sums as gather_level's, so the same bits.
+ABLENERF_TARGET_AVX512 void gather_level_vector(const float* positions, int64_t lo, int64_t hi, const float* level_rows,
+                                                const HashGridShape& s, int level, LevelStream next,
+                                                const float* scales, float* out) {
+  const Addressing a(s, level);
+  const auto* rows64 = reinterpret_cast<const long long*>(level_rows);
+  const __m256i stride = point_stride(s.levels);
+  const __m512i scale_stride = _mm512_mullo_epi32(
+      _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15), _mm512_set1_epi32(s.levels));
+  int64_t i = lo;
+  for (; i + kLanes <= hi; i += kLanes) {
+    next.advance();
+    const Vertices corners(cells_of(positions + 3 * i, s.resolution[level]), a);
+    __m512 acc_low = _mm512_setzero_ps(), acc_high = _mm512_setzero_ps();
+    for (int k = 0; k < 8; ++k) {
+      __m512i row;
+      __m512 w;
+      corners.at(k, row, w);
+      const __m512 r_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(_mm512_castsi512_si256(row), rows64, 8));
+      const __m512 r_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(_mm512_extracti64x4_epi64(row, 1), rows64, 8));
+      acc_low = _mm512_fmadd_ps(pairs_low(w), r_low, acc_low);
+      acc_high = _mm512_fmadd_ps(pairs_high(w), r_high, acc_high);
+    }
+    if (scales != nullptr) {
+      const __m512 sc = _mm512_i32gather_ps(scale_stride, scales + i * s.levels + level, 4);
+      acc_low = _mm512_mul_ps(acc_low, pairs_low(sc));
+      acc_high = _mm512_mul_ps(acc_high, pairs_high(sc));
+    }
+    auto* o = reinterpret_cast<long long*>(out + (i * s.levels + level) * 2);
+    _mm512_i32scatter_epi64(o, stride, _mm512_castps_si512(acc_low), 8);
+    _mm512_i32scatter_epi64(o + 8 * int64_t{s.levels}, stride, _mm512_castps_si512(acc_high), 8);
   }
   next.finish();
   forward_level<2>(positions, i, hi, level_rows, s, level, 2, scales, out);  // the last < 16 points
@@ -251,7 +300,7 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
   int64_t i = 0;
   for (; i + kLanes <= n; i += kLanes) {
     next.advance();
-    const Cells c = cells_of(positions + 3 * i, s.resolution[level]);
+    const Vertices corners(cells_of(positions + 3 * i, s.resolution[level]), a);
     const auto* g = reinterpret_cast<const long long*>(grad_out + (i * s.levels + level) * 2);
     __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
     __m512 g_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g + 8 * int64_t{s.levels}, 8));
@@ -264,7 +313,7 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
     for (int k = 0; k < 8; ++k) {
       __m512i row;
       __m512 w;
-      vertex(c, k, a, row, w);
+      corners.at(k, row, w);
       _mm512_store_si512(rows[k], row);
       _mm512_store_ps(products[k], _mm512_mul_ps(pairs_low(w), g_low));
       _mm512_store_ps(products[k] + kLanes, _mm512_mul_ps(pairs_high(w), g_high));
@@ -297,8 +346,17 @@ bool vector_loops(CpuVectorForm form, int64_t features) {
 
 }  // namespace
 
+HashGridReads hash_grid_best_reads() {
+#ifdef ABLENERF_HAVE_AVX2_FORM
+  static const HashGridReads best = __builtin_cpu_is("intel") ? HashGridReads::Gathers : HashGridReads::Loads;
+  return best;
+#else
+  return HashGridReads::Loads;
+#endif
+}
+
 void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
-                              const HashGridShape& s, const float* scales, float* out) {
+                              const HashGridShape& s, const float* scales, float* out, HashGridReads reads) {
   if (!cpu_vector_form_available(form)) throw std::invalid_argument("hash grid: AVX-512 form on a CPU without it");
   const int64_t features = s.features, rows = s.table_size;
   const bool vector = vector_loops(form, features);
@@ -310,8 +368,11 @@ void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_
 #ifdef ABLENERF_HAVE_AVX2_FORM
         if (vector) {
           if (l == 0) hash_grid_avx512::warm_level(table, s, l, hi - lo);
-          hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l,
-                                         hash_grid_avx512::next_level_stream(table, s, l, hi - lo), scales, out);
+          const auto next = hash_grid_avx512::next_level_stream(table, s, l, hi - lo);
+          if (reads == HashGridReads::Gathers)
+            hash_grid_avx512::gather_level_vector(positions, lo, hi, level_rows, s, l, next, scales, out);
+          else
+            hash_grid_avx512::gather_level(positions, lo, hi, level_rows, s, l, next, scales, out);
           continue;
         }
 #endif

@@ -34,13 +34,23 @@ void hash_grid_backward_cpu(const float* positions, int64_t n, const float* grad
 void hash_grid_backward_positions_cpu(const float* positions, int64_t n, const float* grad_out, const float* table,
                                       const HashGridShape& s, const float* scales, float* grad_positions);
 
+// How the AVX-512 form's gather reads a level's rows: one 64-bit vector gather per 8 points and
+// vertex (Gathers), or one 8-byte load per point and vertex (Loads). Both form the same products and
+// sums in the same order, so their outputs are the same bits. Gathers took 0.65x the time of loads
+// on an Intel Sapphire Rapids core; loads 0.85x the time of gathers on an AMD Zen 4 core, whose
+// gathers are microcoded (docs/benchmarks/history.md, "The grid's rows by vector gathers on Intel
+// cores"). The best: Gathers on an Intel CPU, Loads on any other.
+enum class HashGridReads { Loads, Gathers };
+HashGridReads hash_grid_best_reads();
+
 // The instruction forms of the table's gather and scatter: AVX-512 (16 points at a time: their cells,
-// rows and trilinear weights computed as vectors, the rows read with vector gathers; for 2 floats
+// rows and trilinear weights computed as vectors, the rows read as HashGridReads says; for 2 floats
 // per row, the presets' width, else as Scalar) and the scalar loops every x86-64 CPU runs. The forms
 // agree up to the rounding of a fused multiply-add in the forward; the scatter adds the same
 // products in the same order (each point's 8 vertices in turn), so its sums are the same bits.
 void hash_grid_forward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* table,
-                              const HashGridShape& s, const float* scales, float* out);
+                              const HashGridShape& s, const float* scales, float* out,
+                              HashGridReads reads = hash_grid_best_reads());
 void hash_grid_backward_cpu_in(CpuVectorForm form, const float* positions, int64_t n, const float* grad_out,
                                const HashGridShape& s, const float* scales, float* grad_table);
 

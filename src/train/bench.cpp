@@ -278,13 +278,22 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
   {
     const auto rays = bench_rays(render_rays, o.seed + 1, d);
     model->eval();
-    m.render = time_it(d, o.warmup, o.steps, [&] {
+    const auto render = [&] {
       torch::InferenceMode guard;
       ForwardOptions fo;
       fo.coarse.colour = false;  // as the renderer: an image needs only the fine colour
       const auto out = model->forward(rays, o.near, o.far, fo);
       (void)out;
-    });
+    };
+    m.render = time_it(d, o.warmup, o.steps, render);
+    if (o.trace_steps > 0 && !d.is_cuda()) {
+      std::ostringstream trace;
+      {
+        torch::autograd::profiler::RecordProfile record(trace);
+        for (int64_t i = 0; i < o.trace_steps; ++i) render();
+      }
+      m.render_trace_json = trace.str();
+    }
   }
   {
     // The peak in the precision the model's products run in on a GPU; on a CPU the float32 one

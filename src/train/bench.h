@@ -76,6 +76,9 @@ struct BenchMeasurements {
   // it holds the first slice's forward and backward and the whole rest of the step. On CUDA with
   // LibTorch >= 2 it is Kineto's trace instead: host ops plus the GPU's kernels (CUPTI).
   std::string trace_json;
+  // The same for BenchOptions::trace_steps rendering forwards (the calling thread's ops: with the
+  // ray split, the first slice's forward), or empty.
+  std::string render_trace_json;
 };
 
 // Median of a non-empty list (mean of the middle two for an even count).

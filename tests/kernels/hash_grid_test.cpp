@@ -158,6 +158,14 @@ TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
         outs.push_back(out);
         grads.push_back(grad);
         ++checked;
+        // The vector form's two ways of reading the rows: the same bits.
+        if (form != CpuVectorForm::Avx512) continue;
+        for (const auto reads : {HashGridReads::Loads, HashGridReads::Gathers}) {
+          auto other = torch::full_like(out, std::nanf(""));
+          hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, nullptr,
+                                   other.data_ptr<float>(), reads);
+          EXPECT_TRUE(torch::equal(other, out)) << features << " " << n << " " << static_cast<int>(reads);
+        }
       }
       for (size_t i = 1; i < forms.size(); ++i) {
         EXPECT_LT(test::max_abs(outs[i] - outs[0]), 1e-6) << features << " " << n;
@@ -175,7 +183,9 @@ TEST(HashGrid, EveryInstructionFormMatchesTheReferenceAndTheScalarLoops) {
 // 16-point tail, and zero scales (a point outside the cube).
 TEST(HashGrid, ScalesInsideTheLoopsAreTheSeparateProductsBits) {
   const HashGridShape s = mixed_shape();
-  for (const auto form : {CpuVectorForm::Avx512, CpuVectorForm::Scalar}) {
+  for (const auto& [form, reads] : {std::pair{CpuVectorForm::Avx512, HashGridReads::Loads},
+                                    std::pair{CpuVectorForm::Avx512, HashGridReads::Gathers},
+                                    std::pair{CpuVectorForm::Scalar, HashGridReads::Loads}}) {
     if (!cpu_vector_form_available(form)) continue;
     for (const int64_t n : {7, 37}) {
       const auto p = points(n - 4, 100 + n);
@@ -185,9 +195,9 @@ TEST(HashGrid, ScalesInsideTheLoopsAreTheSeparateProductsBits) {
       const auto g = test::seeded_randn({n, s.levels, s.features}, 103 + n).to(torch::kFloat);
       auto plain = torch::empty({n, s.levels, s.features}), fused = torch::empty_like(plain);
       hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, nullptr,
-                               plain.data_ptr<float>());
+                               plain.data_ptr<float>(), reads);
       hash_grid_forward_cpu_in(form, p.data_ptr<float>(), n, table.data_ptr<float>(), s, scales.data_ptr<float>(),
-                               fused.data_ptr<float>());
+                               fused.data_ptr<float>(), reads);
       EXPECT_TRUE(torch::equal(fused, plain * scales.unsqueeze(-1))) << n;
       auto grad_plain = torch::zeros_like(table), grad_fused = torch::zeros_like(table);
       const auto g_scaled = (g * scales.unsqueeze(-1)).contiguous();
@@ -230,11 +240,15 @@ TEST(HashGrid, EveryInstructionFormReadsANaNCoordinateAsZero) {
     q[i][i % 3] = 0.f;
   }
   const auto table = table_for(s, 91);
-  for (const auto form : {CpuVectorForm::Avx512, CpuVectorForm::Scalar}) {
+  for (const auto& [form, reads] : {std::pair{CpuVectorForm::Avx512, HashGridReads::Loads},
+                                    std::pair{CpuVectorForm::Avx512, HashGridReads::Gathers},
+                                    std::pair{CpuVectorForm::Scalar, HashGridReads::Loads}}) {
     if (!cpu_vector_form_available(form)) continue;
     auto a = torch::empty({32, s.levels, s.features}), b = torch::empty({32, s.levels, s.features});
-    hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, a.data_ptr<float>());
-    hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, b.data_ptr<float>());
+    hash_grid_forward_cpu_in(form, p.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, a.data_ptr<float>(),
+                             reads);
+    hash_grid_forward_cpu_in(form, q.data_ptr<float>(), 32, table.data_ptr<float>(), s, nullptr, b.data_ptr<float>(),
+                             reads);
     EXPECT_TRUE(torch::equal(a, b));
   }
 }

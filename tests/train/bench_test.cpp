@@ -330,8 +330,21 @@ TEST(BenchTrace, TinyRunRecordsTheStepsOps) {
     has_product = has_product || name == "aten::addmm" || name == "aten::mm" || name == "ablenerf::linear_cpu";
   }
   EXPECT_TRUE(has_product);
+  // The rendering forwards' trace beside it: products, and no backward node.
+  const auto r = trace_summary(m.render_trace_json, o.trace_steps, 5);
+  EXPECT_GT(r["ops_per_step"].get<double>(), 10.0);
+  bool render_product = false, render_backward = false;
+  for (const auto& e : nlohmann::json::parse(m.render_trace_json)) {
+    const std::string name = e.value("name", "");
+    render_product = render_product || name == "aten::addmm" || name == "aten::mm" || name == "ablenerf::linear_cpu";
+    render_backward = render_backward || name.find("Backward") != std::string::npos;
+  }
+  EXPECT_TRUE(render_product);
+  EXPECT_FALSE(render_backward);
   o.trace_steps = 0;
-  EXPECT_TRUE(measure(cfg, o).trace_json.empty());
+  const auto untraced = measure(cfg, o);
+  EXPECT_TRUE(untraced.trace_json.empty());
+  EXPECT_TRUE(untraced.render_trace_json.empty());
 }
 
 }  // namespace
