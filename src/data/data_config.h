@@ -23,6 +23,11 @@ enum class SceneKind { Auto, Bounded, Unbounded, ForwardFacing };
 // has none; None (the default): every pixel; Alpha: the pixels whose alpha is at least 0.5 (RGBA
 // photos).
 enum class MaskSource { Auto, None, Alpha };
+// data.scene_centre (data/scene_frame.h): the point of a real capture that becomes the scene's origin,
+// the centre of the contraction's unit sphere. Auto: what the cameras look at (the nearest point to
+// their optical axes) when it lies in front of most of them, else the mean camera position; Focus
+// and Cameras: one of the two whatever the layout (nerfstudio's "focus" and "poses").
+enum class SceneCentre { Auto, Focus, Cameras };
 
 template <>
 inline const EnumNames<Background> kEnumNames<Background>{{Background::White, "white"}, {Background::Black, "black"}};
@@ -31,6 +36,9 @@ inline const EnumNames<SceneKind> kEnumNames<SceneKind>{{SceneKind::Auto, "auto"
                                                         {SceneKind::Bounded, "bounded"},
                                                         {SceneKind::Unbounded, "unbounded"},
                                                         {SceneKind::ForwardFacing, "forward"}};
+template <>
+inline const EnumNames<SceneCentre> kEnumNames<SceneCentre>{
+    {SceneCentre::Auto, "auto"}, {SceneCentre::Focus, "focus"}, {SceneCentre::Cameras, "cameras"}};
 template <>
 inline const EnumNames<MaskSource> kEnumNames<MaskSource>{
     {MaskSource::Auto, "auto"}, {MaskSource::None, "none"}, {MaskSource::Alpha, "alpha"}};
@@ -58,6 +66,12 @@ struct DataConfig {
   // data.ndc: whether `auto` may give a forward-facing capture NDC rays (data/scene_frame.h); false
   // contracts it as an unbounded scene, centred on what its cameras look at.
   bool ndc = true;
+  // The scene frame of a real capture, chosen from the cameras unless set (data/scene_frame.h): its
+  // centre, and its radius in the capture's units (the distance from the centre that becomes 1, the
+  // contraction's unit sphere; 0: the farthest camera, or for cameras looking outward from inside a
+  // room the median sparse point when farther). Either set keeps `auto` off NDC rays.
+  SceneCentre scene_centre = SceneCentre::Auto;
+  double scene_radius = 0;
   // Off by default: on the gold cape (object masks) training on the masked pixels only cost 0.8 dB
   // on the object at 15 minutes (docs/benchmarks/history.md, "The capture preset and the peer").
   MaskSource masks = MaskSource::None;
@@ -74,6 +88,8 @@ struct DataConfig {
     f("scene", &scene);
     f("bounds_from_config", &bounds_from_config);
     f("ndc", &ndc);
+    f("scene_centre", &scene_centre);
+    f("scene_radius", &scene_radius);
     f("masks", &masks);
   }
 
@@ -83,6 +99,8 @@ struct DataConfig {
     need(auto_rays_per_s >= 0 && std::isfinite(auto_rays_per_s), "auto_rays_per_s", "must be >= 0 (0: measured)");
     need(auto_min_side >= 1, "auto_min_side", "must be >= 1");
     need(near >= 0 && far > near, "far", "need 0 <= near < far");
+    need(scene_radius >= 0 && std::isfinite(scene_radius), "scene_radius",
+         "must be > 0 (the capture's units), or 0 to choose from the cameras");
   }
 };
 ABLENERF_CONFIG_SECTION(DataConfig);

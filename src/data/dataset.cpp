@@ -244,7 +244,7 @@ Dataset Dataset::load(Capture js, const std::string& root, const LoadOptions& op
   Dataset ds;
   ds.root = root;
   ds.format = js.format;
-  ds.scene = fit_scene_frame(js, root, opts.scene, opts.near, opts.far, opts.bounds_from_config, opts.ndc);
+  ds.scene = fit_scene_frame(js, root, opts.scene, opts.near, opts.far, opts.bounds_from_config, opts.ndc, opts.frame);
   ds.near = ds.scene.near;
   ds.far = ds.scene.far;
   if (!opts.splits.empty()) {

@@ -27,6 +27,7 @@ struct LoadOptions {
   SceneKind scene = SceneKind::Auto;  // data.scene
   bool bounds_from_config = false;    // data.bounds_from_config
   bool ndc = true;                    // data.ndc
+  SceneFrameOverrides frame;          // data.scene_centre, data.scene_radius
   // JPEGs loaded at 1/2, 1/4 or 1/8 (or a multiple) are decoded reduced inside libjpeg (its scaled
   // inverse DCT) instead of in full and then box-filtered: 4 to 20 times less work, a result within
   // about one 8-bit level of the box filter's (tests/data/dataset_test.cpp).

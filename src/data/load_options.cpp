@@ -12,6 +12,8 @@ LoadOptions load_options_for(const Config& c, std::vector<std::string> splits) {
   o.scene = c.get<DataConfig>().scene;
   o.bounds_from_config = c.get<DataConfig>().bounds_from_config;
   o.ndc = c.get<DataConfig>().ndc;
+  o.frame.centre = c.get<DataConfig>().scene_centre;
+  o.frame.radius = c.get<DataConfig>().scene_radius;
   o.masks = c.get<DataConfig>().masks;
   o.splits = std::move(splits);
   return o;

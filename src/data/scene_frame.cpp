@@ -192,6 +192,8 @@ std::string SceneFrame::to_json() const {
   j["bounds_source"] = bounds_source;
   j["faces_one_way"] = faces_one_way;
   j["looks_outward"] = looks_outward;
+  if (!centre_source.empty()) j["centre_source"] = centre_source;
+  if (!radius_source.empty()) j["radius_source"] = radius_source;
   if (kind == SceneKind::ForwardFacing) {
     j["ndc_a"] = ndc_a;
     j["ndc_b"] = ndc_b;
@@ -218,6 +220,8 @@ SceneFrame SceneFrame::from_json(const std::string& text, const std::string& ori
     f.bounds_source = j.value("bounds_source", "");
     f.faces_one_way = j.value("faces_one_way", f.kind == SceneKind::ForwardFacing);  // absent before it was kept
     f.looks_outward = j.value("looks_outward", false);
+    f.centre_source = j.value("centre_source", "");
+    f.radius_source = j.value("radius_source", "");
   } catch (const nlohmann::json::exception& e) {
     throw InputError(origin, "", std::string("not a scene frame: ") + e.what());
   }
@@ -236,14 +240,23 @@ std::string SceneFrame::describe() const {
   if (kind != SceneKind::ForwardFacing && faces_one_way) o << ", cameras facing one way";
   if (looks_outward) o << ", cameras looking outward (a room from inside)";
   if (!identity())
-    o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << "), scale " << scale
+    o << "; capture -> scene: centre (" << centre[0] << ", " << centre[1] << ", " << centre[2] << ")"
+      << (centre_source.empty() ? "" : " [" + centre_source + "]") << ", scale " << scale
+      << (radius_source.empty() ? "" : " [radius " + std::to_string(1.0 / scale) + ": " + radius_source + "]")
       << ", up (" << rotation[6] << ", " << rotation[7] << ", " << rotation[8] << ") -> +z";
   return o.str();
 }
 
 SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKind requested, double near, double far,
-                           bool bounds_from_config, bool auto_ndc) {
+                           bool bounds_from_config, bool auto_ndc, const SceneFrameOverrides& over) {
   SceneFrame f;
+  const char* over_key = over.centre != SceneCentre::Auto ? "data.scene_centre" : "data.scene_radius";
+  if (over.any() && cap.synthetic)
+    throw InputError(root, over_key, "a Blender scene keeps its own frame: leave it unset");
+  if (over.any() && requested == SceneKind::ForwardFacing)
+    throw InputError(root, over_key, "applies to bounded and unbounded scenes, not data.scene = \"forward\"");
+  if (!(over.radius >= 0 && std::isfinite(over.radius)))
+    throw InputError(root, "data.scene_radius", "must be > 0 (the capture's units), or 0 to choose from the cameras");
   if (cap.synthetic) {
     f.kind = requested == SceneKind::Unbounded ? SceneKind::Unbounded : SceneKind::Bounded;
     f.near = near;
@@ -295,19 +308,27 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
                      "forward needs cameras that all look the same way (none may turn more than " +
                          std::to_string(static_cast<int>(kForwardFacingMaxAngleDeg)) +
                          " degrees from their mean direction); use unbounded");
-  if (requested == SceneKind::ForwardFacing || (requested == SceneKind::Auto && auto_ndc && facing_one_way && has_near))
+  if (requested == SceneKind::ForwardFacing ||
+      (requested == SceneKind::Auto && auto_ndc && !over.any() && facing_one_way && has_near))
     return fit_forward_facing(cap, poses, mean, back, up, root);
 
   V3 focus;
   int in_front = 0;
-  if (solve3(A, b, focus)) {
+  const bool solved = solve3(A, b, focus);
+  if (solved) {
     for (const auto& p : poses) {
       const V3 z = column(p, 2);
       in_front += dot(focus - column(p, 3), V3{-z[0], -z[1], -z[2]}) > 0;
     }
   }
   const bool use_focus = 2 * in_front > static_cast<int>(poses.size()) && length(focus - mean) < 10 * spread;
-  f.centre = to_array(use_focus ? focus : mean);
+  if (over.centre == SceneCentre::Focus && !solved)
+    throw InputError(root, "data.scene_centre",
+                     "\"focus\": the cameras' optical axes are parallel and meet nowhere; use \"cameras\"");
+  const bool centre_focus = over.centre == SceneCentre::Auto ? use_focus : over.centre == SceneCentre::Focus;
+  f.centre = to_array(centre_focus ? focus : mean);
+  f.centre_source = std::string(centre_focus ? "focus" : "cameras") +
+                    (over.centre == SceneCentre::Auto ? "" : " (data.scene_centre)");
   const double up_norm = length(up);
   f.rotation = up_norm > 1e-9 ? rotation_to_z({up[0] / up_norm, up[1] / up_norm, up[2] / up_norm})
                               : std::array<double, 9>{1, 0, 0, 0, 1, 0, 0, 0, 1};
@@ -318,11 +339,14 @@ SceneFrame fit_scene_frame(const Capture& cap, const std::string& root, SceneKin
   // through the farthest camera would leave it all to the contraction's thin outer shell. With
   // sparse points the sphere holds half of them instead (their median distance from the centre).
   f.looks_outward = !use_focus && !facing_one_way;
+  f.radius_source = "farthest camera";
   if (f.looks_outward && !cap.points.empty()) {
     std::vector<double> distances;
     for (const V3& q : bound_points(cap)) distances.push_back(length(q - to_vec3(f.centre)));
-    radius = std::max(radius, percentile(distances, 0.5));
+    const double median = percentile(distances, 0.5);
+    if (median > radius) radius = median, f.radius_source = "median sparse point";
   }
+  if (over.radius > 0) radius = over.radius, f.radius_source = "data.scene_radius";
   f.scale = 1.0 / radius;
   f.kind = requested == SceneKind::Bounded ? SceneKind::Bounded : SceneKind::Unbounded;
   f.faces_one_way = facing_one_way;

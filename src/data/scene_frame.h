@@ -35,6 +35,11 @@ struct SceneFrame {
   // them (a room photographed from inside). The scale then puts the median sparse point, not the
   // farthest camera, at distance 1 (when the capture has sparse points).
   bool looks_outward = false;
+  // Why the centre and the radius are what they are (`info`, the run's scene.json): "focus" (what
+  // the cameras look at), "cameras" (their mean position), with " (data.scene_centre)" when the config
+  // chose it; "farthest camera", "median sparse point" or "data.scene_radius". Empty for Blender
+  // scenes and forward-facing frames.
+  std::string centre_source, radius_source;
 
   bool identity() const;
   // A camera-to-world pose in capture coordinates -> scene coordinates (and back).
@@ -60,6 +65,14 @@ constexpr double kForwardNearFraction = 0.75;
 // contraction maps everything beyond the unit sphere into radius 2, so it stands for infinity.
 constexpr double kUnboundedFar = 1e6;
 
+// The config's say in a real capture's frame (data.scene_centre, data.scene_radius in the capture's
+// units, 0 = chosen).
+struct SceneFrameOverrides {
+  SceneCentre centre = SceneCentre::Auto;
+  double radius = 0;
+  bool any() const { return centre != SceneCentre::Auto || radius > 0; }
+};
+
 // Fits the scene frame of a capture from all of its frames (every split: training and evaluation
 // must share one frame). Forward-facing captures get another frame: centred on the mean camera,
 // rotated so that the cameras look down -z with their mean up towards +y, scaled by
@@ -67,9 +80,11 @@ constexpr double kUnboundedFar = 1e6;
 // capture has sparse points or LLFF bounds (and `auto_ndc`, data.ndc, allows it: without, such a
 // capture is fitted as an unbounded one), and `forward` without either is refused. `requested`
 // is data.scene; `near`/`far` are data.near/data.far, used for Blender scenes and, with
-// `bounds_from_config`, for every capture. InputError(root, "poses", ...)
-// for degenerate layouts (all cameras at one point).
+// `bounds_from_config`, for every capture; `overrides` the centre and radius (an override keeps `auto`
+// off NDC rays; refused for Blender scenes and `forward`, whose frames are fixed). InputError(root,
+// "poses", ...) for degenerate layouts (all cameras at one point).
 SceneFrame fit_scene_frame(const Capture& capture, const std::string& root, SceneKind requested, double near,
-                           double far, bool bounds_from_config, bool auto_ndc = true);
+                           double far, bool bounds_from_config, bool auto_ndc = true,
+                           const SceneFrameOverrides& overrides = {});
 
 }  // namespace ablenerf

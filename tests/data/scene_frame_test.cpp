@@ -292,3 +292,61 @@ TEST(SceneFrame, ForwardFacingLayoutGetsTheNdcFrame) {
   test::expect_input_error([&] { fit_scene_frame(round, "cap", SceneKind::ForwardFacing, 2, 6, false); }, "cap",
                            "data.scene", "same way", true);
 }
+
+// data.scene_centre and data.scene_radius on a rig whose answers are known: 8 cameras on a ring of
+// radius 4, 3 above their target (every camera 5 from it), so the focus is the target and the mean
+// camera sits 3 above it; the sources named in the frame and its JSON.
+TEST(SceneFrame, CentreAndRadiusFromTheConfig) {
+  const V3 target{1, -2, 0.5}, up{0, 0, 1};
+  const Capture cap = capture_of(ring_poses(8, target, up, 4.0, 3.0));
+  const SceneFrame chosen = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false);
+  EXPECT_EQ(chosen.centre_source, "focus");
+  EXPECT_EQ(chosen.radius_source, "farthest camera");
+  EXPECT_NEAR(chosen.scale, 1 / 5.0, 1e-6);
+  // The mean camera: 3 above the target; the farthest camera then 4 away.
+  SceneFrame f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false, true, {SceneCentre::Cameras, 0});
+  EXPECT_NEAR(f.centre[0], target[0], 1e-6);
+  EXPECT_NEAR(f.centre[1], target[1], 1e-6);
+  EXPECT_NEAR(f.centre[2], target[2] + 3, 1e-6);
+  EXPECT_NEAR(f.scale, 1 / 4.0, 1e-6);
+  EXPECT_EQ(f.centre_source, "cameras (data.scene_centre)");
+  EXPECT_NE(f.describe().find("cameras (data.scene_centre)"), std::string::npos);
+  // A radius in the capture's units: 10 units become 1, the cameras at 0.5.
+  f = fit_scene_frame(cap, "cap", SceneKind::Auto, 2, 6, false, true, {SceneCentre::Focus, 10});
+  for (size_t c = 0; c < 3; ++c) EXPECT_NEAR(f.centre[c], target[c], 1e-5);
+  EXPECT_DOUBLE_EQ(f.scale, 0.1);
+  EXPECT_EQ(f.radius_source, "data.scene_radius");
+  const Pose34 first = f.to_scene(ring_poses(8, target, up, 4.0, 3.0).front());
+  EXPECT_NEAR(std::sqrt(first[3] * first[3] + first[7] * first[7] + first[11] * first[11]), 0.5, 1e-5);
+  const SceneFrame back = SceneFrame::from_json(f.to_json(), "scene.json");
+  EXPECT_EQ(back.centre_source, "focus (data.scene_centre)");
+  EXPECT_EQ(back.radius_source, "data.scene_radius");
+  // Parallel cameras have no focus: "focus" refused, naming the key; "cameras" is their auto choice.
+  std::vector<Pose34> row;
+  for (int i = 0; i < 5; ++i) row.push_back(look_at_pose({1.0 + i, 3, 2}, {1.0 + i, -10, 2}, {0, 0, 1}));
+  test::expect_input_error(
+      [&] {
+        fit_scene_frame(capture_of(row), "cap", SceneKind::Auto, 2, 6, false, true, {SceneCentre::Focus, 0});
+      },
+      "cap", "data.scene_centre", "parallel", true);
+  // A forward-facing capture with LLFF bounds: `auto` takes NDC rays, but not with an override.
+  Capture llff = capture_of(row);
+  llff.bounds = std::vector<std::array<double, 2>>(5, {2.0, 20.0});
+  EXPECT_EQ(fit_scene_frame(llff, "cap", SceneKind::Auto, 2, 6, false).kind, SceneKind::ForwardFacing);
+  f = fit_scene_frame(llff, "cap", SceneKind::Auto, 2, 6, false, true, {SceneCentre::Auto, 7});
+  EXPECT_EQ(f.kind, SceneKind::Unbounded);
+  EXPECT_DOUBLE_EQ(f.scale, 1 / 7.0);
+  // Refused where the frame is fixed: `forward`, and Blender scenes.
+  test::expect_input_error(
+      [&] {
+        fit_scene_frame(llff, "cap", SceneKind::ForwardFacing, 2, 6, false, true, {SceneCentre::Cameras, 0});
+      },
+      "cap", "data.scene_centre", "forward", true);
+  Capture blender = cap;
+  blender.synthetic = true;
+  test::expect_input_error(
+      [&] {
+        fit_scene_frame(blender, "cap", SceneKind::Auto, 2, 6, false, true, {SceneCentre::Auto, 3});
+      },
+      "cap", "data.scene_radius", "Blender", true);
+}
