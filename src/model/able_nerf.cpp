@@ -312,6 +312,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   // (model/contraction.h); bounded ones directly in depth.
   const auto depths = [&](const torch::Tensor& s) { return unbounded_ ? unbounded_depths(s, near, far) : s; };
   torch::Tensor s_c, proposal_s, proposal_w;
+  const bool fused_pdf = compute_.attention == AttentionKernel::Fused;  // kernels/sample_pdf_cpu.h where it runs
   if (proposal_) {
     // Proposal sampling (model/proposal.h): the field's weights over even intervals of the
     // normalised ray coordinate, and the coarse fence-posts drawn from them.
@@ -323,7 +324,7 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
     proposal_w = staged("ablenerf.proposal",
                         [&] { return density_weights(proposal_->density(frustums(depths(s_p), fixed)), proposal_s); });
     const auto s_unit =
-        proposal_fence_posts(proposal_s, proposal_w, cfg_.samples, kProposalPadding, opts.coarse_jitter);
+        proposal_fence_posts(proposal_s, proposal_w, cfg_.samples, kProposalPadding, opts.coarse_jitter, fused_pdf);
     s_c = unbounded_ ? s_unit : near + (far - near) * s_unit;
   } else {
     s_c = unbounded_ ? coarse_fence_posts(b, 0.0, 1.0, cfg_.samples, options, opts.coarse_jitter)
@@ -333,8 +334,8 @@ ModelOutput AbleNerfImpl::forward_serial(const Rays& in, double near, double far
   const auto c = run_pass(t_c, rays, ray_token_, coarse_, ray_head_coarse_, le_c, head_c, le, view, view_code,
                           opts.coarse.colour, opts);
   // The inverse CDF always runs in fp32 (under bf16 autocast the weights may come back in bf16).
-  const auto s_f =
-      resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding, opts.fine_jitter);
+  const auto s_f = resample_fence_posts(s_c, c.weights.detach().to(torch::kFloat), cfg_.resample_padding,
+                                        opts.fine_jitter, fused_pdf);
   const auto t_f = depths(s_f);
   // The fine ray token is the coarse output token, not detached (docs/MODEL.md, section 5).
   const auto f = run_pass(t_f, rays, c.ray_token.unsqueeze(1), fine_, ray_head_fine_, le_f, head_f, le, view, view_code,

@@ -21,11 +21,11 @@ torch::Tensor density_weights(const torch::Tensor& sigma, const torch::Tensor& s
 }
 
 torch::Tensor proposal_fence_posts(const torch::Tensor& s, const torch::Tensor& weights, int64_t samples,
-                                   double padding, const torch::Tensor& jitter) {
+                                   double padding, const torch::Tensor& jitter, bool fused) {
   torch::NoGradGuard no_grad;
   const auto w = weights.detach().to(torch::kFloat);
   return sample_pdf(s.to(torch::kFloat).contiguous(), w + padding / static_cast<double>(w.size(-1)), samples + 1,
-                    jitter)
+                    jitter, fused)
       .to(s.dtype());
 }
 

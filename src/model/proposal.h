@@ -34,9 +34,9 @@ torch::Tensor density_weights(const torch::Tensor& sigma, const torch::Tensor& s
 
 // The coarse fence-posts (B, samples+1) in s, drawn by inverse CDF from the proposal's weights over
 // its fence-posts s (B,N+1), each weight raised by `padding` / N so that a share of the samples stays
-// spread along the ray whatever the field says. No gradient.
+// spread along the ray whatever the field says. No gradient. `fused`: as sample_pdf's (model/resampler.h).
 torch::Tensor proposal_fence_posts(const torch::Tensor& s, const torch::Tensor& weights, int64_t samples,
-                                   double padding, const torch::Tensor& jitter = {});
+                                   double padding, const torch::Tensor& jitter = {}, bool fused = false);
 
 class ProposalImpl : public torch::nn::Module {
  public:

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "kernels/sample_pdf_cpu.h"
 #include "model/frustum.h"
 
 namespace ablenerf {
@@ -54,7 +55,9 @@ torch::Tensor blur_weights(const torch::Tensor& w, double padding) {
 }
 
 torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights, int64_t count,
-                         const torch::Tensor& jitter) {
+                         const torch::Tensor& jitter, bool fused) {
+  if (fused && sample_pdf_cpu_available(bins, weights, jitter))
+    return sample_pdf_cpu(bins, weights, count, jitter, {kMinWeightSum, kMinCdfStep, kUnitEps});
   const int64_t s = weights.size(-1), b = weights.size(0);
   auto sum = weights.sum(-1, /*keepdim=*/true);
   const auto pad = torch::clamp_min(kMinWeightSum - sum, 0.0);
@@ -82,9 +85,9 @@ torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights
 }
 
 torch::Tensor resample_fence_posts(const torch::Tensor& t, const torch::Tensor& weights, double padding,
-                                   const torch::Tensor& jitter) {
+                                   const torch::Tensor& jitter, bool fused) {
   torch::NoGradGuard no_grad;
-  return sample_pdf(t.contiguous(), blur_weights(weights, padding), t.size(-1), jitter);
+  return sample_pdf(t.contiguous(), blur_weights(weights, padding), t.size(-1), jitter, fused);
 }
 
 }  // namespace ablenerf

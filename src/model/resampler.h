@@ -28,13 +28,14 @@ torch::Tensor blur_weights(const torch::Tensor& weights, double padding);
 
 // Piecewise-constant inverse-CDF sampling of `count` sorted values from bins (B,S+1) with
 // weights (B,S). u = linspace(0, 1 - eps_f32), or stratified (u_k = (k + jitter_k (1 - eps)) / count)
-// with `jitter`: uniform [0,1) numbers (B,count).
+// with `jitter`: uniform [0,1) numbers (B,count). `fused`: through kernels/sample_pdf_cpu.h where it
+// takes the tensors (compute.attention = "fused"); these LibTorch ops are its reference.
 torch::Tensor sample_pdf(const torch::Tensor& bins, const torch::Tensor& weights, int64_t count,
-                         const torch::Tensor& jitter = {});
+                         const torch::Tensor& jitter = {}, bool fused = false);
 
 // The whole fine resampling step (no gradient): blur + pad the attention weights and draw
 // S+1 new fence-posts from the coarse ones. t: (B,S+1), weights: (B,S).
 torch::Tensor resample_fence_posts(const torch::Tensor& t, const torch::Tensor& weights, double padding,
-                                   const torch::Tensor& jitter = {});
+                                   const torch::Tensor& jitter = {}, bool fused = false);
 
 }  // namespace ablenerf

@@ -4,8 +4,11 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <functional>
 #include <limits>
+#include <string>
 
+#include "kernels/sample_pdf_cpu.h"
 #include "model/ab_transformer.h"
 #include "model/resampler.h"
 
@@ -93,6 +96,83 @@ TEST(Resampler, JitteredPostsStaySortedAndInRange) {
   EXPECT_TRUE(torch::all(f.slice(1, 1) >= f.slice(1, 0, s)).item<bool>());
   EXPECT_GE(f.min().item<double>(), 2.0);
   EXPECT_LE(f.max().item<double>(), 6.0);
+}
+
+// The fused loop (kernels/sample_pdf_cpu.h) on the two hand-computed cases above.
+TEST(Resampler, FusedInverseCdfByHand) {
+  const auto bins = torch::tensor({0.0f, 1.0f, 2.0f, 3.0f, 4.0f}).view({1, 5});
+  const auto w = torch::tensor({1.0f, 0.0f, 3.0f, 0.0f}).view({1, 4});
+  const auto t = sample_pdf(bins, w, 5, {}, /*fused=*/true)[0];
+  const std::vector<double> expected{0.0, 1.0, 2.0 + 1.0 / 3.0, 2.0 + 2.0 / 3.0, 3.0};
+  for (int i = 0; i < 5; ++i) EXPECT_NEAR(t[i].item<double>(), expected[i], 2e-6) << i;
+  const auto bins2 = bins.expand({2, 5}).contiguous(), w2 = w.expand({2, 4}).contiguous();
+  const auto j = torch::stack({torch::zeros({4}), torch::full({4}, 0.5f)});
+  ASSERT_TRUE(sample_pdf_cpu_available(bins2, w2, j));
+  const auto s = sample_pdf(bins2, w2, 4, j, /*fused=*/true);
+  const std::vector<std::vector<double>> strat{{0.0, 2.0, 2.0 + 1.0 / 3.0, 2.0 + 2.0 / 3.0},
+                                               {0.5, 2.0 + 1.0 / 6.0, 2.5, 2.0 + 5.0 / 6.0}};
+  for (int r = 0; r < 2; ++r)
+    for (int k = 0; k < 4; ++k) EXPECT_NEAR(s[r][k].item<double>(), strat[r][k], 2e-6) << r << " " << k;
+}
+
+// The fused loop against the LibTorch reference over the presets' shapes and odd ones: one bin, a
+// single draw, more draws than bins; fixed and stratified u; rows of random weights, one of zeros
+// and one summing below the padding floor (both padded towards uniform), one peaked. Every bin
+// keeps some weight or the whole row is padded, so the inverse CDF is continuous and float32
+// rounding moves a value by little.
+TEST(Resampler, FusedInverseCdfMatchesTheReference) {
+  auto g = at::detail::createCPUGenerator(31);
+  int checked = 0;
+  for (const int64_t s : {1, 2, 16, 32, 33}) {
+    for (const int64_t count : {int64_t{1}, s + 1, 2 * s + 3}) {
+      for (const bool jittered : {false, true}) {
+        const int64_t b = 5;
+        auto w = torch::rand({b, s}, g) + 0.01;
+        w[1].zero_();
+        w[2].fill_(1e-7);
+        w[3] = torch::exp(-0.5 * (torch::arange(s, torch::kFloat) - s / 3.0).pow(2)) + 1e-3;
+        const auto bins = std::get<0>(torch::sort(torch::rand({b, s + 1}, g) * 4.0 + 2.0, 1)).contiguous();
+        const auto jitter = jittered ? torch::rand({b, count}, g) : torch::Tensor();
+        const auto want = sample_pdf(bins, w, count, jitter, /*fused=*/false);
+        ASSERT_TRUE(sample_pdf_cpu_available(bins, w, jitter));
+        const auto got = sample_pdf(bins, w, count, jitter, /*fused=*/true);
+        ASSERT_EQ(got.sizes(), want.sizes());
+        EXPECT_LT((got - want).abs().max().item<double>(), 2e-5) << s << " " << count << " " << jittered;
+        if (count > 1) EXPECT_TRUE(torch::all(got.slice(1, 1) >= got.slice(1, 0, count - 1)).item<bool>());
+        EXPECT_TRUE(torch::all(got >= bins.select(1, 0).unsqueeze(1)).item<bool>());
+        EXPECT_TRUE(torch::all(got <= bins.select(1, s).unsqueeze(1)).item<bool>());
+        ++checked;
+      }
+    }
+  }
+  EXPECT_EQ(checked, 30);
+}
+
+// What the fused loop does not take falls back to the reference; bad shapes are refused naming it.
+TEST(Resampler, FusedInverseCdfRefusals) {
+  const auto bins = torch::linspace(0, 1, 5).view({1, 5}), w = torch::ones({1, 4});
+  EXPECT_FALSE(sample_pdf_cpu_available(bins.to(torch::kDouble), w.to(torch::kDouble), {}));
+  EXPECT_FALSE(sample_pdf_cpu_available(bins.expand({2, 5}), w.expand({2, 4}), {}));
+  EXPECT_FALSE(sample_pdf_cpu_available(bins, w.clone().requires_grad_(), {}));
+  EXPECT_FALSE(sample_pdf_cpu_available(bins.slice(1, 0, 4), w, {}));
+  // The non-contiguous case still gives the reference's answer through sample_pdf.
+  EXPECT_TRUE(torch::allclose(sample_pdf(bins.expand({2, 5}), w.expand({2, 4}), 3, {}, true),
+                              sample_pdf(bins.expand({2, 5}), w.expand({2, 4}), 3, {}, false)));
+  const SamplePdfConstants k{1e-5, 1e-5, 1e-7};
+  const auto expect_refused = [&](const std::function<void()>& f, const std::string& what) {
+    try {
+      f();
+      ADD_FAILURE() << "not refused: " << what;
+    } catch (const c10::Error& e) {
+      const std::string m = e.what_without_backtrace();
+      EXPECT_NE(m.find("sample_pdf_cpu"), std::string::npos) << m;
+      EXPECT_NE(m.find(what), std::string::npos) << m;
+    }
+  };
+  expect_refused([&] { sample_pdf_cpu(bins, torch::ones({1, 5}), 3, {}, k); }, "bins");
+  expect_refused([&] { sample_pdf_cpu(bins, w, 0, {}, k); }, "count");
+  expect_refused([&] { sample_pdf_cpu(bins, w, 3, torch::rand({1, 2}), k); }, "jitter");
+  expect_refused([&] { sample_pdf_cpu(bins, torch::ones({1, 4, 1}), 3, {}, k); }, "weights");
 }
 
 TEST(Resampler, RayTokenRowFromOneQueryMatchesFullAttention) {
