@@ -170,7 +170,7 @@ void erf_rsqrt_block(float* x, int64_t n, CpuVectorForm form) {
 // Points [0, n): unit coordinates, then 8 sigma2 n_l^2 per level into weights, erf(1 / sqrt(.)) of
 // them a block at a time, times the scale inside the cube and 0 outside.
 void grid_rows(const float* mean, const float* cov, int64_t n, float lo, float hi, const float* res, int64_t levels,
-               float scale, CpuVectorForm form, float* unit, float* weights) {
+               float scale, CpuVectorForm form, float* unit, float* weights, float* inside_out) {
   const float side = hi - lo, inv_side2 = 1.0f / (side * side);
   for (int64_t i = 0; i < n; ++i) {
     for (int c = 0; c < 3; ++c) unit[3 * i + c] = (mean[3 * i + c] - lo) / side;
@@ -181,6 +181,7 @@ void grid_rows(const float* mean, const float* cov, int64_t n, float lo, float h
   for (int64_t i = 0; i < n; ++i) {
     const float* u = unit + 3 * i;
     const bool inside = u[0] >= 0 && u[0] <= 1 && u[1] >= 0 && u[1] <= 1 && u[2] >= 0 && u[2] <= 1;
+    inside_out[i] = inside ? 1.0f : 0.0f;
     for (int64_t l = 0; l < levels; ++l) weights[i * levels + l] = inside ? weights[i * levels + l] * scale : 0.0f;
   }
 }
@@ -258,10 +259,11 @@ GridInputs grid_inputs_cpu(const torch::Tensor& mean, const torch::Tensor& cov, 
   TORCH_CHECK(hi > lo, enc::kGridOp, ": the cube's hi must exceed its lo, got ", lo, " and ", hi);
   TORCH_CHECK(enc::form_runs(form), enc::kGridOp, ": this CPU or build does not run the requested form");
   const int64_t n = mean.numel() / 3, levels = resolution.size(0);
-  GridInputs g{torch::empty({n, 3}, mean.options()), torch::empty({n, levels}, mean.options())};
+  GridInputs g{torch::empty({n, 3}, mean.options()), torch::empty({n, levels}, mean.options()),
+               torch::empty({n}, mean.options())};
   const auto mc = mean.contiguous(), cc = cov.contiguous(), rc = resolution.contiguous();
   enc::grid_rows(mc.data_ptr<float>(), cc.data_ptr<float>(), n, float(lo), float(hi), rc.data_ptr<float>(), levels,
-                 float(scale), form, g.unit.data_ptr<float>(), g.weights.data_ptr<float>());
+                 float(scale), form, g.unit.data_ptr<float>(), g.weights.data_ptr<float>(), g.inside.data_ptr<float>());
   return g;
 }
 

@@ -58,6 +58,7 @@ torch::Tensor integrated_pos_enc_cpu(const torch::Tensor& mean, const torch::Ten
 
 struct GridInputs {
   torch::Tensor unit, weights;  // (N, 3), (N, L)
+  torch::Tensor inside;         // (N): 1 where the point lies in the cube (faces included), else 0
 };
 
 // mean, cov: (..., 3) of the same shape (N points); the grid's cube [lo, hi]^3; resolution: (L)

@@ -20,8 +20,7 @@ float linspace_value(float start, float end, int64_t steps, int64_t i) {
 // One ray: its CDF over S bins, then each u located by a forward scan (the u rise along the row)
 // and interpolated within its bin, each operation rounded to float32 as the reference's ops are.
 ABLENERF_SEPARATE_ROUNDINGS void sample_row(const float* bins, const float* w, int64_t s, int64_t count,
-                                            const float* jitter, const SamplePdfConstants& k, float* cdf,
-                                            float* out) {
+                                            const float* jitter, const SamplePdfConstants& k, float* cdf, float* out) {
   double sum_d = 0;
   for (int64_t i = 0; i < s; ++i) sum_d += w[i];
   const float sum = static_cast<float>(sum_d);

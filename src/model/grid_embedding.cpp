@@ -61,7 +61,8 @@ torch::Tensor GridEmbeddingImpl::inside(const torch::Tensor& mean) const {
   return in_unit_cube(unit_coordinates(mean)).reshape(lead);
 }
 
-torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov) {
+torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov,
+                                         torch::Tensor* inside_out) {
   const double side = cube_.hi - cube_.lo;
   auto lead = mean.sizes().vec();
   lead.pop_back();
@@ -72,9 +73,11 @@ torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch:
     GridInputs in = grid_inputs_cpu(mean, cov, cube_.lo, cube_.hi, resolution_, lr_scale_);
     unit = std::move(in.unit);
     weights = std::move(in.weights);
+    if (inside_out) *inside_out = in.inside.reshape(lead);
   } else {
     unit = unit_coordinates(mean);
     const auto inside = in_unit_cube(unit).unsqueeze(-1);  // (N,1)
+    if (inside_out) *inside_out = inside.to(torch::kFloat).reshape(lead);
     // The Gaussian's size: the mean of its per-axis variances, in units of the cube's side.
     const auto sigma2 = cov.to(torch::kFloat).reshape({-1, 3}).mean(-1) / (side * side);
     weights = grid_level_weights(sigma2, resolution_) * inside * lr_scale_;

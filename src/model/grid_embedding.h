@@ -42,8 +42,9 @@ class GridEmbeddingImpl : public torch::nn::Module {
   GridEmbeddingImpl(const ModelConfig& cfg, GridCube cube);
   // Any grid of that shape, e.g. the proposal field's (model/proposal.h).
   GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, double lr_scale);
-  // Gaussians (mean, cov: (..., 3), cov the diagonal) -> features (..., levels * features).
-  torch::Tensor forward(const torch::Tensor& mean, const torch::Tensor& cov);
+  // Gaussians (mean, cov: (..., 3), cov the diagonal) -> features (..., levels * features); where
+  // `inside` is given, also whether each mean lies in the grid's cube, as inside() but float32 1/0 (...).
+  torch::Tensor forward(const torch::Tensor& mean, const torch::Tensor& cov, torch::Tensor* inside = nullptr);
   // Whether each point (..., 3) lies in the grid's cube (faces included) -> (...) bool.
   torch::Tensor inside(const torch::Tensor& mean) const;
   int64_t width() const { return int64_t{shape_.levels} * shape_.features; }

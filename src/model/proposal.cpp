@@ -40,13 +40,14 @@ ProposalImpl::ProposalImpl(const ModelConfig& cfg, GridCube cube) : samples_(cfg
 }
 
 torch::Tensor ProposalImpl::density(const Gaussians& g) {
-  const auto features = grid_(g.mean, g.cov);
+  torch::Tensor inside;  // whether each mean lies in the grid's cube, 1/0
+  const auto features = grid_->forward(g.mean, g.cov, &inside);
   const auto hidden = linear_relu_tokens(hidden_, features.to(hidden_->weight.dtype()));
   const auto logit = linear_tokens(out_, hidden).squeeze(-1);
   // No density outside the grid's cube: there the grid reads zeros and the field would give every
   // point one learned constant, a fog in front of a bounded scene's objects (docs/MODEL.md, "Proposal
   // sampling", item 1).
-  return torch::exp(logit.to(torch::kFloat).clamp_max(kMaxLogDensity)) * grid_->inside(g.mean);
+  return torch::exp(logit.to(torch::kFloat).clamp_max(kMaxLogDensity)) * inside;
 }
 
 }  // namespace ablenerf

@@ -60,12 +60,22 @@ TEST(Proposal, TheFieldHasNoDensityOutsideTheGridsCube) {
   const auto mean = torch::tensor(
       {{{0.0, 0.2, -0.4}, {1.5, 0.0, 0.0}, {1.51, 0.0, 0.0}}, {{-0.3, 1.49, 0.0}, {0.0, 0.0, -1.6}, {3.0, -3.0, 3.0}}},
       torch::kFloat);
-  const auto density = field->density({mean, torch::full({2, 3, 3}, 1e-4, torch::kFloat)});
-  ASSERT_EQ(density.sizes(), (std::vector<int64_t>{2, 3}));
-  for (const auto& at : {std::pair{0, 0}, std::pair{0, 1}, std::pair{1, 0}})
-    EXPECT_GT(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second;
-  for (const auto& at : {std::pair{0, 2}, std::pair{1, 1}, std::pair{1, 2}})
-    EXPECT_EQ(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second;
+  // The grid's inputs from the fused loop (which also says which points are inside) and from the
+  // tensor ops: the same zeros, the same densities.
+  torch::Tensor first;
+  for (const bool fused : {true, false}) {
+    field->grid().set_fused_inputs(fused);
+    const auto density = field->density({mean, torch::full({2, 3, 3}, 1e-4, torch::kFloat)});
+    ASSERT_EQ(density.sizes(), (std::vector<int64_t>{2, 3}));
+    for (const auto& at : {std::pair{0, 0}, std::pair{0, 1}, std::pair{1, 0}})
+      EXPECT_GT(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second << " " << fused;
+    for (const auto& at : {std::pair{0, 2}, std::pair{1, 1}, std::pair{1, 2}})
+      EXPECT_EQ(density[at.first][at.second].item<double>(), 0.0) << at.first << "," << at.second << " " << fused;
+    if (!first.defined())
+      first = density.detach();
+    else
+      EXPECT_LT((density - first).abs().max().item<double>(), 1e-5 * first.abs().max().item<double>());
+  }
 }
 
 TEST(Proposal, TheModelDrawsItsCoarseSamplesFromTheField) {

@@ -130,6 +130,7 @@ TEST(SampleEncoding, GridInputsMatchTheGridsWeightsInEveryForm) {
     EXPECT_LT(test::max_abs(got.weights - want), 2e-6 * scale) << static_cast<int>(form);
     EXPECT_FLOAT_EQ(got.weights[2][4].item<float>(), float(scale));  // no variance: every level whole
     EXPECT_EQ(got.weights[1].abs().sum().item<float>(), 0.0f);       // outside: nothing read
+    EXPECT_TRUE(torch::equal(got.inside, inside.squeeze(-1).to(torch::kFloat))) << static_cast<int>(form);
   }
   EXPECT_GE(ran, 1);
   // Through the module: the grid's features alike with the loop and with the tensor ops.
