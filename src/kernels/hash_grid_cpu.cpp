@@ -207,6 +207,15 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 pairs_high(__m512 w) {
   return _mm512_permutexvar_ps(_mm512_setr_epi32(8, 8, 9, 9, 10, 10, 11, 11, 12, 12, 13, 13, 14, 14, 15, 15), w);
 }
 
+// The 16 points' scales at one level of an (n, levels) array (`levels` floats apart), starting at
+// point i.
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 level_scales(const float* scales, int64_t i, int levels,
+                                                                  int level) {
+  const __m512i stride = _mm512_mullo_epi32(_mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
+                                            _mm512_set1_epi32(levels));
+  return _mm512_i32gather_ps(stride, scales + i * levels + level, 4);
+}
+
 // Points i, ..., i + 7 of an (n, levels, 2) array at one level: 8-byte lanes `levels` apart.
 ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m256i point_stride(int levels) {
   return _mm256_mullo_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(levels));
@@ -257,8 +266,6 @@ ABLENERF_TARGET_AVX512 void gather_level_vector(const float* positions, int64_t 
   const Addressing a(s, level);
   const auto* rows64 = reinterpret_cast<const long long*>(level_rows);
   const __m256i stride = point_stride(s.levels);
-  const __m512i scale_stride = _mm512_mullo_epi32(
-      _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15), _mm512_set1_epi32(s.levels));
   int64_t i = lo;
   for (; i + kLanes <= hi; i += kLanes) {
     next.advance();
@@ -274,7 +281,7 @@ ABLENERF_TARGET_AVX512 void gather_level_vector(const float* positions, int64_t 
       acc_high = _mm512_fmadd_ps(pairs_high(w), r_high, acc_high);
     }
     if (scales != nullptr) {
-      const __m512 sc = _mm512_i32gather_ps(scale_stride, scales + i * s.levels + level, 4);
+      const __m512 sc = level_scales(scales, i, s.levels, level);
       acc_low = _mm512_mul_ps(acc_low, pairs_low(sc));
       acc_high = _mm512_mul_ps(acc_high, pairs_high(sc));
     }
@@ -293,8 +300,6 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
                                           float* level_rows) {
   const Addressing a(s, level);
   const __m256i stride = point_stride(s.levels);
-  const __m512i scale_stride = _mm512_mullo_epi32(
-      _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15), _mm512_set1_epi32(s.levels));
   alignas(64) uint32_t rows[8][kLanes];
   alignas(64) float products[8][2 * kLanes];
   int64_t i = 0;
@@ -305,8 +310,8 @@ ABLENERF_TARGET_AVX512 void scatter_level(const float* positions, int64_t n, con
     __m512 g_low = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g, 8));
     __m512 g_high = _mm512_castsi512_ps(_mm512_i32gather_epi64(stride, g + 8 * int64_t{s.levels}, 8));
     if (scales != nullptr) {
-      // The 16 points' scales at this level, `levels` floats apart, each beside its point's two floats.
-      const __m512 sc = _mm512_i32gather_ps(scale_stride, scales + i * s.levels + level, 4);
+      // Each point's scale beside its two floats.
+      const __m512 sc = level_scales(scales, i, s.levels, level);
       g_low = _mm512_mul_ps(g_low, pairs_low(sc));
       g_high = _mm512_mul_ps(g_high, pairs_high(sc));
     }

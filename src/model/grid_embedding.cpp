@@ -55,12 +55,6 @@ torch::Tensor GridEmbeddingImpl::unit_coordinates(const torch::Tensor& mean) con
 
 torch::Tensor GridEmbeddingImpl::in_unit_cube(const torch::Tensor& unit) { return ((unit >= 0) & (unit <= 1)).all(-1); }
 
-torch::Tensor GridEmbeddingImpl::inside(const torch::Tensor& mean) const {
-  auto lead = mean.sizes().vec();
-  lead.pop_back();
-  return in_unit_cube(unit_coordinates(mean)).reshape(lead);
-}
-
 torch::Tensor GridEmbeddingImpl::forward(const torch::Tensor& mean, const torch::Tensor& cov,
                                          torch::Tensor* inside_out) {
   const double side = cube_.hi - cube_.lo;

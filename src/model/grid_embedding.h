@@ -43,10 +43,8 @@ class GridEmbeddingImpl : public torch::nn::Module {
   // Any grid of that shape, e.g. the proposal field's (model/proposal.h).
   GridEmbeddingImpl(const HashGridShape& shape, GridCube cube, double lr_scale);
   // Gaussians (mean, cov: (..., 3), cov the diagonal) -> features (..., levels * features); where
-  // `inside` is given, also whether each mean lies in the grid's cube, as inside() but float32 1/0 (...).
+  // `inside` is given, also whether each mean lies in the grid's cube (faces included): (...) float32 1/0.
   torch::Tensor forward(const torch::Tensor& mean, const torch::Tensor& cov, torch::Tensor* inside = nullptr);
-  // Whether each point (..., 3) lies in the grid's cube (faces included) -> (...) bool.
-  torch::Tensor inside(const torch::Tensor& mean) const;
   int64_t width() const { return int64_t{shape_.levels} * shape_.features; }
   const HashGridShape& shape() const { return shape_; }
   // The table as the lookup reads it: (levels, table_size, features).

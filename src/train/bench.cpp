@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <set>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <stdexcept>
@@ -138,6 +139,16 @@ Rays bench_rays(int64_t n, uint64_t seed, const torch::Device& d) {
 
 namespace {
 
+// What `run` does under LibTorch's legacy profiler (the calling thread's ops), as Chrome trace JSON.
+std::string legacy_trace(const std::function<void()>& run) {
+  std::ostringstream trace;
+  {
+    torch::autograd::profiler::RecordProfile record(trace);
+    run();
+  }
+  return trace.str();
+}
+
 // `steps` more training steps under LibTorch's profiler, as Chrome trace JSON. On CUDA with
 // LibTorch >= 2: Kineto, the host's ops and the GPU's kernels, memcpys and memsets (CUPTI); so the
 // trace says where GPU time goes inside a CUDA graph's replay as well. Otherwise the legacy
@@ -164,13 +175,10 @@ std::string trace_steps(Trainer& trainer, int64_t steps, const torch::Device& de
   }
 #endif
   (void)device;
-  std::ostringstream trace;
-  {
-    torch::autograd::profiler::RecordProfile record(trace);
+  return legacy_trace([&] {
     for (int64_t i = 0; i < steps; ++i) trainer.step();
     trainer.flush();
-  }
-  return trace.str();
+  });
 }
 
 // A quiet trainer of `cfg` set up on the in-memory split of `image_side` pixels (bench_split).
@@ -286,14 +294,10 @@ BenchMeasurements measure(const Config& cfg, const BenchOptions& o) {
       (void)out;
     };
     m.render = time_it(d, o.warmup, o.steps, render);
-    if (o.trace_steps > 0 && !d.is_cuda()) {
-      std::ostringstream trace;
-      {
-        torch::autograd::profiler::RecordProfile record(trace);
+    if (o.trace_steps > 0 && !d.is_cuda())
+      m.render_trace_json = legacy_trace([&] {
         for (int64_t i = 0; i < o.trace_steps; ++i) render();
-      }
-      m.render_trace_json = trace.str();
-    }
+      });
   }
   {
     // The peak in the precision the model's products run in on a GPU; on a CPU the float32 one
