@@ -14,12 +14,16 @@
 #                      the image sizes those of the budget that plans as many rays (N = budget x the
 #                      preset's data.auto_rays_per_s / train.rays_per_step: 6855 for the capture
 #                      preset's 3 minutes); give no BUDGET with it
+#   --speed R          with --steps: a screen at equal training time for a change that runs at R
+#                      times the preset's rays per second (`ablenerf bench` on both): N x R steps,
+#                      and the preset's data.auto_passes x R, so that the images keep the sizes of
+#                      the preset's N-step screen
 # Writes OUT/table.md and OUT/table.json; a capture whose folder is missing is listed as missing. One
 # training at a time: the figures are only comparable with nothing else running.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
 . "$repo/scripts/lib.sh"
-half=all captures=captures zoo=$repo/zoo/captures.txt out="" steps=""
+half=all captures=captures zoo=$repo/zoo/captures.txt out="" steps="" speed=""
 sets=()
 while [ $# -gt 0 ]; do
   case $1 in
@@ -29,7 +33,8 @@ while [ $# -gt 0 ]; do
     --out) out=$2; shift 2 ;;
     --set) sets+=(--set "$2"); shift 2 ;;
     --steps) steps=$2; shift 2 ;;
-    -h | --help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --speed) speed=$2; shift 2 ;;
+    -h | --help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "zoo: unknown option $1" >&2; exit 2 ;;
     *) break ;;
   esac
@@ -46,6 +51,25 @@ mkdir -p "$out"
 length=()
 [ -n "$budget" ] && length=(--time-budget "$budget")
 [ -n "$steps" ] && length=(--steps "$steps" --set train.time_budget_s=0)
+if [ -n "$speed" ]; then
+  [ -n "$steps" ] || { echo "zoo: --speed needs --steps" >&2; exit 2; }
+  if [[ $preset == *.toml ]]; then toml=$preset; else toml=$repo/configs/$preset.toml; fi
+  scaled=$(python3 - "$toml" "$steps" "$speed" <<'PY'
+import sys, tomllib
+toml, steps, speed = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+try:
+    r = float(speed)
+except ValueError:
+    r = 0
+if not r > 0: sys.exit(f"zoo: --speed must be a positive number, got {speed}")
+passes = tomllib.load(open(toml, "rb")).get("data", {}).get("auto_passes")
+if passes is None: sys.exit(f"zoo: --speed: {toml} sets no data.auto_passes (its images are not sized from the steps)")
+print(max(1, round(steps * r)), f"{passes * r:.6g}")
+PY
+  ) || exit 2
+  read -r steps passes <<<"$scaled"
+  length=(--steps "$steps" --set train.time_budget_s=0 --set data.auto_passes="$passes")
+fi
 
 rows=$out/rows.jsonl
 : >"$rows"
