@@ -45,15 +45,15 @@ case $half in tune | confirm | all) ;; *) echo "zoo: --half must be tune, confir
 [ -f "$zoo" ] || { echo "zoo: $zoo: missing" >&2; exit 2; }
 bin=${ABLENERF_BIN:-$repo/$(cd "$repo" && ablenerf_build_dir)/ablenerf}
 [ -x "$bin" ] || { echo "zoo: $bin is missing: run scripts/setup.sh first" >&2; exit 1; }
-if [[ $preset == *.toml ]]; then preset_args=(--config "$preset") name=$(basename "$preset" .toml); else preset_args=(--preset "$preset") name=$preset; fi
-out=${out:-runs/zoo/$name}
-mkdir -p "$out"
-length=()
-[ -n "$budget" ] && length=(--time-budget "$budget")
-[ -n "$steps" ] && length=(--steps "$steps" --set train.time_budget_s=0)
+if [[ $preset == *.toml ]]; then
+  preset_args=(--config "$preset") name=$(basename "$preset" .toml) toml=$preset
+else
+  preset_args=(--preset "$preset") name=$preset toml=$repo/configs/$preset.toml
+fi
+passes=""
 if [ -n "$speed" ]; then
+  # N x R steps, and the preset's data.auto_passes x R so that the images keep their sizes.
   [ -n "$steps" ] || { echo "zoo: --speed needs --steps" >&2; exit 2; }
-  if [[ $preset == *.toml ]]; then toml=$preset; else toml=$repo/configs/$preset.toml; fi
   scaled=$(python3 - "$toml" "$steps" "$speed" <<'PY'
 import sys, tomllib
 toml, steps, speed = sys.argv[1], int(sys.argv[2]), sys.argv[3]
@@ -68,8 +68,13 @@ print(max(1, round(steps * r)), f"{passes * r:.6g}")
 PY
   ) || exit 2
   read -r steps passes <<<"$scaled"
-  length=(--steps "$steps" --set train.time_budget_s=0 --set data.auto_passes="$passes")
 fi
+out=${out:-runs/zoo/$name}
+mkdir -p "$out"
+length=()
+[ -n "$budget" ] && length=(--time-budget "$budget")
+[ -n "$steps" ] && length=(--steps "$steps" --set train.time_budget_s=0)
+[ -n "$passes" ] && length+=(--set data.auto_passes="$passes")
 
 rows=$out/rows.jsonl
 : >"$rows"
