@@ -99,7 +99,11 @@ struct Problem {
   torch::Tensor mask;  // (lq, lk) or undefined
   double scale;
   bool vector_items;  // float items in AVX-512 registers (attention_items below)
+  bool lanes;         // float, sixteen rays to a vector (ray_lanes below)
   int64_t items() const { return b * heads; }
+  // The probabilities' planes of lq x lk: one per item, or with lanes one per item of a whole
+  // number of groups of sixteen rays (the last group's unused lanes included).
+  int64_t planes() const { return lanes ? (b + 15) / 16 * 16 * heads : b * heads; }
 };
 
 // Operands of a packed tensor x (B', L, C): columns [offset, offset + E) of every token; a batch
@@ -354,6 +358,337 @@ void dispatch(const Problem<float>& pr, F&& f) {
 }
 
 }  // namespace attention_items
+
+// Rays in lanes: sixteen rays of one head side by side in each AVX-512 vector, every (query, key,
+// feature) of the item a vector over those rays. Why: at the capture preset (heads of 16 floats,
+// 17 tokens) the items above spend most of their time on what is not arithmetic: K and V
+// transposed element by element, a row's 17 scores in two vectors (the second with one lane in
+// use), and a horizontal max, sum and division per row; here scores, softmax and products are
+// plain vector arithmetic with every lane in use, the row statistics need no horizontal
+// reduction, and a key the additive mask blocks (-inf, the AB transformer's farther samples) is
+// skipped outright, its probability 0 as the reference's exp(-inf) gives. Each token's rows of
+// the sixteen rays are loaded whole and transposed in registers (16 x 16 at a time), and the
+// results transposed back the same way. One thread, 128 rays of 17 tokens, two heads of 16:
+// forward 233-253 us -> 58-82, forward and backward 562-595 -> 272-320 (docs/benchmarks/history.md,
+// "Rays in lanes"). Float only; heads of 16 or 24 floats (the capture and demo presets), at most
+// 32 queries and keys, at least one full group of rays. The same formulas in the same order per
+// element as softmax_rows above (scale, mask, max, exp of the difference, sum, times its
+// reciprocal); the products' sums in another order.
+namespace ray_lanes {
+
+constexpr int64_t kMaxTokens = 32;
+
+int64_t groups(int64_t b) { return (b + kLanes - 1) / kLanes; }
+
+bool fit(int64_t b, int64_t dh, int64_t lq, int64_t lk) {
+  return (dh == 16 || dh == 24) && b >= kLanes && lq >= 1 && lq <= kMaxTokens && lk >= 1 && lk <= kMaxTokens;
+}
+
+// The group's rays and their lanes: ray r0 + lane, `valid` the lanes below the batch's end.
+struct Group {
+  int64_t r0;
+  __mmask16 valid;
+};
+
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512i strides(int64_t stride) {
+  return _mm512_mullo_epi32(_mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
+                            _mm512_set1_epi32(static_cast<int32_t>(stride)));
+}
+
+// r[k] = column k of the 16 x 16 matrix whose rows r held (in place): three rounds of shuffles.
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void transpose16(__m512 (&r)[kLanes]) {
+  __m512 t[kLanes];
+  for (int i = 0; i < 8; ++i) {
+    t[2 * i] = _mm512_unpacklo_ps(r[2 * i], r[2 * i + 1]);
+    t[2 * i + 1] = _mm512_unpackhi_ps(r[2 * i], r[2 * i + 1]);
+  }
+  for (int i = 0; i < 4; ++i) {
+    r[4 * i] = _mm512_castpd_ps(_mm512_unpacklo_pd(_mm512_castps_pd(t[4 * i]), _mm512_castps_pd(t[4 * i + 2])));
+    r[4 * i + 1] = _mm512_castpd_ps(_mm512_unpackhi_pd(_mm512_castps_pd(t[4 * i]), _mm512_castps_pd(t[4 * i + 2])));
+    r[4 * i + 2] = _mm512_castpd_ps(_mm512_unpacklo_pd(_mm512_castps_pd(t[4 * i + 1]), _mm512_castps_pd(t[4 * i + 3])));
+    r[4 * i + 3] = _mm512_castpd_ps(_mm512_unpackhi_pd(_mm512_castps_pd(t[4 * i + 1]), _mm512_castps_pd(t[4 * i + 3])));
+  }
+  for (int i = 0; i < 4; ++i) {
+    t[i] = _mm512_shuffle_f32x4(r[i], r[4 + i], 0x88);
+    t[4 + i] = _mm512_shuffle_f32x4(r[i], r[4 + i], 0xdd);
+    t[8 + i] = _mm512_shuffle_f32x4(r[8 + i], r[12 + i], 0x88);
+    t[12 + i] = _mm512_shuffle_f32x4(r[8 + i], r[12 + i], 0xdd);
+  }
+  for (int i = 0; i < 4; ++i) {
+    r[i] = _mm512_shuffle_f32x4(t[i], t[8 + i], 0x88);
+    r[8 + i] = _mm512_shuffle_f32x4(t[i], t[8 + i], 0xdd);
+    r[4 + i] = _mm512_shuffle_f32x4(t[4 + i], t[12 + i], 0x88);
+    r[12 + i] = _mm512_shuffle_f32x4(t[4 + i], t[12 + i], 0xdd);
+  }
+}
+
+// The valid lanes' count.
+ABLENERF_ALWAYS_INLINE int64_t lane_count(const Group& g) { return __builtin_popcount(g.valid); }
+
+// t[(i * dh + d) * 16 + lane] = x(ray r0 + lane)[i][d] for n tokens (0 in invalid lanes): each
+// token's rows of the sixteen rays loaded whole, 16 features at a time, and transposed.
+template <int64_t kHead, class T>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void gather_tokens(const Operand<T>& x, const Group& g, int64_t h,
+                                                                 int64_t n, float* t) {
+  const int64_t rays = lane_count(g);
+  for (int64_t i = 0; i < n; ++i)
+    for (int64_t d0 = 0; d0 < kHead; d0 += kLanes) {
+      const __mmask16 cols = kHead - d0 >= kLanes ? 0xFFFF : static_cast<__mmask16>((1u << (kHead - d0)) - 1u);
+      __m512 r[kLanes];
+      for (int64_t l = 0; l < kLanes; ++l)
+        r[l] = l < rays ? _mm512_maskz_loadu_ps(cols, x.at(g.r0 + l, h, kHead) + i * x.row + d0) : _mm512_setzero_ps();
+      transpose16(r);
+      for (int64_t d = d0; d < kHead && d < d0 + kLanes; ++d) _mm512_store_ps(t + (i * kHead + d) * kLanes, r[d - d0]);
+    }
+}
+
+// x(ray r0 + lane)[i][d] = scale * t[(i * dh + d) * 16 + lane] for the valid lanes.
+template <int64_t kHead>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void scatter_tokens(const float* t, float scale, const Group& g,
+                                                                  int64_t h, int64_t n, const Operand<float>& x) {
+  const int64_t rays = lane_count(g);
+  const __m512 sc = _mm512_set1_ps(scale);
+  for (int64_t i = 0; i < n; ++i)
+    for (int64_t d0 = 0; d0 < kHead; d0 += kLanes) {
+      const __mmask16 cols = kHead - d0 >= kLanes ? 0xFFFF : static_cast<__mmask16>((1u << (kHead - d0)) - 1u);
+      __m512 r[kLanes];
+      for (int64_t d = 0; d < kLanes; ++d)
+        r[d] =
+            d0 + d < kHead ? _mm512_mul_ps(_mm512_load_ps(t + (i * kHead + d0 + d) * kLanes), sc) : _mm512_setzero_ps();
+      transpose16(r);
+      for (int64_t l = 0; l < rays; ++l) _mm512_mask_storeu_ps(x.at(g.r0 + l, h, kHead) + i * x.row + d0, cols, r[l]);
+    }
+}
+
+// Whether the additive mask blocks (i, j) outright.
+ABLENERF_ALWAYS_INLINE bool blocked(const float* mask, int64_t lk, int64_t i, int64_t j) {
+  return mask != nullptr && mask[i * lk + j] == -std::numeric_limits<float>::infinity();
+}
+
+// One (group, head): probabilities into p (lq x lk vectors), the output into out, row 0 of the
+// probabilities into row0 when given ((B, H, lk)).
+template <int64_t kHead>
+ABLENERF_TARGET_AVX512 void forward_unit(const Problem<float>& pr, const Group& g, int64_t h, float* scratch, float* p,
+                                         const Operand<float>& out, float* row0) {
+  const int64_t lq = pr.lq, lk = pr.lk;
+  float* qt = scratch;
+  float* kt = qt + lq * kHead * kLanes;
+  float* vt = kt + lk * kHead * kLanes;
+  float* ot = vt + lk * kHead * kLanes;
+  gather_tokens<kHead>(pr.q, g, h, lq, qt);
+  gather_tokens<kHead>(pr.k, g, h, lk, kt);
+  gather_tokens<kHead>(pr.v, g, h, lk, vt);
+  const float* mask = pr.mask.defined() ? pr.mask.data_ptr<float>() : nullptr;
+  const __m512 sc = _mm512_set1_ps(static_cast<float>(pr.scale));
+  const __m512 minus_inf = _mm512_set1_ps(-std::numeric_limits<float>::infinity());
+  for (int64_t i = 0; i < lq; ++i) {
+    __m512 q[kHead];
+    for (int64_t d = 0; d < kHead; ++d) q[d] = _mm512_load_ps(qt + (i * kHead + d) * kLanes);
+    float* prow = p + i * lk * kLanes;
+    __m512 mx = minus_inf;
+    for (int64_t j = 0; j < lk; ++j) {
+      if (blocked(mask, lk, i, j)) continue;
+      const float* kj = kt + j * kHead * kLanes;
+      __m512 a0 = _mm512_mul_ps(q[0], _mm512_load_ps(kj)), a1 = _mm512_mul_ps(q[1], _mm512_load_ps(kj + kLanes));
+      for (int64_t d = 2; d < kHead; d += 2) {
+        a0 = _mm512_fmadd_ps(q[d], _mm512_load_ps(kj + d * kLanes), a0);
+        a1 = _mm512_fmadd_ps(q[d + 1], _mm512_load_ps(kj + (d + 1) * kLanes), a1);
+      }
+      __m512 s = _mm512_mul_ps(_mm512_add_ps(a0, a1), sc);
+      if (mask) s = _mm512_add_ps(s, _mm512_set1_ps(mask[i * lk + j]));
+      _mm512_store_ps(prow + j * kLanes, s);
+      mx = _mm512_max_ps(mx, s);
+    }
+    __m512 sum = _mm512_setzero_ps();
+    for (int64_t j = 0; j < lk; ++j) {
+      if (blocked(mask, lk, i, j)) continue;
+      const __m512 e = Sleef_expf16_u10avx512f(_mm512_sub_ps(_mm512_load_ps(prow + j * kLanes), mx));
+      _mm512_store_ps(prow + j * kLanes, e);
+      sum = _mm512_add_ps(sum, e);
+    }
+    const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.0f), sum);
+    __m512 o[kHead];
+    for (int64_t d = 0; d < kHead; ++d) o[d] = _mm512_setzero_ps();
+    for (int64_t j = 0; j < lk; ++j) {
+      if (blocked(mask, lk, i, j)) {
+        _mm512_store_ps(prow + j * kLanes, _mm512_setzero_ps());
+        continue;
+      }
+      const __m512 pj = _mm512_mul_ps(_mm512_load_ps(prow + j * kLanes), inv);
+      _mm512_store_ps(prow + j * kLanes, pj);
+      const float* vj = vt + j * kHead * kLanes;
+      for (int64_t d = 0; d < kHead; ++d) o[d] = _mm512_fmadd_ps(pj, _mm512_load_ps(vj + d * kLanes), o[d]);
+    }
+    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(ot + (i * kHead + d) * kLanes, o[d]);
+  }
+  scatter_tokens<kHead>(ot, 1.0f, g, h, lq, out);
+  if (row0) {
+    const __m512i idx = strides(pr.heads * lk);
+    for (int64_t j = 0; j < lk; ++j)
+      _mm512_mask_i32scatter_ps(row0 + (g.r0 * pr.heads + h) * lk + j, g.valid, idx, _mm512_load_ps(p + j * kLanes), 4);
+  }
+}
+
+// One (group, head)'s gradients, every element of dq, dk and dv written. Query by query: dP = dO
+// V^T (+ the row-0 gradient on row 0), dS = P * (dP - rowsum(dP * P)) kept whole, dQ = s dS K in
+// registers; then key by key, in registers over the queries: dV = P^T dO, dK = s dS^T Q.
+template <int64_t kHead>
+ABLENERF_TARGET_AVX512 void backward_unit(const Problem<float>& pr, const Group& g, int64_t h, float* scratch,
+                                          const float* p, const Operand<const float>& go, const float* g_row0,
+                                          const Operand<float>& dq, const Operand<float>& dk,
+                                          const Operand<float>& dv) {
+  const int64_t lq = pr.lq, lk = pr.lk, qs = lq * kHead * kLanes, ks = lk * kHead * kLanes;
+  float* qt = scratch;
+  float* kt = qt + qs;
+  float* vt = kt + ks;
+  float* gt = vt + ks;
+  float* dqt = gt + qs;
+  float* dkt = dqt + qs;
+  float* dvt = dkt + ks;
+  float* ds = dvt + ks;  // lq x lk vectors
+  gather_tokens<kHead>(pr.q, g, h, lq, qt);
+  gather_tokens<kHead>(pr.k, g, h, lk, kt);
+  gather_tokens<kHead>(pr.v, g, h, lk, vt);
+  gather_tokens<kHead>(go, g, h, lq, gt);
+  const float* mask = pr.mask.defined() ? pr.mask.data_ptr<float>() : nullptr;
+  for (int64_t i = 0; i < lq; ++i) {
+    const float* prow = p + i * lk * kLanes;
+    float* dsrow = ds + i * lk * kLanes;
+    __m512 dot = _mm512_setzero_ps();
+    {
+      __m512 gi[kHead];
+      for (int64_t d = 0; d < kHead; ++d) gi[d] = _mm512_load_ps(gt + (i * kHead + d) * kLanes);
+      for (int64_t j = 0; j < lk; ++j) {
+        if (blocked(mask, lk, i, j)) continue;
+        const float* vj = vt + j * kHead * kLanes;
+        __m512 a0 = _mm512_mul_ps(gi[0], _mm512_load_ps(vj)), a1 = _mm512_mul_ps(gi[1], _mm512_load_ps(vj + kLanes));
+        for (int64_t d = 2; d < kHead; d += 2) {
+          a0 = _mm512_fmadd_ps(gi[d], _mm512_load_ps(vj + d * kLanes), a0);
+          a1 = _mm512_fmadd_ps(gi[d + 1], _mm512_load_ps(vj + (d + 1) * kLanes), a1);
+        }
+        __m512 dp = _mm512_add_ps(a0, a1);
+        if (i == 0 && g_row0)
+          dp = _mm512_add_ps(dp, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), g.valid, strides(pr.heads * lk),
+                                                          g_row0 + (g.r0 * pr.heads + h) * lk + j, 4));
+        _mm512_store_ps(dsrow + j * kLanes, dp);
+        dot = _mm512_fmadd_ps(dp, _mm512_load_ps(prow + j * kLanes), dot);
+      }
+    }
+    __m512 dqi[kHead];
+    for (int64_t d = 0; d < kHead; ++d) dqi[d] = _mm512_setzero_ps();
+    for (int64_t j = 0; j < lk; ++j) {
+      if (blocked(mask, lk, i, j)) {
+        _mm512_store_ps(dsrow + j * kLanes, _mm512_setzero_ps());
+        continue;
+      }
+      const __m512 dsj =
+          _mm512_mul_ps(_mm512_load_ps(prow + j * kLanes), _mm512_sub_ps(_mm512_load_ps(dsrow + j * kLanes), dot));
+      const float* kj = kt + j * kHead * kLanes;
+      for (int64_t d = 0; d < kHead; ++d) dqi[d] = _mm512_fmadd_ps(dsj, _mm512_load_ps(kj + d * kLanes), dqi[d]);
+      _mm512_store_ps(dsrow + j * kLanes, dsj);
+    }
+    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dqt + (i * kHead + d) * kLanes, dqi[d]);
+  }
+  for (int64_t j = 0; j < lk; ++j) {
+    __m512 acc[kHead];
+    for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_setzero_ps();
+    for (int64_t i = 0; i < lq; ++i) {
+      if (blocked(mask, lk, i, j)) continue;
+      const __m512 pij = _mm512_load_ps(p + (i * lk + j) * kLanes);
+      const float* gi = gt + i * kHead * kLanes;
+      for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_fmadd_ps(pij, _mm512_load_ps(gi + d * kLanes), acc[d]);
+    }
+    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dvt + (j * kHead + d) * kLanes, acc[d]);
+    for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_setzero_ps();
+    for (int64_t i = 0; i < lq; ++i) {
+      if (blocked(mask, lk, i, j)) continue;
+      const __m512 dsij = _mm512_load_ps(ds + (i * lk + j) * kLanes);
+      const float* qi = qt + i * kHead * kLanes;
+      for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_fmadd_ps(dsij, _mm512_load_ps(qi + d * kLanes), acc[d]);
+    }
+    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dkt + (j * kHead + d) * kLanes, acc[d]);
+  }
+  const float scale = static_cast<float>(pr.scale);
+  scatter_tokens<kHead>(dqt, scale, g, h, lq, dq);
+  scatter_tokens<kHead>(dkt, scale, g, h, lk, dk);
+  scatter_tokens<kHead>(dvt, 1.0f, g, h, lk, dv);
+}
+
+// Floats of one unit's scratch (forward: Q, K, V, O; backward: Q, K, V, dO, dQ, dK, dV, dS).
+int64_t scratch_floats(const Problem<float>& pr) {
+  return (3 * pr.lq + 4 * pr.lk) * pr.dh * kLanes + pr.lq * pr.lk * kLanes;
+}
+
+// f(std::integral_constant<int64_t, dh>) for the head widths fit() takes.
+template <class F>
+void dispatch(const Problem<float>& pr, F&& f) {
+  if (pr.dh == 16) return f(std::integral_constant<int64_t, 16>());
+  TORCH_CHECK(pr.dh == 24, "packed attention: no ray-lane form for heads of ", pr.dh);
+  f(std::integral_constant<int64_t, 24>());
+}
+
+Group group_of(const Problem<float>& pr, int64_t unit) {
+  const int64_t r0 = unit / pr.heads * kLanes, n = std::min<int64_t>(kLanes, pr.b - r0);
+  return {r0, static_cast<__mmask16>((1u << n) - 1u)};
+}
+
+}  // namespace ray_lanes
+#endif
+
+// Whether the ray-lane form takes a problem of these sizes in `form` for tensors of `type`.
+bool lanes_available(CpuVectorForm form, c10::ScalarType type, int64_t b, int64_t dh, int64_t lq, int64_t lk) {
+#ifdef ABLENERF_ATTENTION_ITEMS_AVX512
+  return vector_items_available(form, type) && ray_lanes::fit(b, dh, lq, lk);
+#else
+  (void)form, (void)type, (void)b, (void)dh, (void)lq, (void)lk;
+  return false;
+#endif
+}
+
+// The forward and backward of every (group of sixteen rays, head) in the ray-lane form.
+template <class T>
+void forward_lanes(const Problem<T>&, T*, const Operand<T>&, T*) {
+  TORCH_CHECK(false, "packed attention: the ray-lane form is float only");
+}
+template <class T>
+void backward_lanes(const Problem<T>&, const T*, const Operand<const T>&, const T*, const Operand<T>&,
+                    const Operand<T>&, const Operand<T>&) {
+  TORCH_CHECK(false, "packed attention: the ray-lane form is float only");
+}
+#ifdef ABLENERF_ATTENTION_ITEMS_AVX512
+// Units of (group, head) per thread below which a second thread costs more than it saves.
+constexpr int64_t kMinUnitsPerThread = 2;
+
+// keep: the planes() probabilities saved for backward, or null (then each thread's own scratch).
+template <>
+void forward_lanes<float>(const Problem<float>& pr, float* keep, const Operand<float>& out, float* row0) {
+  const int64_t units = ray_lanes::groups(pr.b) * pr.heads, plane = pr.lq * pr.lk * kLanes;
+  parallel_slices(units, cpu_workers(units, kMinUnitsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
+    thread_local AlignedFloats scratch;
+    scratch.resize(static_cast<size_t>(ray_lanes::scratch_floats(pr) + (keep ? 0 : plane)));
+    float* own = scratch.data() + ray_lanes::scratch_floats(pr);
+    ray_lanes::dispatch(pr, [&](auto dh) {
+      for (int64_t u = lo; u < hi; ++u)
+        ray_lanes::forward_unit<decltype(dh)::value>(pr, ray_lanes::group_of(pr, u), u % pr.heads, scratch.data(),
+                                                     keep ? keep + u * plane : own, out, row0);
+    });
+  });
+}
+template <>
+void backward_lanes<float>(const Problem<float>& pr, const float* p, const Operand<const float>& go,
+                           const float* g_row0, const Operand<float>& dq, const Operand<float>& dk,
+                           const Operand<float>& dv) {
+  const int64_t units = ray_lanes::groups(pr.b) * pr.heads, plane = pr.lq * pr.lk * kLanes;
+  parallel_slices(units, cpu_workers(units, kMinUnitsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
+    thread_local AlignedFloats scratch;
+    scratch.resize(static_cast<size_t>(ray_lanes::scratch_floats(pr)));
+    ray_lanes::dispatch(pr, [&](auto dh) {
+      for (int64_t u = lo; u < hi; ++u)
+        ray_lanes::backward_unit<decltype(dh)::value>(pr, ray_lanes::group_of(pr, u), u % pr.heads, scratch.data(),
+                                                      p + u * plane, go, g_row0, dq, dk, dv);
+    });
+  });
+}
 #endif
 
 // The items [lo, hi) in the vector form when the problem chose it (float only): true when done.
@@ -413,6 +748,10 @@ torch::Tensor forward_all(const Problem<T>& pr, const torch::TensorOptions& opti
   auto out = torch::empty({pr.b, pr.lq, pr.heads * pr.dh}, options);
   const Operand<T> o{out.template data_ptr<T>(), pr.lq * pr.heads * pr.dh, pr.heads * pr.dh};
   T* row0_at = row0.defined() ? row0.template data_ptr<T>() : nullptr;
+  if (pr.lanes) {
+    forward_lanes(pr, keep.defined() ? keep.template data_ptr<T>() : nullptr, o, row0_at);
+    return out;
+  }
   const SingleThreadedBlas single;  // also when serial: OpenBLAS's pool costs more than it saves here
   parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     auto p = keep.defined() ? keep.slice(0, lo, hi) : torch::empty({hi - lo, pr.lq, pr.lk}, options);
@@ -484,7 +823,8 @@ Problem<T> make_problem(const torch::Tensor& q_src, const torch::Tensor& kv, boo
                 operand<T>(kv, c.v),
                 mask.defined() && mask.numel() > 0 ? mask : torch::Tensor(),
                 scale,
-                vector_items};
+                vector_items,
+                lanes_available(form, q_src.scalar_type(), kv.size(0), width / heads, q_src.size(1), kv.size(1))};
   return pr;
 }
 
@@ -501,13 +841,14 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
                                                 int64_t width, double scale, int64_t form, bool with_row0) {
     const bool self = kv_src.numel() == 0;
     const auto& kv = self ? q_src : kv_src;
-    auto p = torch::empty({kv.size(0) * heads, q_src.size(1), kv.size(1)}, q_src.options());
+    torch::Tensor p;
     auto row0 =
         with_row0 ? torch::empty({kv.size(0), heads, kv.size(1)}, q_src.options()) : torch::empty({0}, q_src.options());
     torch::Tensor out;
     AT_DISPATCH_FLOATING_TYPES(q_src.scalar_type(), "packed_attention", [&] {
       const auto pr =
           make_problem<scalar_t>(q_src, kv, self, heads, width, mask, scale, static_cast<CpuVectorForm>(form));
+      p = torch::empty({pr.planes(), pr.lq, pr.lk}, q_src.options());
       out = forward_all(pr, q_src.options(), p, with_row0 ? row0 : torch::Tensor());
     });
     ctx->set_materialize_grads(false);
@@ -547,6 +888,7 @@ class PackedAttentionFunction : public torch::autograd::Function<PackedAttention
       const auto dq = out_operand(d_q, 0);
       const KvColumns c = kv_columns(self, width);
       const auto dk = out_operand(d_kv, c.k), dv = out_operand(d_kv, c.v);
+      if (pr.lanes) return backward_lanes(pr, p.data_ptr<scalar_t>(), g, gr, dq, dk, dv);
       const SingleThreadedBlas single;
       parallel_slices(pr.items(), cpu_workers(pr.items(), kMinItemsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
         if (!backward_vector_items(pr, lo, hi, p.data_ptr<scalar_t>() + lo * pr.lq * pr.lk, g, gr, dq, dk, dv))

@@ -181,6 +181,46 @@ TEST(PackedAttention, WholeVectorHeadsSplitAcrossThreads) {
   compare({rnd({1, 9, h.width()}, torch::kFloat, 201), rnd({64, 17, 2 * h.width()}, torch::kFloat, 202), {}, h}, 2e-5);
 }
 
+// Sixteen rays to a vector (heads of 16 or 24, at most 32 tokens, at least 16 rays): whole groups
+// and a last group with one ray or fifteen, one token to 32 (33 goes back to the items), the ray
+// mask (whose blocked keys are skipped) and none, cross-attention with shared and per-ray queries,
+// with the first query's row and its gradient; against the reference formula in float32.
+TEST(PackedAttention, RayLanesMatchReference) {
+  if (!cpu_vector_form_available(CpuVectorForm::Avx512)) GTEST_SKIP() << "no AVX-512 on this CPU";
+  uint64_t seed = 300;
+  for (const int64_t rays : {16, 17, 31, 48}) {
+    for (const int64_t tokens : {1, 5, 17, 32, 33}) {
+      for (const Heads h : {Heads{2, 16}, Heads{1, 24}}) {
+        const int64_t e = h.width();
+        SCOPED_TRACE(std::to_string(rays) + " rays, " + std::to_string(tokens) + " tokens, heads of " +
+                     std::to_string(h.dim));
+        const auto mask = ray_mask(tokens);
+        compare({rnd({rays, tokens, 3 * e}, torch::kFloat, ++seed), {}, mask, h, CpuVectorForm::Avx512}, 2e-5);
+        compare({rnd({rays, tokens, 3 * e}, torch::kFloat, ++seed), {}, {}, h, CpuVectorForm::Avx512}, 2e-5);
+        compare({rnd({1, 8, e}, torch::kFloat, ++seed),
+                 rnd({rays, tokens, 2 * e}, torch::kFloat, ++seed),
+                 {},
+                 h,
+                 CpuVectorForm::Avx512},
+                2e-5);
+        compare({rnd({rays, 3, e}, torch::kFloat, ++seed),
+                 rnd({rays, tokens, 2 * e}, torch::kFloat, ++seed),
+                 {},
+                 h,
+                 CpuVectorForm::Avx512},
+                2e-5);
+      }
+    }
+  }
+  // A mask with finite entries beside the blocked ones: added to the scores as they are.
+  const Heads h{2, 16};
+  const int64_t e = h.width();
+  auto mask = ray_mask(9);
+  mask[3][1] = -1.5f;
+  mask[0][4] = 0.75f;
+  compare({rnd({20, 9, 3 * e}, torch::kFloat, 399), {}, mask, h, CpuVectorForm::Avx512}, 2e-5);
+}
+
 TEST(PackedAttention, InferenceModeGivesTheSameValues) {
   if (!packed_attention_available(torch::zeros({1}))) GTEST_SKIP() << "no CBLAS in this process";
   const test::IntraOpThreads threads(2);  // the products split across threads on any machine
