@@ -58,10 +58,26 @@ struct ProductTiming {
 // with bfloat16 operands where the CPU has the instructions.
 std::vector<ProductTiming> time_token_products(int64_t width, int64_t ff_ratio, int64_t tokens);
 
+// One of the transformer's fused CPU kernels timed alone on the calling thread at one training
+// slice's shapes: its forward without autograd, and its forward and backward under autograd (the
+// backward of a random output gradient).
+struct KernelTiming {
+  std::string name;
+  int64_t rays = 0, tokens = 0;
+  double forward_seconds = 0, train_seconds = 0;  // medians of one call
+};
+
+// The AB transformer layer's attention core under the ray mask (kernels/packed_attention.h) and
+// its block tail (kernels/block_tail.h) for `rays` rays of samples + 1 tokens of the model's width,
+// heads and feed-forward ratio, each alone on one thread.
+std::vector<KernelTiming> time_token_kernels(int64_t width, int64_t heads, int64_t ff_ratio, int64_t samples,
+                                             int64_t rays);
+
 struct BenchMeasurements {
   Timing train, render, matmul;
-  // CPU only: time_token_products at the run's shapes (empty on CUDA).
+  // CPU only: time_token_products and time_token_kernels at the run's shapes (empty on CUDA).
   std::vector<ProductTiming> products;
+  std::vector<KernelTiming> kernels;
   int64_t peak_memory_bytes = -1;  // -1 = unknown
   std::string peak_memory_source;
   int64_t threads = 1;  // intra-op threads used

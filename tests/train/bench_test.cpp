@@ -151,15 +151,36 @@ TEST(BenchReport, DerivedNumbersFollowFromMeasurements) {
   EXPECT_FALSE(j.contains("token_products"));  // none measured
 
   // A token product of 10 x 20 x 30 (12,000 FLOP) in 1e-5 s: 1.2e9 FLOP/s, against one thread's
-  // share of the 1e9 FLOP/s peak with 2 threads: 2.4 of it.
-  m.threads = 2;
+  // share of the 1e9 FLOP/s peak that kept 2 threads busy (CPU time twice the wall time, whatever
+  // the intra-op count): 2.4 of it.
+  m.threads = 1;
+  m.matmul.cpu_s = {0.002, 0.004, 0.008};
   m.products = {{"qkv projection", 10, 20, 30, false, 1e-5}};
+  m.kernels = {{"block tail", 8, 17, 2e-5, 6e-5}};
   const auto with = bench_report(cfg, o, m);
+  const auto& k = with["token_kernels"]["kernels"].at(0);
+  EXPECT_EQ(k["name"], "block tail");
+  EXPECT_EQ(k["rays"].get<int64_t>(), 8);
+  EXPECT_DOUBLE_EQ(k["forward_backward_seconds_median"].get<double>(), 6e-5);
   EXPECT_DOUBLE_EQ(with["token_products"]["thread_peak_flop_per_s"].get<double>(), 5e8);
   const auto& p = with["token_products"]["products"].at(0);
   EXPECT_EQ(p["name"], "qkv projection");
   EXPECT_DOUBLE_EQ(p["flop_per_s"].get<double>(), 1.2e9);
   EXPECT_DOUBLE_EQ(p["fraction_of_thread_peak"].get<double>(), 2.4);
+}
+
+// The fused kernels run at the AB layer's shapes: rays of samples + 1 tokens, both timings positive.
+TEST(BenchRun, TokenKernelsHaveTheLayersShapes) {
+  const auto list = time_token_kernels(/*width=*/32, /*heads=*/2, /*ff_ratio=*/2, /*samples=*/16, /*rays=*/20);
+  ASSERT_EQ(list.size(), 2u);
+  EXPECT_EQ(list[0].name, "attention core (ray mask)");
+  EXPECT_EQ(list[1].name, "block tail");
+  for (const auto& k : list) {
+    EXPECT_EQ(k.rays, 20) << k.name;
+    EXPECT_EQ(k.tokens, 17) << k.name;
+    EXPECT_GT(k.forward_seconds, 0) << k.name;
+    EXPECT_GT(k.train_seconds, 0) << k.name;
+  }
 }
 
 // The products are the transformer's at the given width, feed-forward ratio and tokens, and
