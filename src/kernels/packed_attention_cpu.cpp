@@ -425,6 +425,11 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void transpose16(__m512 (&r)[kLane
 // The valid lanes' count.
 ABLENERF_ALWAYS_INLINE int64_t lane_count(const Group& g) { return __builtin_popcount(g.valid); }
 
+// The columns [d0, d0 + 16) of a head of `head` floats that exist, as a lane mask.
+ABLENERF_ALWAYS_INLINE __mmask16 chunk_columns(int64_t head, int64_t d0) {
+  return head - d0 >= kLanes ? 0xFFFF : static_cast<__mmask16>((1u << (head - d0)) - 1u);
+}
+
 // t[(i * dh + d) * 16 + lane] = x(ray r0 + lane)[i][d] for n tokens (0 in invalid lanes): each
 // token's rows of the sixteen rays loaded whole, 16 features at a time, and transposed.
 template <int64_t kHead, class T>
@@ -433,7 +438,7 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void gather_tokens(const Operand<T
   const int64_t rays = lane_count(g);
   for (int64_t i = 0; i < n; ++i)
     for (int64_t d0 = 0; d0 < kHead; d0 += kLanes) {
-      const __mmask16 cols = kHead - d0 >= kLanes ? 0xFFFF : static_cast<__mmask16>((1u << (kHead - d0)) - 1u);
+      const __mmask16 cols = chunk_columns(kHead, d0);
       __m512 r[kLanes];
       for (int64_t l = 0; l < kLanes; ++l)
         r[l] = l < rays ? _mm512_maskz_loadu_ps(cols, x.at(g.r0 + l, h, kHead) + i * x.row + d0) : _mm512_setzero_ps();
@@ -450,7 +455,7 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void scatter_tokens(const float* t
   const __m512 sc = _mm512_set1_ps(scale);
   for (int64_t i = 0; i < n; ++i)
     for (int64_t d0 = 0; d0 < kHead; d0 += kLanes) {
-      const __mmask16 cols = kHead - d0 >= kLanes ? 0xFFFF : static_cast<__mmask16>((1u << (kHead - d0)) - 1u);
+      const __mmask16 cols = chunk_columns(kHead, d0);
       __m512 r[kLanes];
       for (int64_t d = 0; d < kLanes; ++d)
         r[d] =
@@ -463,6 +468,17 @@ ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void scatter_tokens(const float* t
 // Whether the additive mask blocks (i, j) outright.
 ABLENERF_ALWAYS_INLINE bool blocked(const float* mask, int64_t lk, int64_t i, int64_t j) {
   return mask != nullptr && mask[i * lk + j] == -std::numeric_limits<float>::infinity();
+}
+
+// sum over d of x[d] t[d] (t: one token's kHead vectors), in two chains of sums.
+template <int64_t kHead>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE __m512 token_dot(const __m512 (&x)[kHead], const float* t) {
+  __m512 a0 = _mm512_mul_ps(x[0], _mm512_load_ps(t)), a1 = _mm512_mul_ps(x[1], _mm512_load_ps(t + kLanes));
+  for (int64_t d = 2; d < kHead; d += 2) {
+    a0 = _mm512_fmadd_ps(x[d], _mm512_load_ps(t + d * kLanes), a0);
+    a1 = _mm512_fmadd_ps(x[d + 1], _mm512_load_ps(t + (d + 1) * kLanes), a1);
+  }
+  return _mm512_add_ps(a0, a1);
 }
 
 // One (group, head): probabilities into p (lq x lk vectors), the output into out, row 0 of the
@@ -488,13 +504,7 @@ ABLENERF_TARGET_AVX512 void forward_unit(const Problem<float>& pr, const Group& 
     __m512 mx = minus_inf;
     for (int64_t j = 0; j < lk; ++j) {
       if (blocked(mask, lk, i, j)) continue;
-      const float* kj = kt + j * kHead * kLanes;
-      __m512 a0 = _mm512_mul_ps(q[0], _mm512_load_ps(kj)), a1 = _mm512_mul_ps(q[1], _mm512_load_ps(kj + kLanes));
-      for (int64_t d = 2; d < kHead; d += 2) {
-        a0 = _mm512_fmadd_ps(q[d], _mm512_load_ps(kj + d * kLanes), a0);
-        a1 = _mm512_fmadd_ps(q[d + 1], _mm512_load_ps(kj + (d + 1) * kLanes), a1);
-      }
-      __m512 s = _mm512_mul_ps(_mm512_add_ps(a0, a1), sc);
+      __m512 s = _mm512_mul_ps(token_dot<kHead>(q, kt + j * kHead * kLanes), sc);
       if (mask) s = _mm512_add_ps(s, _mm512_set1_ps(mask[i * lk + j]));
       _mm512_store_ps(prow + j * kLanes, s);
       mx = _mm512_max_ps(mx, s);
@@ -529,6 +539,22 @@ ABLENERF_TARGET_AVX512 void forward_unit(const Problem<float>& pr, const Group& 
   }
 }
 
+// Key j's row of A^T T into out: out[j][d] = sum over the queries i that see key j of a[i][j] t[i][d]
+// (a: lq x lk vectors, t and out: tokens of kHead vectors), the sums in registers.
+template <int64_t kHead>
+ABLENERF_TARGET_AVX512 ABLENERF_ALWAYS_INLINE void key_column(const float* a, const float* t, const float* mask,
+                                                              int64_t lq, int64_t lk, int64_t j, float* out) {
+  __m512 acc[kHead];
+  for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_setzero_ps();
+  for (int64_t i = 0; i < lq; ++i) {
+    if (blocked(mask, lk, i, j)) continue;
+    const __m512 aij = _mm512_load_ps(a + (i * lk + j) * kLanes);
+    const float* ti = t + i * kHead * kLanes;
+    for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_fmadd_ps(aij, _mm512_load_ps(ti + d * kLanes), acc[d]);
+  }
+  for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(out + (j * kHead + d) * kLanes, acc[d]);
+}
+
 // One (group, head)'s gradients, every element of dq, dk and dv written. Query by query: dP = dO
 // V^T (+ the row-0 gradient on row 0), dS = P * (dP - rowsum(dP * P)) kept whole, dQ = s dS K in
 // registers; then key by key, in registers over the queries: dV = P^T dO, dK = s dS^T Q.
@@ -560,13 +586,7 @@ ABLENERF_TARGET_AVX512 void backward_unit(const Problem<float>& pr, const Group&
       for (int64_t d = 0; d < kHead; ++d) gi[d] = _mm512_load_ps(gt + (i * kHead + d) * kLanes);
       for (int64_t j = 0; j < lk; ++j) {
         if (blocked(mask, lk, i, j)) continue;
-        const float* vj = vt + j * kHead * kLanes;
-        __m512 a0 = _mm512_mul_ps(gi[0], _mm512_load_ps(vj)), a1 = _mm512_mul_ps(gi[1], _mm512_load_ps(vj + kLanes));
-        for (int64_t d = 2; d < kHead; d += 2) {
-          a0 = _mm512_fmadd_ps(gi[d], _mm512_load_ps(vj + d * kLanes), a0);
-          a1 = _mm512_fmadd_ps(gi[d + 1], _mm512_load_ps(vj + (d + 1) * kLanes), a1);
-        }
-        __m512 dp = _mm512_add_ps(a0, a1);
+        __m512 dp = token_dot<kHead>(gi, vt + j * kHead * kLanes);
         if (i == 0 && g_row0)
           dp = _mm512_add_ps(dp, _mm512_mask_i32gather_ps(_mm512_setzero_ps(), g.valid, strides(pr.heads * lk),
                                                           g_row0 + (g.r0 * pr.heads + h) * lk + j, 4));
@@ -590,23 +610,8 @@ ABLENERF_TARGET_AVX512 void backward_unit(const Problem<float>& pr, const Group&
     for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dqt + (i * kHead + d) * kLanes, dqi[d]);
   }
   for (int64_t j = 0; j < lk; ++j) {
-    __m512 acc[kHead];
-    for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_setzero_ps();
-    for (int64_t i = 0; i < lq; ++i) {
-      if (blocked(mask, lk, i, j)) continue;
-      const __m512 pij = _mm512_load_ps(p + (i * lk + j) * kLanes);
-      const float* gi = gt + i * kHead * kLanes;
-      for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_fmadd_ps(pij, _mm512_load_ps(gi + d * kLanes), acc[d]);
-    }
-    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dvt + (j * kHead + d) * kLanes, acc[d]);
-    for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_setzero_ps();
-    for (int64_t i = 0; i < lq; ++i) {
-      if (blocked(mask, lk, i, j)) continue;
-      const __m512 dsij = _mm512_load_ps(ds + (i * lk + j) * kLanes);
-      const float* qi = qt + i * kHead * kLanes;
-      for (int64_t d = 0; d < kHead; ++d) acc[d] = _mm512_fmadd_ps(dsij, _mm512_load_ps(qi + d * kLanes), acc[d]);
-    }
-    for (int64_t d = 0; d < kHead; ++d) _mm512_store_ps(dkt + (j * kHead + d) * kLanes, acc[d]);
+    key_column<kHead>(p, gt, mask, lq, lk, j, dvt);   // dV = P^T dO
+    key_column<kHead>(ds, qt, mask, lq, lk, j, dkt);  // dK / s = dS^T Q
   }
   const float scale = static_cast<float>(pr.scale);
   scatter_tokens<kHead>(dqt, scale, g, h, lq, dq);
