@@ -91,6 +91,11 @@ struct Operand {
   T* at(int64_t b, int64_t h, int64_t dh) const { return base + b * batch + h * dh; }
 };
 
+// Floats in one AVX-512 vector: a row chunk of the vector items, a group of rays in the ray lanes.
+constexpr int64_t kLanes = 16;
+// Groups of kLanes rays that hold b rays (the last one may be partly used).
+int64_t lane_groups(int64_t b) { return (b + kLanes - 1) / kLanes; }
+
 // The layout of one call: B rays, H heads of width dh, lq queries, lk keys; and its operands.
 template <class T>
 struct Problem {
@@ -103,7 +108,9 @@ struct Problem {
   int64_t items() const { return b * heads; }
   // The probabilities' planes of lq x lk: one per item, or with lanes one per item of a whole
   // number of groups of sixteen rays (the last group's unused lanes included).
-  int64_t planes() const { return lanes ? (b + 15) / 16 * 16 * heads : b * heads; }
+  int64_t planes() const { return lanes ? lane_units() * kLanes : items(); }
+  // The ray lanes' units of work: one (group of kLanes rays, head) each.
+  int64_t lane_units() const { return lane_groups(b) * heads; }
 };
 
 // Operands of a packed tensor x (B', L, C): columns [offset, offset + E) of every token; a batch
@@ -166,7 +173,7 @@ void softmax_backward_rows(T* dp, const T* p, int64_t rows, int64_t lk) {
 // backward keeps; the products by a row of probabilities or gradients (P V, P^T dO, dS K, dS^T Q)
 // through small_gemm. The same sums as the loops above in another order: float rounding apart,
 // the same values.
-constexpr int64_t kItemMaxTokens = 64, kItemMaxVectors = 4, kLanes = 16;
+constexpr int64_t kItemMaxTokens = 64, kItemMaxVectors = 4;
 
 bool vector_items_fit(int64_t dh, int64_t lq, int64_t lk) {
   return dh >= 1 && dh <= kItemMaxVectors * kLanes && lq >= 1 && lq <= kItemMaxTokens && lk >= 1 &&
@@ -377,8 +384,6 @@ void dispatch(const Problem<float>& pr, F&& f) {
 namespace ray_lanes {
 
 constexpr int64_t kMaxTokens = 32;
-
-int64_t groups(int64_t b) { return (b + kLanes - 1) / kLanes; }
 
 bool fit(int64_t b, int64_t dh, int64_t lq, int64_t lk) {
   return (dh == 16 || dh == 24) && b >= kLanes && lq >= 1 && lq <= kMaxTokens && lk >= 1 && lk <= kMaxTokens;
@@ -667,7 +672,7 @@ constexpr int64_t kMinUnitsPerThread = 2;
 // keep: the planes() probabilities saved for backward, or null (then each thread's own scratch).
 template <>
 void forward_lanes<float>(const Problem<float>& pr, float* keep, const Operand<float>& out, float* row0) {
-  const int64_t units = ray_lanes::groups(pr.b) * pr.heads, plane = pr.lq * pr.lk * kLanes;
+  const int64_t units = pr.lane_units(), plane = pr.lq * pr.lk * kLanes;
   parallel_slices(units, cpu_workers(units, kMinUnitsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     thread_local AlignedFloats scratch;
     scratch.resize(static_cast<size_t>(ray_lanes::scratch_floats(pr) + (keep ? 0 : plane)));
@@ -683,7 +688,7 @@ template <>
 void backward_lanes<float>(const Problem<float>& pr, const float* p, const Operand<const float>& go,
                            const float* g_row0, const Operand<float>& dq, const Operand<float>& dk,
                            const Operand<float>& dv) {
-  const int64_t units = ray_lanes::groups(pr.b) * pr.heads, plane = pr.lq * pr.lk * kLanes;
+  const int64_t units = pr.lane_units(), plane = pr.lq * pr.lk * kLanes;
   parallel_slices(units, cpu_workers(units, kMinUnitsPerThread), [&](int64_t, int64_t lo, int64_t hi) {
     thread_local AlignedFloats scratch;
     scratch.resize(static_cast<size_t>(ray_lanes::scratch_floats(pr)));

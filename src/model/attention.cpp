@@ -19,7 +19,6 @@
 namespace ablenerf {
 
 namespace {
-constexpr double kLayerNormEps = 1e-5;  // PyTorch default, used by the release
 // Widths the fused LayerNorm kernel takes (kernels/residual_layer_norm.h): a multiple of a warp.
 constexpr int64_t kWarp = 32, kMaxFusedWidth = 1024;
 // The widest block whose tail runs as kernels/block_tail.h on the CPU: its products are the

@@ -11,6 +11,9 @@
 
 namespace ablenerf {
 
+// The blocks' LayerNorm epsilon: PyTorch's default, which the authors' release uses.
+constexpr double kLayerNormEps = 1e-5;
+
 // What the resampler needs from one self-attention layer: the ray token's (row 0) query and
 // every key, detached, so its attention row can be recomputed as one extra query (docs/MODEL.md, section 5)
 // without ever materialising per-layer attention matrices for the caller.

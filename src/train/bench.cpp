@@ -28,6 +28,7 @@
 #include "kernels/small_gemm.h"
 #include "model/ab_transformer.h"
 #include "model/able_nerf.h"
+#include "model/attention.h"
 #include "model/compute.h"
 #include "train/trainer.h"
 #include "util/fs.h"
@@ -271,7 +272,7 @@ std::vector<KernelTiming> time_token_kernels(int64_t width, int64_t heads, int64
   std::vector<KernelTiming> list;
   const auto attention = time([&] { return packed_self_attention(qkv, heads, mask, scale); });
   list.push_back({"attention core (ray mask)", rays, l, attention.first, attention.second});
-  const auto tail = time([&] { return block_tail(x, attended, w, 1e-5); });
+  const auto tail = time([&] { return block_tail(x, attended, w, kLayerNormEps); });
   list.push_back({"block tail", rays, l, tail.first, tail.second});
   return list;
 }
