@@ -85,8 +85,14 @@ void write_file(const std::string& path, const std::string& text) {
   if (!out) throw std::runtime_error("cannot write " + path);
 }
 
-IntraOpThreads::IntraOpThreads(int threads) : previous_(at::get_num_threads()) { at::set_num_threads(threads); }
-IntraOpThreads::~IntraOpThreads() { at::set_num_threads(previous_); }
+IntraOpThreads::IntraOpThreads(int threads) : previous_(at::get_num_threads()) {
+  at::set_num_threads(threads);
+  if (threads == 1) single_blas_.emplace();
+}
+IntraOpThreads::~IntraOpThreads() {
+  single_blas_.reset();
+  at::set_num_threads(previous_);
+}
 
 Rays random_rays(int64_t n, uint64_t seed, torch::Dtype dtype) {
   torch::Generator gen = at::detail::createCPUGenerator(seed);

@@ -4,10 +4,12 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "data/rays.h"
+#include "kernels/cpu_parallel.h"
 #include "util/config.h"
 #include "model/model_config.h"
 
@@ -131,7 +133,9 @@ constexpr double kBlenderPixelRadius = 5.196e-4;
 Rays random_rays(int64_t n, uint64_t seed, torch::Dtype dtype = torch::kFloat);
 
 // LibTorch's intra-op thread count set to `threads` for the scope, restored afterwards. The CPU
-// ray split takes the larger of this count and OpenBLAS's, so 2 makes it split on any machine.
+// ray split and the optimiser's loops take the larger of this count and OpenBLAS's
+// (kernels/cpu_parallel.h), so 2 makes them split on any machine, and 1 holds OpenBLAS's pool to
+// one thread as well, so that the scope runs serially.
 class IntraOpThreads {
  public:
   explicit IntraOpThreads(int threads);
@@ -141,6 +145,7 @@ class IntraOpThreads {
 
  private:
   int previous_;
+  std::optional<SingleThreadedBlas> single_blas_;
 };
 
 // Runs `f` and expects an InputError naming `file`, a field that equals `field` (exact_field) or

@@ -66,6 +66,8 @@ void add_zero_state(Map& state, const torch::Tensor& p) {
 
 }  // namespace
 
+torch::optim::AdamParamState& Adam::state_of(const torch::Tensor& p) { return adam_state(optim_.state(), p); }
+
 bool Adam::device_form_available(const torch::Device& device) { return kDeviceFormCompiled && device.is_cuda(); }
 
 Adam::Adam(std::vector<torch::Tensor> params, double lr, bool device_form, const AdamSettings& settings)

@@ -43,6 +43,8 @@ class Adam {
   // True when step_host runs the plain loops (every parameter a contiguous CPU float32 tensor).
   bool host_loops() const { return host_loops_; }
   torch::optim::Adam& optim() { return optim_; }
+  // p's state in optim() (its moments and step count); throws std::out_of_range before p's first step.
+  torch::optim::AdamParamState& state_of(const torch::Tensor& p);
 
   void set_lr(double lr);  // host form: the options; device form: an asynchronous fill
   void clear_grads();      // every .grad undefined (the next backward writes fresh buffers)

@@ -68,6 +68,7 @@ Trainer::Trainer(Config config, TrainOptions opts)
 Trainer::~Trainer() = default;
 
 AbleNerf& Trainer::model() { return s_->model; }
+Adam& Trainer::optimiser() { return *s_->adam; }
 int64_t Trainer::steps_done() const { return s_->state.step; }
 bool Trainer::device_form() const { return s_->cuda != nullptr; }
 bool Trainer::graph_captured() const { return s_->cuda && s_->cuda->captured(); }

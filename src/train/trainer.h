@@ -30,6 +30,7 @@
 
 namespace ablenerf {
 
+class Adam;         // train/adam.h
 class Distributed;  // train/distributed.h
 
 class Trainer;
@@ -103,6 +104,8 @@ class Trainer {
   TrainResult run();
 
   AbleNerf& model();
+  // The optimiser and its state (tests read the moments of a step).
+  Adam& optimiser();
   int64_t steps_done() const;
   // Writes the checkpoint and weights now (what run() does at its checkpoints).
   void checkpoint_now();

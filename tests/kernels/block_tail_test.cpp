@@ -54,11 +54,16 @@ void compare_tail_with_reference(const BlockTailCase& c, uint64_t seed, CpuVecto
     out->push_back(y.detach());
     for (const auto& leaf : leaves) out->push_back(leaf.grad());
   }
-  // Sums of up to (B L) terms of unit scale (the parameters' gradients) or of E and F terms.
-  const double terms = double(std::max({c.b * c.l, c.e, c.f}));
+  // Each entry is a sum of a known number of terms of about unit scale: the output and the heads'
+  // gradient of E and F (a row's products), the residual's gradient of those over the B / Bx rows
+  // that share one residual row, the parameters' gradients of up to B L rows as well.
+  const double row_terms = double(std::max(c.e, c.f));
   for (size_t i = 0; i < got.size(); ++i) {
     ASSERT_TRUE(got[i].defined()) << "gradient " << i;
     ASSERT_EQ(got[i].sizes(), want[i].sizes()) << i;
+    const double terms = i == 0 || i == 2 ? row_terms
+                         : i == 1         ? row_terms * double(c.b / c.bx)
+                                          : std::max(row_terms, double(c.b * c.l));
     const double tol = 2e-6 * terms * std::max(1.0, test::max_abs(want[i])) + 1e-5;
     EXPECT_LT(test::max_abs(got[i] - want[i]), tol)
         << "output/gradient " << i << " b " << c.b << " bx " << c.bx << " l " << c.l << " e " << c.e << " f " << c.f

@@ -82,7 +82,7 @@ TEST(Attention, SelfBlockMatchesPerHeadReference) {
     const auto m = use_mask ? mask : torch::Tensor();
     const auto out = blk->forward_self(x, m);
     for (int64_t r = 0; r < b; ++r)
-      EXPECT_TRUE(torch::allclose(out[r], ref_block(*blk, x[r], x[r], m), 1e-5, 1e-5)) << r << use_mask;
+      EXPECT_TRUE(torch::allclose(out[r], ref_block(*blk, x[r], x[r], m), 1e-10, 1e-10)) << r << use_mask;
   }
   // Float path too (what the model runs).
   blk->to(torch::kFloat);
@@ -100,7 +100,7 @@ TEST(Attention, CrossBlockWithSharedQueriesMatchesReference) {
   const auto out = blk->forward_cross(le, kv);
   ASSERT_EQ(out.sizes(), (std::vector<int64_t>{2, 5, kWidth}));
   for (int64_t r = 0; r < 2; ++r)
-    EXPECT_TRUE(torch::allclose(out[r], ref_block(*blk, le[0], kv[r], torch::Tensor()), 1e-5, 1e-5)) << r;
+    EXPECT_TRUE(torch::allclose(out[r], ref_block(*blk, le[0], kv[r], torch::Tensor()), 1e-10, 1e-10)) << r;
 }
 
 TEST(Attention, FirstTokenPathEqualsRowZeroOfSelfAttention) {

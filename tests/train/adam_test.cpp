@@ -8,10 +8,12 @@
 
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <sstream>
 #include <utility>
 #include <vector>
 
+#include "kernels/cpu_parallel.h"
 #include "kernels/hash_grid.h"
 #include "kernels/table_gradient.h"
 #include "train/adam.h"
@@ -111,20 +113,31 @@ TEST(Adam, HostLoopsFollowTorchOptimAdamWithOtherConstants) { follow_reference(A
 // A loaded checkpoint brings the options it was saved with; the run's own settings win.
 TEST(Adam, ThreadCountChangesNoBit) {
   // The update is element by element: one thread or several give the same parameters and moments.
-  const auto run = [](int threads) {
+  // The loops split by cpu_workers, whose budget is the larger of LibTorch's and OpenBLAS's thread
+  // counts: the serial run holds both to one, and each run checks how many workers it had.
+  int64_t total = 0;
+  for (const auto& p : make_params(torch::kFloat)) total += p.numel();
+  const auto run = [total](int threads, int64_t* workers) {
     const int before = at::get_num_threads();
     at::set_num_threads(threads);
+    std::optional<SingleThreadedBlas> single_blas;
+    if (threads == 1) single_blas.emplace();
+    *workers = cpu_workers(total, int64_t{1} << 16);
     auto ps = make_params(torch::kFloat);
     Adam adam(ps, 2e-3, false);
     for (int s = 0; s < 4; ++s) {
       set_grads(ps, s);
       EXPECT_TRUE(adam.step_host(1.0));
     }
+    single_blas.reset();
     at::set_num_threads(before);
     return ps;
   };
-  const auto one = run(1), two = run(2);
+  int64_t serial = 0, split = 0;
+  const auto one = run(1, &serial), two = run(2, &split);
+  EXPECT_EQ(serial, 1);
   for (size_t i = 0; i < one.size(); ++i) EXPECT_TRUE(torch::equal(one[i], two[i])) << "parameter " << i;
+  if (split < 2) GTEST_SKIP() << "one worker with two threads asked for: no OpenBLAS thread control in this build";
 }
 
 // With a parameter's entries set, its update touches only those: the same values there as the

@@ -6,6 +6,7 @@
 #include <torch/torch.h>
 
 #include "data/dataset.h"
+#include "train/adam.h"
 #include "train/lr_schedule.h"
 #include "train/ray_batch.h"
 #include "train/trainer.h"
@@ -72,14 +73,26 @@ TEST(TrainerStep, FirstStepIsTheClosedFormAdamStep) {
   const double lr = LrSchedule(c.get<TrainConfig>())(0);
   EXPECT_DOUBLE_EQ(r.lr, lr);
   EXPECT_EQ(t.steps_done(), 1);
-  int moved = 0;
+  // Adam's first step moves each weight by about lr times the sign of its gradient, whatever the
+  // gradient's scale; its moments are the gradient's own: (1 - beta1) g and (1 - beta2) g^2.
+  const auto& tc = c.get<TrainConfig>();
+  int moved = 0, moments = 0;
   for (size_t i = 0; i < params.size(); ++i) {
     if (!grads[i].defined()) continue;
     const auto expect = before[i] - lr * grads[i] / (grads[i].abs() + 1e-8);
     EXPECT_LT((params[i].detach() - expect).abs().max().item<double>(), 1e-5 * lr + 1e-7) << "parameter " << i;
     moved += (params[i].detach() - before[i]).abs().max().item<double>() > 0.5 * lr;
+    const auto& s = t.optimiser().state_of(params[i]);
+    const auto g = grads[i].detach();
+    const double scale = g.abs().max().item<double>();
+    EXPECT_LT((s.exp_avg() - (1 - tc.adam_beta1) * g).abs().max().item<double>(), 1e-5 * scale + 1e-12)
+        << "parameter " << i;
+    EXPECT_LT((s.exp_avg_sq() - (1 - tc.adam_beta2) * g * g).abs().max().item<double>(), 2e-5 * scale * scale + 1e-20)
+        << "parameter " << i;
+    ++moments;
   }
   EXPECT_GT(moved, 5);  // the step really moved weights, by about lr each
+  EXPECT_GT(moments, 5);
 }
 
 TEST(TrainerStep, NonFiniteStepIsSkipped) {

@@ -1,5 +1,5 @@
 // The training loop: it learns, a resumed run ends with exactly the weights of an uninterrupted one
-// (single-threaded), divergence stops the run with the last good checkpoint intact.
+// (serially, and with the ray split), divergence stops the run with the last good checkpoint intact.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
