@@ -63,6 +63,18 @@ std::string shared_weights_dir() {
   return fs::exists(p) ? p.string() : std::string();
 }
 
+ScopedEnv::ScopedEnv(const char* name, const std::string& value) : name_(name) {
+  if (const char* was = std::getenv(name)) previous_ = was;
+  ::setenv(name, value.c_str(), 1);
+}
+
+ScopedEnv::~ScopedEnv() {
+  if (previous_)
+    ::setenv(name_, previous_->c_str(), 1);
+  else
+    ::unsetenv(name_);
+}
+
 CommandResult run_cli(const std::string& args) {
   const char* bin = std::getenv("ABLENERF_BIN");
   if (!bin) throw std::runtime_error("ABLENERF_BIN is not set (run the tests through ctest)");

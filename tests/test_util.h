@@ -111,6 +111,20 @@ struct CommandResult {
   std::string output;  // stdout and stderr together
 };
 
+// An environment variable set for the scope (what run_cli starts inherits it), its previous value
+// (or its absence) restored after.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const std::string& value);
+  ~ScopedEnv();
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  const char* name_;
+  std::optional<std::string> previous_;
+};
+
 // Runs the built CLI ($ABLENERF_BIN) with the given argument string through /bin/sh.
 CommandResult run_cli(const std::string& args);
 

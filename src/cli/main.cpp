@@ -18,6 +18,7 @@
 #include "model/model_config.h"
 #include "train/train_config.h"
 #include "cli/command.h"
+#include "kernels/cpu_features.h"
 #include "kernels/cpu_parallel.h"
 #include "util/errors.h"
 #include "util/log.h"
@@ -75,6 +76,9 @@ int main(int argc, char** argv) {
     spec.setup(*sub);
   }
   try {
+    if (!cpu_isa_cap_known())
+      throw InputError(cpu_isa_cap_variable(), "", std::string("must be avx512, avx2 or baseline, got '") +
+                                                      std::getenv(cpu_isa_cap_variable()) + "'");
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);

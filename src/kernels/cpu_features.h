@@ -7,6 +7,9 @@
 //   void f_base(...) { body(...); }
 //   if (cpu_has_avx2_fma()) f_avx2(...); else f_base(...);
 
+#include <cstdlib>
+#include <cstring>
+
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define ABLENERF_HAVE_AVX2_FORM 1
 #define ABLENERF_TARGET_AVX2 __attribute__((target("avx2,fma")))
@@ -23,20 +26,51 @@
 
 namespace ablenerf {
 
-// True when this CPU runs AVX2 and FMA instructions (checked once).
+// The widest instructions the project's CPU kernels take: what the CPU runs, capped by the
+// environment variable ABLENERF_CPU_ISA where it is set, as oneDNN's ONEDNN_MAX_CPU_ISA caps
+// oneDNN's: "avx512" (no cap), "avx2" (no AVX-512 forms, no AMX tiles) or "baseline" (the scalar
+// loops every x86-64 CPU runs). A machine runs the forms another CPU would take, and the tests run
+// the scalar forms and the refusals of a CPU without AVX-512 or AMX on any CPU. OpenBLAS chooses
+// its own kernels (OPENBLAS_CORETYPE). Read once; the program refuses any other value at its start
+// (cpu_isa_cap_known).
+enum class CpuIsaCap { Baseline, Avx2, Avx512 };
+
+inline const char* cpu_isa_cap_variable() { return "ABLENERF_CPU_ISA"; }
+
+// True when ABLENERF_CPU_ISA is unset, empty or one of the three names.
+inline bool cpu_isa_cap_known() {
+  const char* v = std::getenv(cpu_isa_cap_variable());
+  return v == nullptr || *v == 0 || std::strcmp(v, "avx512") == 0 || std::strcmp(v, "avx2") == 0 ||
+         std::strcmp(v, "baseline") == 0;
+}
+
+inline CpuIsaCap cpu_isa_cap() {
+  static const CpuIsaCap cap = [] {
+    const char* v = std::getenv(cpu_isa_cap_variable());
+    if (v != nullptr && std::strcmp(v, "baseline") == 0) return CpuIsaCap::Baseline;
+    if (v != nullptr && std::strcmp(v, "avx2") == 0) return CpuIsaCap::Avx2;
+    return CpuIsaCap::Avx512;
+  }();
+  return cap;
+}
+
+// True when this CPU runs AVX2 and FMA instructions and the cap allows them (checked once).
 inline bool cpu_has_avx2_fma() {
 #ifdef ABLENERF_HAVE_AVX2_FORM
-  static const bool yes = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  static const bool yes =
+      cpu_isa_cap() != CpuIsaCap::Baseline && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   return yes;
 #else
   return false;
 #endif
 }
 
-// True when this CPU runs AVX-512 F and VL instructions (checked once); such a CPU has AVX2 and FMA.
+// True when this CPU runs AVX-512 F and VL instructions and the cap allows them (checked once);
+// such a CPU has AVX2 and FMA.
 inline bool cpu_has_avx512() {
 #ifdef ABLENERF_HAVE_AVX2_FORM
-  static const bool yes = cpu_has_avx2_fma() && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+  static const bool yes = cpu_isa_cap() == CpuIsaCap::Avx512 && cpu_has_avx2_fma() &&
+                          __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
   return yes;
 #else
   return false;

@@ -4,6 +4,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "kernels/cpu_features.h"
+
 #if defined(ABLENERF_HAVE_SLEEF) && defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define ABLENERF_GELU_SLEEF 1
 #include <immintrin.h>
@@ -89,8 +91,8 @@ bool gelu_cpu_path_available(GeluPath path) {
     case GeluPath::Auto:
     case GeluPath::Scalar: return true;
 #ifdef ABLENERF_GELU_SLEEF
-    case GeluPath::Avx512: return __builtin_cpu_supports("avx512f");
-    case GeluPath::Avx2: return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    case GeluPath::Avx512: return cpu_has_avx512();
+    case GeluPath::Avx2: return cpu_has_avx2_fma();
 #endif
     default: return false;
   }

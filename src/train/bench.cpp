@@ -21,6 +21,7 @@
 #include <stdexcept>
 
 #include "eval/camera_path.h"
+#include "kernels/cpu_features.h"
 #include "kernels/cpu_parallel.h"
 #include "kernels/bf16_gemm.h"
 #include "kernels/block_tail.h"
@@ -408,6 +409,9 @@ nlohmann::json bench_report(const Config& cfg, const BenchOptions& o, const Benc
   const char* coretype = std::getenv("OPENBLAS_CORETYPE");
   j["openblas_coretype"] = coretype ? nlohmann::json(coretype) : nlohmann::json(nullptr);
   j["openblas_core"] = blas_core_name();  // the kernels OpenBLAS runs (kernels/cpu_parallel.h)
+  // The project's CPU kernels' widest form here (kernels/cpu_features.h: the CPU, capped by ABLENERF_CPU_ISA).
+  j["cpu_kernels"] = cpu_has_avx512() ? "avx512" : cpu_has_avx2_fma() ? "avx2" : "baseline";
+  j["cpu_bf16_products"] = cpu_has_bf16_products();
   j["parameters"] = m.parameters;
   j["repetitions"] = {{"warmup", o.warmup}, {"timed", o.steps}, {"statistic", "median"}};
   j["flops_per_ray"] = {{"forward", f_render.forward},

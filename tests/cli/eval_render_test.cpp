@@ -33,21 +33,6 @@ torch::Tensor load_pt(const std::string& path) {
   return torch::pickle_load(std::vector<char>(bytes.begin(), bytes.end())).toTensor();
 }
 
-// Sets an environment variable for the lifetime of the object.
-class ScopedEnv {
- public:
-  ScopedEnv(const char* name, const std::string& value) : name_(name) {
-    if (const char* old = std::getenv(name)) old_ = old, had_ = true;
-    ::setenv(name, value.c_str(), 1);
-  }
-  ~ScopedEnv() { had_ ? ::setenv(name_, old_.c_str(), 1) : ::unsetenv(name_); }
-
- private:
-  const char* name_;
-  std::string old_;
-  bool had_ = false;
-};
-
 }  // namespace
 
 TEST(CliEval, MissingRunExitsTwoWithOneLine) {
@@ -178,7 +163,7 @@ TEST(CliRender, VideoWithoutFfmpegExitsTwoWithOneLine) {
   test::TempDir t;
   test::make_tiny_scene(t / "scene", 2, 1, 8, 8, false);
   test::make_tiny_run(t / "run", t / "scene");
-  ScopedEnv path("PATH", t / "empty_bin");  // no ffmpeg reachable
+  test::ScopedEnv path("PATH", t / "empty_bin");  // no ffmpeg reachable
   const auto r = test::run_cli("render --run " + t / "run" + " --path orbit --frames 2 --out " + t / "v.mp4");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_EQ(count_lines(r.output), 1) << r.output;

@@ -274,3 +274,46 @@ TEST(Cli, BenchRunsBlasKernelsForTheCpusVectorUnits) {
   GTEST_SKIP() << "x86-64 only";
 #endif
 }
+
+// ABLENERF_CPU_ISA caps the project's CPU kernels as a CPU without AVX-512 or AMX would run them,
+// on any CPU: under "baseline" `bench` reports the scalar forms and no bfloat16 products,
+// compute.precision = "bf16" is refused naming the key (exit 2), and training runs the scalar forms
+// to nearly the same model as the widest forms this CPU has (their roundings apart). A value not in
+// the list is refused naming the variable.
+TEST(Cli, CpuIsaCapRunsTheBaselineForms) {
+  test::TempDir t;
+  ASSERT_EQ(test::run_cli("synth --quiet --out " + t / "d" + " --res 8 --train-views 3 --test-views 2").exit_code, 0);
+  const std::string demo = " --config " + test::source_dir() + "/configs/demo.toml";
+  const std::string train = "train --quiet --data " + t / "d" + demo + " --steps 3 --set compute.precision=fp32";
+  test::CommandResult bench, bf16, capped, unknown;
+  {
+    const test::ScopedEnv cap("ABLENERF_CPU_ISA", "baseline");
+    bench = test::run_cli("bench" + demo + " --rays 8 --steps 1 --warmup 0 --matmul 32 --image 8");
+    bf16 = test::run_cli("train --quiet --data " + t / "d" + demo + " --steps 1 --set compute.precision=bf16 --out " +
+                         t / "bf16");
+    capped = test::run_cli(train + " --out " + t / "capped");
+  }
+  {
+    const test::ScopedEnv cap("ABLENERF_CPU_ISA", "sse9");
+    unknown = test::run_cli("info --data " + t / "d");
+  }
+  const auto widest = test::run_cli(train + " --out " + t / "widest");
+  ASSERT_EQ(bench.exit_code, 0) << bench.output;
+  const auto j = nlohmann::json::parse(bench.output.substr(bench.output.find('{')));
+  EXPECT_EQ(j["cpu_kernels"], "baseline");
+  EXPECT_EQ(j["cpu_bf16_products"], false);
+  EXPECT_EQ(bf16.exit_code, 2) << bf16.output;
+  EXPECT_NE(bf16.output.find("compute.precision"), std::string::npos) << bf16.output;
+  EXPECT_EQ(unknown.exit_code, 2) << unknown.output;
+  EXPECT_NE(unknown.output.find("ABLENERF_CPU_ISA"), std::string::npos) << unknown.output;
+  EXPECT_EQ(std::count(unknown.output.begin(), unknown.output.end(), '\n'), 1) << unknown.output;
+  ASSERT_EQ(capped.exit_code, 0) << capped.output;
+  ASSERT_EQ(widest.exit_code, 0) << widest.output;
+  // The same three steps: the held-out PSNR within rounding of each other.
+  const auto psnr = [&](const std::string& run) {
+    const auto r = test::run_cli("eval --quiet --json --run " + t / run);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return nlohmann::json::parse(r.output)["mean"]["psnr"].get<double>();
+  };
+  EXPECT_NEAR(psnr("capped"), psnr("widest"), 0.05);
+}
