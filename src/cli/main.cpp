@@ -77,8 +77,9 @@ int main(int argc, char** argv) {
   }
   try {
     if (!cpu_isa_cap_known())
-      throw InputError(cpu_isa_cap_variable(), "", std::string("must be avx512, avx2 or baseline, got '") +
-                                                      std::getenv(cpu_isa_cap_variable()) + "'");
+      throw InputError(
+          cpu_isa_cap_variable(), "",
+          std::string("must be avx512, avx2 or baseline, got '") + std::getenv(cpu_isa_cap_variable()) + "'");
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);

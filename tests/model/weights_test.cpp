@@ -42,7 +42,8 @@ std::vector<ReleaseEntry> release_map() {
   v.push_back({"view_token.0.weight", "view_token.weight", {192, 27}});
   v.push_back({"view_token.0.bias", "view_token.bias", {192}});
   for (int i = 0; i < 4; ++i) {
-    const std::string rel = "point_embedding." + std::to_string(2 * i), ours = "volume_embedding.linear" + std::to_string(i);
+    const std::string rel = "point_embedding." + std::to_string(2 * i),
+                      ours = "volume_embedding.linear" + std::to_string(i);
     v.push_back({rel + ".weight", ours + ".weight", {192, i == 0 ? 96 : 192}});
     v.push_back({rel + ".bias", ours + ".bias", {192}});
   }
