@@ -9,6 +9,7 @@
 
 #include <cstdlib>
 #include <cstring>
+#include <optional>
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
 #define ABLENERF_HAVE_AVX2_FORM 1
@@ -37,20 +38,20 @@ enum class CpuIsaCap { Baseline, Avx2, Avx512 };
 
 inline const char* cpu_isa_cap_variable() { return "ABLENERF_CPU_ISA"; }
 
-// True when ABLENERF_CPU_ISA is unset, empty or one of the three names.
-inline bool cpu_isa_cap_known() {
+// The cap ABLENERF_CPU_ISA names now: none (Avx512) when unset or empty; nullopt for a value not
+// in the list.
+inline std::optional<CpuIsaCap> cpu_isa_cap_named() {
   const char* v = std::getenv(cpu_isa_cap_variable());
-  return v == nullptr || *v == 0 || std::strcmp(v, "avx512") == 0 || std::strcmp(v, "avx2") == 0 ||
-         std::strcmp(v, "baseline") == 0;
+  if (v == nullptr || *v == 0 || std::strcmp(v, "avx512") == 0) return CpuIsaCap::Avx512;
+  if (std::strcmp(v, "avx2") == 0) return CpuIsaCap::Avx2;
+  if (std::strcmp(v, "baseline") == 0) return CpuIsaCap::Baseline;
+  return std::nullopt;
 }
 
+inline bool cpu_isa_cap_known() { return cpu_isa_cap_named().has_value(); }
+
 inline CpuIsaCap cpu_isa_cap() {
-  static const CpuIsaCap cap = [] {
-    const char* v = std::getenv(cpu_isa_cap_variable());
-    if (v != nullptr && std::strcmp(v, "baseline") == 0) return CpuIsaCap::Baseline;
-    if (v != nullptr && std::strcmp(v, "avx2") == 0) return CpuIsaCap::Avx2;
-    return CpuIsaCap::Avx512;
-  }();
+  static const CpuIsaCap cap = cpu_isa_cap_named().value_or(CpuIsaCap::Avx512);
   return cap;
 }
 

@@ -8,7 +8,6 @@
 
 #include <cmath>
 #include <limits>
-#include <optional>
 #include <sstream>
 #include <utility>
 #include <vector>
@@ -16,6 +15,7 @@
 #include "kernels/cpu_parallel.h"
 #include "kernels/hash_grid.h"
 #include "kernels/table_gradient.h"
+#include "test_util.h"
 #include "train/adam.h"
 
 using namespace ablenerf;
@@ -118,10 +118,7 @@ TEST(Adam, ThreadCountChangesNoBit) {
   int64_t total = 0;
   for (const auto& p : make_params(torch::kFloat)) total += p.numel();
   const auto run = [total](int threads, int64_t* workers) {
-    const int before = at::get_num_threads();
-    at::set_num_threads(threads);
-    std::optional<SingleThreadedBlas> single_blas;
-    if (threads == 1) single_blas.emplace();
+    const test::IntraOpThreads scope(threads);  // 1: OpenBLAS's pool held to one thread too
     *workers = cpu_workers(total, int64_t{1} << 16);
     auto ps = make_params(torch::kFloat);
     Adam adam(ps, 2e-3, false);
@@ -129,8 +126,6 @@ TEST(Adam, ThreadCountChangesNoBit) {
       set_grads(ps, s);
       EXPECT_TRUE(adam.step_host(1.0));
     }
-    single_blas.reset();
-    at::set_num_threads(before);
     return ps;
   };
   int64_t serial = 0, split = 0;
